@@ -1,0 +1,6 @@
+#!/usr/bin/env bash
+# Set up (idempotent) and run the main job: STRinGS vs 3DGS on the embedded synthetic benchmark.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/bootstrap.sh
+exec .venv/bin/strings-bench run --methods strings,3dgs "$@"
