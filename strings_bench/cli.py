@@ -18,6 +18,7 @@ from .errors import StringsBenchError
 # One entry per command module; each defines add_cli(subparsers).
 COMMAND_MODULES = [
     "strings_bench.datasets.cli",
+    "strings_bench.ocr.cli",
 ]
 
 
