@@ -9,13 +9,11 @@
 from __future__ import annotations
 
 import json
-import os
 import threading
 from typing import Any
 
-# ONNX Runtime writes a telemetry id under ~/.cache/Microsoft as soon as it is imported unless this is
-# set first (see strings_bench/ocr/rapid.py and docs/ocr.md).
-os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+# First: ONNX Runtime writes a telemetry id under ~/.cache/Microsoft when imported unless told not to.
+from . import _ort_guard  # noqa: F401  isort: skip
 
 from ..errors import OCRError  # noqa: E402
 from .base import BackendStatus, OCRBackend, Word, apply_mask, load_image, load_mask  # noqa: E402

@@ -6,27 +6,24 @@ from the CTC column positions of the recogniser. We use those (setting word_boxe
 check them: when a line's word texts do not join up to the line text, that line is split instead
 by proportional character positions along the line box (the same as word_boxes="proportional").
 
-ONNX Runtime >= 1.2x writes a telemetry device id and a SQLite file under
-~/.cache/Microsoft/DeveloperTools/.onnxruntime (or $XDG_CACHE_HOME/...) as soon as it is
-*imported*, and may try to upload events. Setting ORT_DISABLE_TELEMETRY=1 before the import stops
-both; `strings_bench.ocr` sets it (unless the user set it) before anything imports onnxruntime.
+ONNX Runtime writes a telemetry id under the home folder when imported unless ORT_DISABLE_TELEMETRY
+is set first; `strings_bench.ocr._ort_guard` sets it (see there and docs/ocr.md).
 """
 
 from __future__ import annotations
 
+import json
 import logging
-import os
-import sys
+import threading
 from typing import Any
 
 import numpy as np
 
 from ..errors import OCRError
+from . import _ort_guard
 from .base import BackendStatus, OCRBackend, Word, _Settings
 
 log = logging.getLogger(__name__)
-
-os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 
 DEFAULTS: dict[str, Any] = {
     "text_score": 0.5,  # drop lines whose recognition score is below this
@@ -38,6 +35,12 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
+# Engines are shared by backends with the same settings (e.g. with different caches): loading the
+# ONNX sessions is the slow part.
+_ENGINES: dict[str, Any] = {}
+_ENGINES_LOCK = threading.Lock()
+
+
 def _rapidocr_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -45,11 +48,6 @@ def _rapidocr_version() -> str:
         return version("rapidocr")
     except PackageNotFoundError:
         return "unknown"
-
-
-def telemetry_guard_ok() -> bool:
-    """False when onnxruntime was imported before ORT_DISABLE_TELEMETRY was set (it then writes under ~)."""
-    return os.environ.get("ORT_DISABLE_TELEMETRY") == "1"
 
 
 def split_line_into_words(text: str, quad: np.ndarray, confidence: float) -> list[Word]:
@@ -104,32 +102,40 @@ class RapidOCRBackend(OCRBackend):
         return BackendStatus(cls.name, True, f"rapidocr {_rapidocr_version()} on onnxruntime {onnxruntime.__version__}")
 
     def _get_engine(self):
-        if self._engine is None:
-            if "onnxruntime" in sys.modules and not telemetry_guard_ok():
-                log.warning(
-                    "onnxruntime was imported before strings_bench.ocr; it may write a telemetry id under "
-                    "~/.cache/Microsoft (set ORT_DISABLE_TELEMETRY=1 in the environment to prevent it)"
-                )
-            try:
-                from rapidocr import RapidOCR
-            except Exception as exc:
-                raise OCRError(
-                    f"RapidOCR cannot be imported: {type(exc).__name__}: {exc}",
-                    hint="pip install rapidocr==3.10.0 onnxruntime",
-                ) from exc
-            s = self.settings
-            params = {
-                "Global.log_level": "error",
-                "Global.text_score": float(s["text_score"]),
-                "Global.use_cls": bool(s["use_cls"]),
-                "Global.max_side_len": int(s["max_side_len"]),
-                "Det.box_thresh": float(s["box_thresh"]),
-                "Det.unclip_ratio": float(s["unclip_ratio"]),
-            }
-            if self.threads:
-                params["EngineConfig.onnxruntime.intra_op_num_threads"] = int(self.threads)
-            self._engine = RapidOCR(params=params)
+        if self._engine is not None:
+            return self._engine
+        memo = json.dumps([self.settings, self.threads], sort_keys=True)
+        with _ENGINES_LOCK:
+            if memo not in _ENGINES:
+                _ENGINES[memo] = self._new_engine()
+            self._engine = _ENGINES[memo]
         return self._engine
+
+    def _new_engine(self):
+        if _ort_guard.imported_unguarded:
+            log.warning(
+                "onnxruntime was imported before strings_bench.ocr; it may write a telemetry id under "
+                "~/.cache/Microsoft (set ORT_DISABLE_TELEMETRY=1 in the environment to prevent it)"
+            )
+        try:
+            from rapidocr import RapidOCR
+        except Exception as exc:
+            raise OCRError(
+                f"RapidOCR cannot be imported: {type(exc).__name__}: {exc}",
+                hint="pip install rapidocr==3.10.0 onnxruntime",
+            ) from exc
+        s = self.settings
+        params = {
+            "Global.log_level": "error",
+            "Global.text_score": float(s["text_score"]),
+            "Global.use_cls": bool(s["use_cls"]),
+            "Global.max_side_len": int(s["max_side_len"]),
+            "Det.box_thresh": float(s["box_thresh"]),
+            "Det.unclip_ratio": float(s["unclip_ratio"]),
+        }
+        if self.threads:
+            params["EngineConfig.onnxruntime.intra_op_num_threads"] = int(self.threads)
+        return RapidOCR(params=params)
 
     @property
     def version(self) -> str:
