@@ -1,0 +1,305 @@
+"""Photos -> a scene folder: structure from motion with pycolmap, undistortion, downscaled copies,
+and text masks from the OCR detector.
+
+Stages (each timed; the summary lists them):
+  resize     copy the photos, upright (EXIF orientation applied) and at most `max_size` px on the
+             long side, so SfM stays fast on a small machine
+  features   SIFT extraction (pycolmap.extract_features), one shared camera when all photos agree
+  matching   exhaustive for small sets, sequential (video-like order) for large ones
+  mapping    incremental SfM; the model with the most registered images is kept
+  undistort  to PINHOLE cameras (pycolmap.undistort_images), the layout every method reads
+  downscale  images_2/, images_4/ at the sizes Scene expects (round(w / f))
+  masks      OCR word polygons filled into masks/<stem>.png (tight; dilated at use time)
+
+The scene is built in a temporary sibling folder and renamed into place at the end, so an
+interrupted run never leaves a half-made scene where `--datasets` would find it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from PIL import Image, ImageOps
+from tqdm import tqdm
+
+from ..errors import DatasetError
+from ..io_utils import atomic_write_json, cache_root
+
+log = logging.getLogger(__name__)
+
+PHOTO_SUFFIXES = {".jpg", ".jpeg", ".png"}
+EXHAUSTIVE_MAX_IMAGES = 80  # exhaustive matching is O(n^2); above this use sequential pairs
+DOWNSCALES = (2, 4)
+
+
+@dataclass
+class PrepareResult:
+    scene_dir: Path
+    num_photos: int
+    num_registered: int
+    num_points: int
+    num_models: int
+    matcher: str
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    num_masks: int | None = None  # None: masks were not made
+    num_masks_with_text: int | None = None
+    unregistered: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        lines = [
+            f"scene {self.scene_dir}",
+            f"  registered {self.num_registered} of {self.num_photos} photos "
+            f"({self.num_models} model(s) found, kept the largest; matcher: {self.matcher})",
+            f"  {self.num_points} sparse points",
+        ]
+        if self.unregistered:
+            shown = ", ".join(self.unregistered[:8]) + (" ..." if len(self.unregistered) > 8 else "")
+            lines.append(f"  not registered (left out of the scene): {shown}")
+        if self.num_masks is not None:
+            lines.append(f"  masks: {self.num_masks} written, {self.num_masks_with_text} with text")
+        else:
+            lines.append("  masks: not made (--no-masks)")
+        total = sum(self.stage_seconds.values())
+        lines.append("  time per stage: " + ", ".join(f"{k} {v:.1f}s" for k, v in self.stage_seconds.items())
+                     + f" (total {total:.1f}s)")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {
+            "scene_dir": str(self.scene_dir),
+            "num_photos": self.num_photos,
+            "num_registered": self.num_registered,
+            "num_points": self.num_points,
+            "num_models": self.num_models,
+            "matcher": self.matcher,
+            "stage_seconds": self.stage_seconds,
+            "num_masks": self.num_masks,
+            "num_masks_with_text": self.num_masks_with_text,
+            "unregistered": self.unregistered,
+        }
+
+
+def list_photos(photos_dir: Path) -> list[Path]:
+    photos_dir = Path(photos_dir)
+    if not photos_dir.is_dir():
+        raise DatasetError(f"photo folder {photos_dir} does not exist", hint="pass the folder that holds your photos")
+    photos = sorted(p for p in photos_dir.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
+    if not photos and (photos_dir / "images").is_dir():
+        return list_photos(photos_dir / "images")
+    if len(photos) < 3:
+        raise DatasetError(
+            f"{photos_dir} holds {len(photos)} photo(s) (.jpg/.jpeg/.png); SfM needs at least 3, better 20+",
+            hint="take overlapping photos walking around the object, then point `prepare` at their folder",
+        )
+    return photos
+
+
+def default_scene_dir(name: str) -> Path:
+    return cache_root() / "scenes" / name
+
+
+def prepare_scene(
+    photos_dir: str | Path,
+    name: str,
+    out: str | Path | None = None,
+    max_size: int = 1600,
+    masks: bool = True,
+    matcher: str = "auto",
+    num_threads: int = -1,
+    overwrite: bool = False,
+    register: bool = True,
+    ocr_backend: str = "rapidocr",
+    max_features: int = 8192,
+    progress: bool = True,
+    echo: Callable[[str], None] = print,
+) -> PrepareResult:
+    """Run the whole photos -> scene pipeline; returns counts and per-stage seconds."""
+    import pycolmap
+
+    photos = list_photos(Path(photos_dir))
+    scene_dir = Path(out) if out is not None else default_scene_dir(name)
+    scene_dir = scene_dir.resolve()
+    if scene_dir.exists():
+        if not overwrite:
+            raise DatasetError(f"{scene_dir} already exists", hint="pass --overwrite to rebuild it, or --out elsewhere")
+    if matcher not in ("auto", "exhaustive", "sequential"):
+        raise DatasetError(f"unknown matcher {matcher!r}", hint="use auto, exhaustive or sequential")
+    if matcher == "auto":
+        matcher = "exhaustive" if len(photos) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
+
+    work = scene_dir.with_name(f".{scene_dir.name}.prepare-tmp")
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    stages: dict[str, float] = {}
+
+    def stage(label: str):
+        echo(f"[{len(stages) + 1}/7] {label} ...")
+        return time.perf_counter()
+
+    try:
+        # 1. resize: upright, bounded copies that SfM and every later stage share.
+        t = stage(f"resize {len(photos)} photos to <= {max_size} px")
+        raw = work / "input"
+        raw.mkdir()
+        for p in tqdm(photos, desc="resize", unit="img", disable=not progress):
+            _write_upright_resized(p, raw / p.name, max_size)
+        stages["resize"] = time.perf_counter() - t
+
+        # 2. features
+        t = stage("extract SIFT features")
+        db = work / "database.db"
+        sizes = {Image.open(raw / p.name).size for p in photos}
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "SIMPLE_RADIAL"
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = num_threads
+        extraction.sift.max_num_features = max_features
+        pycolmap.extract_features(
+            db, raw,
+            camera_mode=pycolmap.CameraMode.SINGLE if len(sizes) == 1 else pycolmap.CameraMode.AUTO,
+            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        )
+        stages["features"] = time.perf_counter() - t
+
+        # 3. matching
+        t = stage(f"match features ({matcher})")
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = num_threads
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+        else:
+            pycolmap.match_sequential(db, matching_options=matching, device=pycolmap.Device.cpu)
+        stages["matching"] = time.perf_counter() - t
+
+        # 4. mapping
+        t = stage("incremental mapping")
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = num_threads
+        maps = pycolmap.incremental_mapping(db, raw, work / "sparse_raw", options=options)
+        stages["mapping"] = time.perf_counter() - t
+        if not maps:
+            raise DatasetError(
+                f"SfM registered no images from {photos_dir}",
+                hint="the photos need overlap and texture: walk around the object taking a photo every few degrees",
+            )
+        best_idx, best = max(maps.items(), key=lambda kv: (kv[1].num_reg_images(), kv[1].num_points3D()))
+        num_registered = best.num_reg_images()
+        registered_names = {im.name for im in best.images.values() if im.has_pose}
+        unregistered = sorted(p.name for p in photos if p.name not in registered_names)
+        best_dir = work / "sparse_raw" / str(best_idx)
+        if not best_dir.is_dir():  # older pycolmap versions write models only on request
+            best_dir.mkdir(parents=True)
+            best.write(str(best_dir))
+
+        # 5. undistort into the final layout
+        t = stage("undistort to pinhole cameras")
+        undist = work / "undistorted"
+        pycolmap.undistort_images(undist, best_dir, raw, output_type="COLMAP")
+        scene_tmp = work / "scene"
+        scene_tmp.mkdir()
+        os.replace(undist / "images", scene_tmp / "images")
+        (scene_tmp / "sparse").mkdir()
+        model_src = undist / "sparse"
+        if (model_src / "0").is_dir():
+            model_src = model_src / "0"
+        os.replace(model_src, scene_tmp / "sparse" / "0")
+        stages["undistort"] = time.perf_counter() - t
+
+        # 6. downscaled copies at the sizes Scene.image_path expects
+        t = stage("write images_2/ and images_4/")
+        images = sorted((scene_tmp / "images").iterdir())
+        for f in DOWNSCALES:
+            d = scene_tmp / f"images_{f}"
+            d.mkdir()
+            for p in tqdm(images, desc=f"images_{f}", unit="img", disable=not progress):
+                with Image.open(p) as im:
+                    w, h = im.size
+                    size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
+                    _save_like(im.convert("RGB").resize(size, Image.Resampling.LANCZOS), d / p.name)
+        stages["downscale"] = time.perf_counter() - t
+
+        # 7. text masks
+        num_masks = num_text = None
+        if masks:
+            t = stage(f"text masks from OCR ({ocr_backend})")
+            num_masks, num_text = write_text_masks(scene_tmp / "images", scene_tmp / "masks", ocr_backend, progress)
+            stages["masks"] = time.perf_counter() - t
+
+        rec = pycolmap.Reconstruction(str(scene_tmp / "sparse" / "0"))
+        result = PrepareResult(
+            scene_dir=scene_dir, num_photos=len(photos), num_registered=num_registered,
+            num_points=rec.num_points3D(), num_models=len(maps), matcher=matcher, stage_seconds=stages,
+            num_masks=num_masks, num_masks_with_text=num_text, unregistered=unregistered,
+        )
+        atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(Path(photos_dir).resolve()),
+                                                       "max_size": max_size})
+        if scene_dir.exists():
+            shutil.rmtree(scene_dir)
+        scene_dir.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(scene_tmp, scene_dir)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    if register:
+        from .registry import read_index, write_index
+
+        index = read_index()
+        index[name] = str(scene_dir)
+        write_index(index)
+        from .cards import register_local_copies
+
+        register_local_copies()
+    return result
+
+
+def _save_like(im: Image.Image, dest: Path) -> None:
+    if dest.suffix.lower() in (".jpg", ".jpeg"):
+        im.save(dest, quality=95)
+    else:
+        im.save(dest)
+
+
+def _write_upright_resized(src: Path, dest: Path, max_size: int) -> None:
+    try:
+        with Image.open(src) as im:
+            # Phones store pixels sideways plus an EXIF flag; SfM and OCR both want upright pixels.
+            im = ImageOps.exif_transpose(im).convert("RGB")
+            w, h = im.size
+            scale = max_size / max(w, h) if max_size and max_size > 0 else 1.0
+            if scale < 1.0:
+                im = im.resize((max(1, round(w * scale)), max(1, round(h * scale))), Image.Resampling.LANCZOS)
+            _save_like(im, dest)
+    except OSError as exc:
+        raise DatasetError(f"cannot read photo {src}: {exc}", hint="remove or replace the corrupt file") from exc
+
+
+# ---- text masks -----------------------------------------------------------------------------
+def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr", progress: bool = True) -> tuple[int, int]:
+    """One PNG per image, white inside the word polygons the OCR detector finds.
+
+    The masks are tight (filled polygons, not dilated): strings_bench.masks dilates them at use
+    time with the chosen kernel (paper 5 % of the width), exactly as it does for Hi-SAM masks.
+    Returns (masks written, masks with any text).
+    """
+    from ..masks import fill_polygons
+    from ..ocr import get_backend
+
+    ocr = get_backend(backend)
+    masks_dir.mkdir(parents=True, exist_ok=True)
+    written = with_text = 0
+    for p in tqdm(sorted(images_dir.iterdir()), desc="masks", unit="img", disable=not progress):
+        with Image.open(p) as im:
+            arr = np.asarray(im.convert("RGB"))
+        words = ocr.read(arr)
+        mask = fill_polygons([wd.polygon for wd in words], arr.shape[:2])
+        Image.fromarray((mask * 255).astype(np.uint8)).save(masks_dir / f"{p.stem}.png")
+        written += 1
+        with_text += int(mask.any())
+    return written, with_text
