@@ -48,6 +48,7 @@ class SceneReport:
     name: str = ""
     problems: list[Problem] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    found: bool = True  # False: the scene folder of a card is not in the copy at all
 
     @property
     def ok(self) -> bool:
@@ -381,7 +382,7 @@ def check_card_copy(dataset_id: str, root: str | Path) -> list[SceneReport]:
         try:
             folder = find_scene_folder(Path(root), sc.name, card.id)
         except DatasetError as exc:
-            rep = SceneReport(path=Path(root) / sc.name, name=f"{card.id}/{sc.name}")
+            rep = SceneReport(path=Path(root) / sc.name, name=f"{card.id}/{sc.name}", found=False)
             rep.add(ERROR, Path(root) / sc.name, exc.message, exc.hint or "")
             reports.append(rep)
             continue

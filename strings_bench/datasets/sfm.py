@@ -139,8 +139,10 @@ def prepare_scene(
     work.mkdir(parents=True)
     stages: dict[str, float] = {}
 
+    n_stages = 7 if masks else 6
+
     def stage(label: str):
-        echo(f"[{len(stages) + 1}/7] {label} ...")
+        echo(f"[{len(stages) + 1}/{n_stages}] {label} ...")
         return time.perf_counter()
 
     try:

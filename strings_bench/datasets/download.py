@@ -1,0 +1,247 @@
+"""Fetch datasets that have a direct URL, and unpack archives safely.
+
+- `download_file`: resumable (a `.part` file next to the target, continued with an HTTP Range
+  request; a server that ignores Range restarts the transfer from zero), verified with sha256
+  when the card knows the hash (otherwise the computed hash is printed and the file is reported
+  as unverified), with a progress bar. The target appears only when complete and verified.
+- `safe_extract`: zip and tar. Every member is checked before anything is written: absolute
+  paths, `..` components, drive letters, links (symbolic and hard) and special files are refused.
+  Extraction goes into a temporary sibling folder that is renamed onto the target at the end.
+- `download_dataset`: for a card with a URL, download + extract + register; for data behind a
+  browser or an account (Google Drive, the gated DL3DV set) print the exact steps instead.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import tarfile
+import urllib.error
+import urllib.request
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Callable
+
+from tqdm import tqdm
+
+from ..errors import DatasetError, StringsBenchError
+from ..io_utils import cache_root, sha256_file
+
+CHUNK = 1 << 20
+USER_AGENT = "strings-bench-downloader"
+
+
+class DownloadError(StringsBenchError):
+    """A transfer failed or its content does not match the expected hash."""
+
+
+class UnsafeArchiveError(DatasetError):
+    """An archive member would land outside the target folder, or is a link/special file."""
+
+
+@dataclass
+class DownloadResult:
+    path: Path
+    sha256: str
+    verified: bool  # False when no expected hash was known
+    resumed_from: int  # bytes already present in the .part file when this call started
+
+
+def download_file(url: str, dest: str | Path, sha256: str | None = None, progress: bool = True,
+                  timeout: float = 60.0, echo: Callable[[str], None] = print) -> DownloadResult:
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    if dest.exists():
+        digest = sha256_file(dest)
+        if sha256 and digest != sha256.lower():
+            raise DownloadError(f"{dest} exists but its sha256 is {digest}, expected {sha256}",
+                                hint=f"delete {dest} and download again")
+        return DownloadResult(dest, digest, bool(sha256), dest.stat().st_size)
+
+    part = dest.with_name(dest.name + ".part")
+    have = part.stat().st_size if part.exists() else 0
+    headers = {"User-Agent": USER_AGENT}
+    if have:
+        headers["Range"] = f"bytes={have}-"
+    req = urllib.request.Request(url, headers=headers)
+    try:
+        resp = urllib.request.urlopen(req, timeout=timeout)
+    except urllib.error.HTTPError as exc:
+        if exc.code == 416 and have:
+            # Range not satisfiable: the .part already holds the whole file; verify it below.
+            resp = None
+        else:
+            raise DownloadError(f"download of {url} failed: HTTP {exc.code} {exc.reason}",
+                                hint="check the URL or your network; re-run to resume") from exc
+    except (urllib.error.URLError, OSError) as exc:
+        raise DownloadError(f"cannot reach {url}: {exc}", hint="check your network; re-run to resume") from exc
+
+    resumed_from = have
+    if resp is not None:
+        with resp:
+            status = getattr(resp, "status", 200)
+            if have and status != 206:
+                # The server ignored Range: start over rather than append a second copy.
+                echo(f"server does not support resuming; restarting {dest.name} from the beginning")
+                have = resumed_from = 0
+            length = resp.headers.get("Content-Length")
+            total = have + int(length) if length is not None else None
+            mode = "ab" if have else "wb"
+            with open(part, mode) as f, tqdm(total=total, initial=have, unit="B", unit_scale=True,
+                                             desc=dest.name, disable=not progress) as bar:
+                try:
+                    while block := resp.read(CHUNK):
+                        f.write(block)
+                        bar.update(len(block))
+                except (OSError, urllib.error.URLError) as exc:
+                    raise DownloadError(f"the transfer of {url} broke off after {part.stat().st_size} bytes: {exc}",
+                                        hint="re-run the same command: it resumes from the .part file") from exc
+            if total is not None and part.stat().st_size < total:
+                raise DownloadError(f"the transfer of {url} ended early ({part.stat().st_size} of {total} bytes)",
+                                    hint="re-run the same command: it resumes from the .part file")
+
+    digest = sha256_file(part)
+    if sha256:
+        if digest != sha256.lower():
+            bad = part.with_name(part.name + ".bad")
+            os.replace(part, bad)
+            raise DownloadError(
+                f"sha256 mismatch for {url}: got {digest}, expected {sha256.lower()} (kept as {bad})",
+                hint="the file is damaged or changed upstream; delete it and download again, or check the card's hash",
+            )
+    else:
+        echo(f"sha256 of {dest.name}: {digest} (no published hash: the download could not be verified)")
+    os.replace(part, dest)
+    return DownloadResult(dest, digest, bool(sha256), resumed_from)
+
+
+# ---- safe extraction --------------------------------------------------------------------------
+def _checked_member_path(name: str, archive: Path) -> PurePosixPath:
+    norm = name.replace("\\", "/")
+    p = PurePosixPath(norm)
+    if norm.startswith("/") or p.is_absolute() or (len(norm) > 1 and norm[1] == ":"):
+        raise UnsafeArchiveError(f"{archive} holds a member with an absolute path: {name!r}",
+                                 hint="refusing to extract an archive that writes outside its folder; get it from the official source")
+    if ".." in p.parts:
+        raise UnsafeArchiveError(f"{archive} holds a member that escapes the target folder: {name!r}",
+                                 hint="refusing to extract an archive with '..' paths; get it from the official source")
+    return p
+
+
+def _zip_is_link_or_special(info: zipfile.ZipInfo) -> bool:
+    # Unix zips keep st_mode in the high 16 bits; many writers leave the file-type bits at 0.
+    file_type = stat.S_IFMT(info.external_attr >> 16)
+    return file_type not in (0, stat.S_IFREG, stat.S_IFDIR)
+
+
+def safe_extract(archive: str | Path, target: str | Path, progress: bool = True) -> Path:
+    """Extract a .zip or .tar(.gz/.bz2/.xz) into `target` (which must not exist yet)."""
+    archive, target = Path(archive), Path(target)
+    if target.exists():
+        raise DatasetError(f"{target} already exists", hint="delete it or choose another folder")
+    tmp = target.with_name(f".{target.name}.extract-tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        if zipfile.is_zipfile(archive):
+            with zipfile.ZipFile(archive) as zf:
+                infos = zf.infolist()
+                for info in infos:  # validate everything before writing anything
+                    _checked_member_path(info.filename, archive)
+                    if _zip_is_link_or_special(info):
+                        raise UnsafeArchiveError(f"{archive} holds a link or special file: {info.filename!r}",
+                                                 hint="refusing to extract links; get the archive from the official source")
+                for info in tqdm(infos, desc=f"extract {archive.name}", unit="file", disable=not progress):
+                    rel = _checked_member_path(info.filename, archive)
+                    out = tmp.joinpath(*rel.parts)
+                    if info.is_dir():
+                        out.mkdir(parents=True, exist_ok=True)
+                        continue
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    with zf.open(info) as src, open(out, "wb") as dst:
+                        shutil.copyfileobj(src, dst, CHUNK)
+        elif tarfile.is_tarfile(archive):
+            with tarfile.open(archive) as tf:
+                members = tf.getmembers()
+                for m in members:
+                    _checked_member_path(m.name, archive)
+                    if m.issym() or m.islnk():
+                        raise UnsafeArchiveError(f"{archive} holds a link: {m.name!r} -> {m.linkname!r}",
+                                                 hint="refusing to extract links; get the archive from the official source")
+                    if not (m.isfile() or m.isdir()):
+                        raise UnsafeArchiveError(f"{archive} holds a special file (device/fifo): {m.name!r}",
+                                                 hint="refusing to extract special files")
+                for m in tqdm(members, desc=f"extract {archive.name}", unit="file", disable=not progress):
+                    rel = _checked_member_path(m.name, archive)
+                    out = tmp.joinpath(*rel.parts)
+                    if m.isdir():
+                        out.mkdir(parents=True, exist_ok=True)
+                        continue
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    src = tf.extractfile(m)
+                    with src, open(out, "wb") as dst:
+                        shutil.copyfileobj(src, dst, CHUNK)
+        else:
+            raise DatasetError(f"{archive} is neither a zip nor a tar archive", hint="the download may be damaged; delete it and retry")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+# ---- datasets ---------------------------------------------------------------------------------
+def download_steps(card) -> list[str]:
+    info = card.download or {}
+    return list(info.get("steps", []))
+
+
+def download_dataset(dataset_id: str, dest: str | Path | None = None, progress: bool = True,
+                     register: bool = True, echo: Callable[[str], None] = print) -> Path | None:
+    """Download and register a dataset with a direct URL; print the steps for the others.
+
+    Returns the registered root, or None when the data needs manual steps.
+    """
+    from .registry import get_dataset, read_index, write_index
+
+    card = get_dataset(dataset_id)
+    info = card.download or {}
+    if not info.get("url"):
+        steps = download_steps(card)
+        echo(f"{card.title}\n  source: {card.source}\n  licence: {card.licence}")
+        if not steps:
+            echo("  no download is known for this dataset; see its source above")
+            return None
+        echo("  This dataset cannot be fetched automatically (it needs a browser or an account). Steps:")
+        for i, step in enumerate(steps, 1):
+            echo(f"  {i}. {step}")
+        return None
+
+    echo(f"{card.title}\n  source: {card.source}\n  licence: {card.licence} -- by downloading you accept it")
+    downloads = cache_root() / "downloads"
+    archive = downloads / info.get("filename", Path(info["url"]).name)
+    download_file(info["url"], archive, sha256=info.get("sha256"), progress=progress, echo=echo)
+    dest = Path(dest) if dest is not None else cache_root() / "datasets" / card.id
+    extracted = dest  # the archive's content; the dataset root may be a subfolder of it
+    if not extracted.exists():
+        safe_extract(archive, extracted, progress=progress)
+    root = extracted
+    if info.get("archive_subdir"):
+        sub = extracted / info["archive_subdir"]
+        if not sub.is_dir():
+            raise DatasetError(f"{archive} did not contain the folder {info['archive_subdir']}/",
+                               hint="the upstream archive changed; report it")
+        root = sub
+    if register:
+        from .check import check_card_copy, format_reports
+
+        reports = check_card_copy(card.id, root)
+        echo(format_reports(reports))
+        index = read_index()
+        index[card.id] = str(root.resolve())
+        write_index(index)
+        echo(f"registered {card.id} -> {root}")
+    return root

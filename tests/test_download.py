@@ -1,0 +1,244 @@
+"""Downloader and safe extraction against a local HTTP server (127.0.0.1, Range support)."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import tarfile
+import threading
+import zipfile
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import pytest
+
+from strings_bench.datasets.download import (
+    DownloadError,
+    UnsafeArchiveError,
+    download_file,
+    safe_extract,
+)
+
+
+class RangeHandler(SimpleHTTPRequestHandler):
+    """Serves files from a folder; honours `Range: bytes=N-` with 206, like real servers.
+
+    Class switches for the tests: `ignore_range` answers 200 with the whole file; `cut_after`
+    sends only that many bytes of the body then closes (a truncated transfer).
+    """
+
+    ignore_range = False
+    cut_after: int | None = None
+    requests: list[dict] = []
+
+    def log_message(self, *args):  # keep test output clean
+        pass
+
+    def do_GET(self):
+        path = Path(self.translate_path(self.path))
+        if not path.is_file():
+            self.send_error(404)
+            return
+        data = path.read_bytes()
+        rng = self.headers.get("Range")
+        type(self).requests.append({"path": self.path, "range": rng})
+        start = 0
+        if rng and not self.ignore_range:
+            start = int(rng.split("=")[1].split("-")[0])
+            if start >= len(data):
+                self.send_response(416)
+                self.send_header("Content-Range", f"bytes */{len(data)}")
+                self.end_headers()
+                return
+            self.send_response(206)
+            self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
+        else:
+            self.send_response(200)
+        body = data[start:]
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Content-Type", "application/octet-stream")
+        self.end_headers()
+        if self.cut_after is not None:
+            self.wfile.write(body[: self.cut_after])
+            self.wfile.flush()
+            self.close_connection = True
+            return
+        self.wfile.write(body)
+
+
+@pytest.fixture
+def server(tmp_path):
+    root = tmp_path / "served"
+    root.mkdir()
+    handler = type("H", (RangeHandler,), {"ignore_range": False, "cut_after": None, "requests": []})
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), partial(handler, directory=str(root)))
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield root, f"http://127.0.0.1:{httpd.server_address[1]}", handler
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+
+
+def _payload(n=300_000, seed=1):
+    import numpy as np
+
+    return np.random.default_rng(seed).integers(0, 256, n, dtype=np.uint8).tobytes()
+
+
+def test_download_verifies_sha256(server, tmp_path):
+    root, url, _ = server
+    data = _payload()
+    (root / "a.bin").write_bytes(data)
+    res = download_file(f"{url}/a.bin", tmp_path / "out" / "a.bin", sha256=hashlib.sha256(data).hexdigest(),
+                        progress=False, echo=lambda s: None)
+    assert res.verified and res.path.read_bytes() == data and res.resumed_from == 0
+    assert not (tmp_path / "out" / "a.bin.part").exists()
+
+
+def test_download_without_hash_prints_computed_hash(server, tmp_path):
+    root, url, _ = server
+    data = _payload(5000)
+    (root / "b.bin").write_bytes(data)
+    said = []
+    res = download_file(f"{url}/b.bin", tmp_path / "b.bin", sha256=None, progress=False, echo=said.append)
+    assert not res.verified
+    assert any(hashlib.sha256(data).hexdigest() in s and "could not be verified" in s for s in said)
+
+
+def test_sha256_mismatch_is_an_error_and_leaves_no_target(server, tmp_path):
+    root, url, _ = server
+    (root / "c.bin").write_bytes(_payload(1000))
+    with pytest.raises(DownloadError, match="sha256 mismatch"):
+        download_file(f"{url}/c.bin", tmp_path / "c.bin", sha256="0" * 64, progress=False, echo=lambda s: None)
+    assert not (tmp_path / "c.bin").exists()
+
+
+def test_resume_after_truncated_transfer(server, tmp_path):
+    root, url, handler = server
+    data = _payload()
+    (root / "d.bin").write_bytes(data)
+    digest = hashlib.sha256(data).hexdigest()
+    handler.cut_after = 100_000
+    with pytest.raises(DownloadError, match="resume"):
+        download_file(f"{url}/d.bin", tmp_path / "d.bin", sha256=digest, progress=False, echo=lambda s: None)
+    part = tmp_path / "d.bin.part"
+    assert part.stat().st_size == 100_000 and not (tmp_path / "d.bin").exists()
+    handler.cut_after = None
+    res = download_file(f"{url}/d.bin", tmp_path / "d.bin", sha256=digest, progress=False, echo=lambda s: None)
+    assert res.resumed_from == 100_000 and res.verified
+    assert (tmp_path / "d.bin").read_bytes() == data
+    assert handler.requests[-1]["range"] == "bytes=100000-"
+
+
+def test_server_ignoring_range_restarts_cleanly(server, tmp_path):
+    root, url, handler = server
+    data = _payload()
+    (root / "e.bin").write_bytes(data)
+    (tmp_path / "e.bin.part").write_bytes(data[:1234])
+    handler.ignore_range = True
+    res = download_file(f"{url}/e.bin", tmp_path / "e.bin", sha256=hashlib.sha256(data).hexdigest(),
+                        progress=False, echo=lambda s: None)
+    assert res.resumed_from == 0 and (tmp_path / "e.bin").read_bytes() == data
+
+
+def test_complete_part_file_and_416(server, tmp_path):
+    root, url, _ = server
+    data = _payload(2000)
+    (root / "f.bin").write_bytes(data)
+    (tmp_path / "f.bin.part").write_bytes(data)
+    res = download_file(f"{url}/f.bin", tmp_path / "f.bin", sha256=hashlib.sha256(data).hexdigest(),
+                        progress=False, echo=lambda s: None)
+    assert res.path.read_bytes() == data
+
+
+def test_http_404_is_a_clear_error(server, tmp_path):
+    _, url, _ = server
+    with pytest.raises(DownloadError, match="HTTP 404"):
+        download_file(f"{url}/missing.zip", tmp_path / "m.zip", progress=False, echo=lambda s: None)
+
+
+# ---- archives -------------------------------------------------------------------------------
+def _zip(path: Path, members: dict[str, bytes]) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return path
+
+
+def _tar(path: Path, members: list[tarfile.TarInfo | tuple[str, bytes]]) -> Path:
+    with tarfile.open(path, "w:gz") as tf:
+        for m in members:
+            if isinstance(m, tarfile.TarInfo):
+                tf.addfile(m)
+            else:
+                info = tarfile.TarInfo(m[0])
+                info.size = len(m[1])
+                tf.addfile(info, io.BytesIO(m[1]))
+    return path
+
+
+def _symlink_zip(path: Path) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        info = zipfile.ZipInfo("scene/link")
+        info.external_attr = (0o120777 << 16)  # S_IFLNK
+        zf.writestr(info, "/etc/passwd")
+    return path
+
+
+def test_download_and_extract_good_archives(server, tmp_path):
+    root, url, _ = server
+    _zip(root / "good.zip", {"tandt/truck/images/a.jpg": b"x", "tandt/truck/sparse/0/cameras.bin": b"y"})
+    _tar(root / "good.tar.gz", [("scene/images/a.jpg", b"x"), ("scene/sparse/0/points3D.bin", b"z")])
+    for name, probe in (("good.zip", "tandt/truck/images/a.jpg"), ("good.tar.gz", "scene/sparse/0/points3D.bin")):
+        res = download_file(f"{url}/{name}", tmp_path / "dl" / name, progress=False, echo=lambda s: None)
+        out = safe_extract(res.path, tmp_path / f"x_{name}", progress=False)
+        assert (out / probe).is_file()
+        assert not any(p.name.endswith("extract-tmp") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("kind", ["zip_slip", "zip_absolute", "zip_symlink", "tar_slip", "tar_absolute",
+                                  "tar_symlink", "tar_hardlink", "tar_device"])
+def test_malicious_archives_are_refused(server, tmp_path, kind):
+    root, url, _ = server
+    outside = tmp_path / "evil"
+    if kind == "zip_slip":
+        arc = _zip(root / "a.zip", {"ok.txt": b"fine", "../evil": b"pwned"})
+    elif kind == "zip_absolute":
+        arc = _zip(root / "a.zip", {"ok.txt": b"fine", str(outside): b"pwned"})
+    elif kind == "zip_symlink":
+        arc = _symlink_zip(root / "a.zip")
+    else:
+        members: list = [("ok.txt", b"fine")]
+        if kind == "tar_slip":
+            members.append(("../evil", b"pwned"))
+        elif kind == "tar_absolute":
+            members.append((str(outside), b"pwned"))
+        else:
+            info = tarfile.TarInfo("link")
+            if kind == "tar_symlink":
+                info.type, info.linkname = tarfile.SYMTYPE, "/etc/passwd"
+            elif kind == "tar_hardlink":
+                info.type, info.linkname = tarfile.LNKTYPE, "ok.txt"
+            else:
+                info.type = tarfile.CHRTYPE
+            members.append(info)
+        arc = _tar(root / "a.tar.gz", members)
+    got = download_file(f"{url}/{arc.name}", tmp_path / "dl" / arc.name, progress=False, echo=lambda s: None)
+    target = tmp_path / "work" / "target"
+    with pytest.raises(UnsafeArchiveError):
+        safe_extract(got.path, target, progress=False)
+    # Nothing was written: not the target, not the temp folder, not the escape destination.
+    assert not target.exists()
+    assert not outside.exists() and not (tmp_path / "work" / "evil").exists()
+    assert not (tmp_path / "work").exists() or not os.listdir(tmp_path / "work")
+
+
+def test_extract_refuses_existing_target(tmp_path):
+    arc = _zip(tmp_path / "a.zip", {"x": b"1"})
+    (tmp_path / "t").mkdir()
+    with pytest.raises(Exception, match="already exists"):
+        safe_extract(arc, tmp_path / "t", progress=False)
