@@ -1,0 +1,95 @@
+"""Photometric losses: L1 and a differentiable SSIM (3DGS: 11x11 Gaussian window, sigma 1.5).
+
+Images are (H, W, C) or (B, C, H, W) tensors in [0, 1]. SSIM borders:
+- padding="same" (training default, as 3DGS): the local statistics are computed with the window
+  zero-padded at the border, giving an SSIM map the size of the image; its mean is the loss term.
+- padding="valid": only positions where the whole window fits; the mean over those positions equals
+  skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+  data_range=1), which crops the same 5-pixel border (tests/test_losses.py checks this).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import torch
+import torch.nn.functional as F
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01 ** 2
+SSIM_C2 = 0.03 ** 2
+
+
+def l1_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (pred - target).abs().mean()
+
+
+@lru_cache(maxsize=8)
+def _gaussian_1d(size: int, sigma: float, dtype: torch.dtype, device: str) -> torch.Tensor:
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
+    return (g / g.sum()).to(dtype=dtype, device=device)
+
+
+def _to_bchw(img: torch.Tensor) -> torch.Tensor:
+    if img.ndim == 3:  # (H, W, C)
+        return img.permute(2, 0, 1)[None]
+    if img.ndim == 4:
+        return img
+    if img.ndim == 2:
+        return img[None, None]
+    raise ValueError(f"expected an (H, W, C) or (B, C, H, W) image, got shape {tuple(img.shape)}")
+
+
+def _filter(x: torch.Tensor, g: torch.Tensor, pad: int) -> torch.Tensor:
+    """Separable Gaussian filter per channel (depthwise), zero padding `pad`."""
+    c = x.shape[1]
+    k = g.numel()
+    x = F.conv2d(x, g.view(1, 1, k, 1).expand(c, 1, k, 1), padding=(pad, 0), groups=c)
+    return F.conv2d(x, g.view(1, 1, 1, k).expand(c, 1, 1, k), padding=(0, pad), groups=c)
+
+
+def ssim_map(img1: torch.Tensor, img2: torch.Tensor, window: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA,
+             padding: str = "same", c1: float = SSIM_C1, c2: float = SSIM_C2) -> torch.Tensor:
+    """Per-pixel SSIM (B, C, H', W')."""
+    x, y = _to_bchw(img1), _to_bchw(img2)
+    if x.shape != y.shape:
+        raise ValueError(f"SSIM of images with different shapes {tuple(x.shape)} and {tuple(y.shape)}")
+    if padding not in ("same", "valid"):
+        raise ValueError(f"padding must be 'same' or 'valid', not {padding!r}")
+    pad = window // 2 if padding == "same" else 0
+    g = _gaussian_1d(window, float(sigma), x.dtype, str(x.device))
+    mu_x, mu_y = _filter(x, g, pad), _filter(y, g, pad)
+    sxx = _filter(x * x, g, pad) - mu_x * mu_x
+    syy = _filter(y * y, g, pad) - mu_y * mu_y
+    sxy = _filter(x * y, g, pad) - mu_x * mu_y
+    num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
+    den = (mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2)
+    return num / den
+
+
+def ssim(img1: torch.Tensor, img2: torch.Tensor, padding: str = "same", **kw) -> torch.Tensor:
+    return ssim_map(img1, img2, padding=padding, **kw).mean()
+
+
+def gs_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:
+    """3DGS photometric loss: (1 - lambda) L1 + lambda (1 - SSIM)."""
+    loss = l1_loss(pred, target)
+    if lambda_dssim:
+        loss = (1 - lambda_dssim) * loss + lambda_dssim * (1 - ssim(pred, target))
+    return loss
+
+
+def masked_l1(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """STRinGS phase-1 loss: L1 of (render x mask) vs (image x mask), mean over the whole image."""
+    m = mask.to(pred.dtype)
+    if m.ndim == pred.ndim - 1:
+        m = m[..., None]
+    return (pred * m - target * m).abs().mean()
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    mse = float(((pred - target) ** 2).mean())
+    return float("inf") if mse == 0 else -10 * math.log10(mse)
