@@ -245,9 +245,13 @@ def image_cer(
     pred_centres = [_mean_xy(w) for w in pred]
     total = 0
     comps: list[ComponentMatch] = []
-    for label in np.unique(labels[:n]):  # components holding at least one GT word
-        g_idx = [i for i in range(n) if labels[i] == label]
-        p_idx = [j for j in range(m) if labels[n + j] == label]
+    members: dict[int, tuple[list[int], list[int]]] = {}
+    for i in range(n):
+        members.setdefault(int(labels[i]), ([], []))[0].append(i)
+    for j in range(m):
+        if int(labels[n + j]) in members:  # predicted words outside GT components cost nothing
+            members[int(labels[n + j])][1].append(j)
+    for g_idx, p_idx in members.values():  # components holding at least one GT word
         best: tuple[int, str, str] | None = None
         for g_axis in (0, 1):
             g_sorted = sorted(g_idx, key=lambda i: (gt_centres[i][g_axis], i))

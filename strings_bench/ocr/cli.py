@@ -70,9 +70,10 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print(f"\nsample: {image.shape[1]}x{image.shape[0]} px, known words: {' '.join(w.text for w in known)}")
     rc = 0
     for name in names:
-        backend = get_backend(name, cache=False)
-        print(f"\n[{backend.name}] {backend.version}")
+        print(f"\n[{name}]")
         try:
+            backend = get_backend(name, cache=False)
+            print(f"  version: {backend.version}")
             t0 = time.perf_counter()
             backend.read(image)
             t1 = time.perf_counter()
