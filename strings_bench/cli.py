@@ -19,6 +19,7 @@ from .errors import StringsBenchError
 COMMAND_MODULES = [
     "strings_bench.datasets.cli",
     "strings_bench.ocr.cli",
+    "strings_bench.run_cli",
 ]
 
 

@@ -164,7 +164,7 @@ class LPIPSVGG:
 
     @staticmethod
     def _to_tensor(img) -> torch.Tensor:
-        t = torch.as_tensor(np.asarray(img, dtype=np.float32))
+        t = torch.from_numpy(np.array(img, dtype=np.float32))  # copy: inputs may be read-only
         if t.ndim == 3:
             t = t.unsqueeze(0)
         if t.ndim != 4 or t.shape[-1] != 3:

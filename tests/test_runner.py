@@ -1,0 +1,222 @@
+"""Runner: cells, resume after interruption, results.csv, executor seam, adapters and entry points."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import runner_fakes as rf
+from strings_bench import runner
+from strings_bench.errors import StringsBenchError
+from strings_bench.methods.registry import MethodSpec, register_method
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    rf.register_fakes()
+    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
+
+
+@pytest.fixture(autouse=True)
+def _reset_calls():
+    rf.CALLS["train"].clear()
+    rf.CALLS["yield"].clear()
+    rf.register_fakes()
+
+
+def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, **kw):
+    return runner.run(list(methods), [str(scene_dir)], run_dir=out, preset="tiny", ocr="fake",
+                      ocr_backend=ocr or rf.FakeOCR(), with_lpips=kw.pop("with_lpips", False), progress=False, **kw)
+
+
+def _rows(out):
+    with open(Path(out) / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_cells_and_results_csv(tmp_path, scene_dir):
+    out = tmp_path / "run"
+    _run(out, scene_dir, with_lpips=True)
+    rows = _rows(out)
+    its = runner.PRESETS["tiny"].checkpoints()
+    assert its == [15, 35, 150]
+    assert len(rows) == 2 * len(its)
+    required = {"method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
+                "train_seconds", "gaussians", "ocr_failed", "gt_empty_ignored"}
+    assert required <= set(rows[0])
+    assert [r["label"] for r in rows if r["method"] == "fake-a"] == ["3K", "7K", "30K"]
+    by = {(r["method"], int(r["iteration"])): r for r in rows}
+    # fake-a at its last checkpoint renders the ground truth exactly.
+    final = by[("fake-a", 150)]
+    assert final["psnr"] == "inf" or float(final["psnr"]) > 50
+    assert float(final["ssim"]) == pytest.approx(1.0, abs=1e-6)
+    assert float(final["lpips"]) == pytest.approx(0.0, abs=1e-6) or final["lpips"] == ""
+    assert float(final["cer"]) == 0.0 and float(final["cer_known"]) == 0.0
+    # fake-b's first checkpoint is faded: FakeOCR reads "hallo" -> 1 error in 5 characters.
+    assert float(by[("fake-b", 15)]["cer"]) == pytest.approx(0.2)
+    assert float(by[("fake-b", 15)]["cer_known"]) == pytest.approx(0.2)
+    assert int(by[("fake-b", 15)]["gaussians"]) == 1000
+    # Cell contents: config, OCR words for GT and render, renders on disk.
+    cell = runner.CellKey("fake-b", "toyset", "toy", 15).path(out)
+    rec = json.loads((cell / "result.json").read_text())
+    assert rec["config"]["preset"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
+    v = rec["ocr"]["views"]["view_00.png"]
+    assert v["gt_words"][0]["text"] == "hello" and v["render_words"][0]["text"] == "hallo"
+    assert v["mask"] == "dilated text mask"
+    assert rec["ocr"]["backend"]["name"] == "fake"
+    assert sorted(p.name for p in (cell / "renders").iterdir()) == ["view_00.png", "view_08.png"]
+    assert (out / "gt" / "toyset" / "toy" / "view_00.png").exists()
+    # PSNR in the cell equals an independent computation from the saved render and GT images.
+    from PIL import Image
+
+    r = np.asarray(Image.open(cell / "renders" / "view_08.png"), dtype=np.float64) / 255
+    from strings_bench.scene import Scene
+
+    g = Scene.load(scene_dir).load_image(8).astype(np.float64)
+    mse = np.mean((r - g) ** 2)
+    assert rec["metrics"]["per_view"]["view_08.png"]["psnr"] == pytest.approx(-10 * math.log10(mse), abs=0.05)
+    assert (out / "report" / "report.md").exists()
+
+
+def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):
+    out = tmp_path / "run"
+    # First run: fake-a finishes; fake-b is interrupted after its first checkpoint.
+    register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=1, **s)))
+    with pytest.raises(KeyboardInterrupt):
+        _run(out, scene_dir)
+    rows = _rows(out)
+    assert {(r["method"], r["iteration"]) for r in rows} == {("fake-a", "15"), ("fake-a", "35"), ("fake-a", "150"), ("fake-b", "15")}
+    first_b = runner.CellKey("fake-b", "toyset", "toy", 15).path(out) / "result.json"
+    a_cells = [runner.CellKey("fake-a", "toyset", "toy", i).path(out) / "result.json" for i in (15, 35, 150)]
+    mtimes = {p: p.stat().st_mtime_ns for p in [first_b, *a_cells]}
+    content_b = first_b.read_text()
+
+    # Second run of the same command: fake-a is not trained again; fake-b is re-trained but its
+    # finished checkpoint is neither re-evaluated nor rewritten.
+    rf.CALLS["train"].clear()
+    rf.register_fakes()
+    ocr = rf.FakeOCR()
+    _run(out, scene_dir, ocr=ocr)
+    assert [c[0] for c in rf.CALLS["train"]] == ["fake-b"]
+    assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
+    assert first_b.read_text() == content_b
+    # 2 new cells x 2 test views x (render OCR) + 2 GT OCRs for the scene = 6 reads; 3 cells would be 8.
+    assert ocr.calls == 6
+    assert len(_rows(out)) == 6
+
+    # Third run: nothing to do, nothing trained.
+    rf.CALLS["train"].clear()
+    _run(out, scene_dir)
+    assert rf.CALLS["train"] == []
+
+
+def test_interrupted_subprocess_keeps_finished_cells(tmp_path, scene_dir):
+    """A process killed mid-run (KeyboardInterrupt through the CLI path) leaves complete cells only."""
+    import subprocess
+
+    out = tmp_path / "run"
+    code = f"""
+import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
+import runner_fakes as rf
+from strings_bench import runner
+from strings_bench.methods.registry import MethodSpec, register_method
+rf.register_fakes()
+register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
+runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, preset="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+           with_lpips=False, progress=False)
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0 and "KeyboardInterrupt" in proc.stderr
+    assert [r["iteration"] for r in _rows(out)] == ["15", "35"]
+    leftovers = [p for p in out.rglob("*.tmp")]
+    assert leftovers == []
+
+
+def test_manifest_mismatch_refused(tmp_path, scene_dir):
+    out = tmp_path / "run"
+    _run(out, scene_dir, methods=["fake-a"], write_report=False)
+    with pytest.raises(StringsBenchError, match="preset"):
+        runner.run(["fake-a"], [str(scene_dir)], run_dir=out, preset="quick", ocr="fake", ocr_backend=rf.FakeOCR(),
+                   with_lpips=False, progress=False)
+
+
+def test_executor_seam(tmp_path, scene_dir):
+    submitted = []
+
+    class Recording(runner.LocalExecutor):
+        def submit(self, job):
+            submitted.append(json.loads(json.dumps(runner.asdict(job))))  # jobs are plain, serialisable data
+            return super().submit(job)
+
+    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], tmp_path / "run", "tiny", "fake")
+    r = runner.Runner(plan.run_dir, ocr=rf.FakeOCR(), with_lpips=False)
+    runner.execute(plan, ocr=rf.FakeOCR(), executor=Recording(r), progress=False, write_report=False)
+    assert [s["method"] for s in submitted] == ["fake-a", "fake-b"]
+    assert len(_rows(tmp_path / "run")) == 6
+
+
+def test_bad_render_size_is_clear(tmp_path, scene_dir):
+    class Wrong(rf.FakeAdapter):
+        def train(self, scene, checkpoints, downscale=1):
+            for r in super().train(scene, checkpoints, downscale):
+                r.renders = {k: v[:-1] for k, v in r.renders.items()}
+                yield r
+
+    register_method(MethodSpec("fake-wrong", lambda **s: Wrong(**s)))
+    with pytest.raises(StringsBenchError, match="render of view_00.png"):
+        _run(tmp_path / "run", scene_dir, methods=["fake-wrong"], write_report=False)
+
+
+def test_unknown_method_is_clear(tmp_path, scene_dir):
+    with pytest.raises(StringsBenchError, match="unknown method"):
+        _run(tmp_path / "run", scene_dir, methods=["no-such-method"])
+
+
+def test_scene_without_masks_uses_whole_image(tmp_path):
+    scene = rf.make_scene(tmp_path / "set2", name="nomask", with_masks=False)
+    (scene / "text_annotations.json").unlink()
+    out = tmp_path / "run"
+    _run(out, scene, methods=["fake-a"], write_report=False)
+    rec = json.loads((runner.CellKey("fake-a", "set2", "nomask", 150).path(out) / "result.json").read_text())
+    assert rec["ocr"]["views"]["view_00.png"]["mask"] == "whole image"
+    assert rec["cer_known"] is None
+    assert _rows(out)[0]["cer_known"] == ""
+
+
+def test_entry_point_discovery(tmp_path, monkeypatch):
+    """A method in a user's package is found through the `strings_bench.methods` entry point group."""
+    pkg = tmp_path / "my_splat_plugin.py"
+    pkg.write_text(
+        "from strings_bench.methods.registry import MethodSpec\n"
+        "from strings_bench.methods.base import MethodAdapter\n"
+        "class A(MethodAdapter):\n"
+        "    name = 'plugin-splat'\n"
+        "    def train(self, scene, checkpoints, downscale=1):\n"
+        "        return iter(())\n"
+        "SPEC = MethodSpec('plugin-splat', A, 'a plug-in method', 'Plugin\\'26')\n")
+    dist = tmp_path / "my_splat_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-splat-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[strings_bench.methods]\nplugin-splat = my_splat_plugin:SPEC\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from strings_bench.methods import registry
+
+    monkeypatch.setattr(registry, "_loaded", False)
+    names = {s.name: s for s in registry.list_methods()}
+    assert "plugin-splat" in names
+    assert names["plugin-splat"].paper == "Plugin'26"
+
+
+def test_methods_list_cli(capsys):
+    from strings_bench import run_cli
+
+    rf.register_fakes()
+    run_cli._methods_list(None)
+    out = capsys.readouterr().out
+    assert "fake-a" in out and "Test'25" in out and "presets: tiny" in out
