@@ -211,14 +211,18 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
             rep.add(ERROR, model_dir, f"the COLMAP model in {model_dir} is incomplete: has {_list(have) or 'nothing'}, "
                     f"missing {_list(missing)}", "copy the complete sparse/0 folder written by COLMAP")
         else:
-            try:
-                rec = pycolmap.Reconstruction(str(model_dir))
-            except Exception as exc:  # noqa: BLE001 - pycolmap raises ValueError/IndexError on corrupt files
-                where = diagnose_binary_model(model_dir) if complete[0] == ".bin" else []
-                detail = "; ".join(where) if where else f"{type(exc).__name__}: {exc}"
-                rep.add(ERROR, where[0].split(":")[0] if where else model_dir,
-                        f"cannot read the COLMAP model in {model_dir}: {detail}",
+            # Walk the binary files first: pycolmap can spend minutes on a cut-off points3D.bin
+            # (a garbage track length read past the end), and its errors do not name the file.
+            where = diagnose_binary_model(model_dir) if complete[0] == ".bin" else []
+            if where:
+                rep.add(ERROR, model_dir, f"cannot read the COLMAP model in {model_dir}: {'; '.join(where)}",
                         "re-copy or re-export the model (the file was cut short or damaged)")
+            else:
+                try:
+                    rec = pycolmap.Reconstruction(str(model_dir))
+                except Exception as exc:  # noqa: BLE001 - pycolmap raises ValueError/IndexError on corrupt files
+                    rep.add(ERROR, model_dir, f"cannot read the COLMAP model in {model_dir}: {type(exc).__name__}: "
+                            f"{exc}", "re-copy or re-export the model (a file is damaged)")
 
     registered = {}
     if rec is not None:
@@ -364,8 +368,9 @@ def check_path(path: str | Path) -> list[SceneReport]:
         return [rep]
     dirs = _scene_dirs(path)
     if not dirs:
-        rep = SceneReport(path=path)
-        rep.add(ERROR, path, f"{path} is neither a scene folder (images/, sparse/0/) nor a folder of scene folders",
+        # Not recognisably a scene: check it as one anyway, which names each missing folder.
+        rep = check_scene(path)
+        rep.add(INFO, path, f"{path} is neither a scene folder (images/, sparse/0/) nor a folder of scene folders",
                 "point at the folder that holds images/ and sparse/0/, or at their parent")
         return [rep]
     return [check_scene(d) for d in dirs]
