@@ -20,6 +20,7 @@ COMMAND_MODULES = [
     "strings_bench.datasets.cli",
     "strings_bench.ocr.cli",
     "strings_bench.run_cli",
+    "strings_bench.datasets.prepare_cli",
 ]
 
 
