@@ -20,10 +20,15 @@ Edge cases (documented in docs/strings.md):
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 
 from .errors import StringsBenchError, TrainingError
+
+if TYPE_CHECKING:
+    from .gaussians import GaussianModel
 
 DEFAULT_N_MAX = 15
 DEFAULT_MAX_GAUSSIANS = 10_000_000  # refuse to build more (memory); a setting of the method
@@ -50,30 +55,19 @@ def densification_factors(counts: np.ndarray, n_max: int, equal_counts: str = "n
     return np.clip(np.floor(x + 0.5), 1, n_max).astype(np.int64)
 
 
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz quaternions (any norm) -> (N, 3, 3) rotation matrices."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(-1, 3, 3)
-
-
-def densify_by_factors(params: dict[str, torch.Tensor], n_children: np.ndarray | torch.Tensor,
+def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Tensor,
                        generator: torch.Generator | None = None,
-                       max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    """Replace Gaussian i by n_children[i] samples of itself (n = 1 keeps it unchanged).
+                       max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> "GaussianModel":
+    """Replace Gaussian i of `model` by n_children[i] samples of itself, in place (n = 1 keeps it).
 
-    `params` holds per-Gaussian tensors with at least "means" (N, 3), "quats" (N, 4 wxyz) and
-    "log_scales" (N, 3); every other entry is copied to the children. Returns the new tensors
-    (detached) and `parent` (M,) int64, the source row of each output row, for carrying extras.
-    Children of one parent are contiguous, in parent order.
+    Children are drawn by `strategies.ops.sample_children` from N(mean, R S^2 R^T) of the parent
+    (unshrunk scales), log-scales reduced by log(0.8 n), other parameters and extras copied.
+    Row order afterwards: the kept (n = 1) Gaussians, then the children grouped by parent.
     """
-    means = params["means"].detach()
-    n = means.shape[0]
-    k = torch.as_tensor(np.asarray(n_children), dtype=torch.int64, device=means.device).reshape(-1)
+    from .strategies import ops
+
+    n = len(model)
+    k = torch.as_tensor(np.asarray(n_children), dtype=torch.int64, device=model.device).reshape(-1)
     if k.shape[0] != n:
         raise StringsBenchError(f"{k.shape[0]} densification factors for {n} Gaussians")
     if n and int(k.min()) < 1:
@@ -83,18 +77,10 @@ def densify_by_factors(params: dict[str, torch.Tensor], n_children: np.ndarray |
         raise TrainingError(
             f"text densification would make {total} Gaussians from {n} (more than max_gaussians={max_gaussians})",
             hint="lower the scene's n_max setting, or raise max_gaussians if you have the memory")
-    parent = torch.repeat_interleave(torch.arange(n, device=means.device), k)
-    out = {name: t.detach()[parent].clone() for name, t in params.items()}
-    split = k[parent] > 1
-    if bool(split.any()):
-        rows = parent[split]
-        log_s = params["log_scales"].detach()[rows]
-        R = quat_to_rotmat(params["quats"].detach()[rows].to(torch.float64))
-        z = torch.randn((rows.shape[0], 3), generator=generator, dtype=torch.float64, device="cpu").to(means.device)
-        # Sample from N(mu, R S^2 R^T): x = mu + R (s * z), with the parent's (unshrunk) scales.
-        offset = torch.einsum("nij,nj->ni", R, torch.exp(log_s.to(torch.float64)) * z)
-        out["means"][split] = (means[rows].to(torch.float64) + offset).to(means.dtype)
-        shrink = torch.log(0.8 * k[rows].to(log_s.dtype))
-        out["log_scales"][split] = log_s - shrink[:, None]
-    return out, parent
-
+    split = k > 1
+    if not bool(split.any()):
+        return model
+    parents = split.nonzero().squeeze(1)
+    new, child_parent = ops.sample_children(model, parents, k[parents], generator=generator)
+    ops.rebuild(model, None, (~split).nonzero().squeeze(1), new_params=new, parents=child_parent)
+    return model

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from strings_bench.errors import StringsBenchError, TrainingError
-from strings_bench.text_densify import densification_factors, densify_by_factors, quat_to_rotmat
+from strings_bench.gaussians import GaussianModel, quat_to_rotmat
+from strings_bench.text_densify import densification_factors, densify_text_model
 
 
 def eq1_reference(counts, n_max):
@@ -50,73 +51,81 @@ def test_equal_counts_and_single_point():
         densification_factors(np.array([1, 2]), 0)
 
 
-def random_params(n, seed=0):
+def random_model(n, seed=0):
     g = torch.Generator().manual_seed(seed)
-    return {
-        "means": torch.randn(n, 3, generator=g, dtype=torch.float64),
-        "quats": torch.randn(n, 4, generator=g, dtype=torch.float64),
-        "log_scales": torch.randn(n, 3, generator=g, dtype=torch.float64) * 0.5 - 2,
-        "opacity_logits": torch.randn(n, generator=g, dtype=torch.float64),
-        "sh0": torch.randn(n, 1, 3, generator=g, dtype=torch.float64),
-        "shN": torch.randn(n, 15, 3, generator=g, dtype=torch.float64),
+    params = {
+        "means": torch.randn(n, 3, generator=g),
+        "quats": torch.randn(n, 4, generator=g),
+        "log_scales": torch.randn(n, 3, generator=g) * 0.5 - 2,
+        "opacity_logits": torch.randn(n, generator=g),
+        "sh0": torch.randn(n, 1, 3, generator=g),
+        "shN": torch.randn(n, 15, 3, generator=g),
     }
+    return GaussianModel(params, extras={"uid": torch.arange(n), "is_text": torch.ones(n, dtype=torch.bool)})
+
+
+def snapshot(model):
+    return {k: v.detach().clone() for k, v in model.params.items()}
 
 
 def test_children_counts_copies_and_scales():
-    p = random_params(4)
+    model = random_model(4)
+    p = snapshot(model)
     k = np.array([1, 3, 1, 5])
-    out, parent = densify_by_factors(p, k, torch.Generator().manual_seed(1))
-    assert parent.tolist() == [0, 1, 1, 1, 2, 3, 3, 3, 3, 3]
+    densify_text_model(model, k, torch.Generator().manual_seed(1))
+    uid = model.extras["uid"]
+    assert len(model) == 10 and model.extras["is_text"].all()
+    assert sorted(uid.tolist()) == [0, 1, 1, 1, 2, 3, 3, 3, 3, 3]
     for name in ("quats", "opacity_logits", "sh0", "shN"):
-        assert torch.equal(out[name], p[name][parent])
-    # N = 1: unchanged; N > 1: log-scale - log(0.8 N).
-    assert torch.equal(out["means"][0], p["means"][0]) and torch.equal(out["log_scales"][4], p["log_scales"][2])
-    assert torch.allclose(out["log_scales"][1:4], p["log_scales"][1] - np.log(0.8 * 3))
-    assert torch.allclose(out["log_scales"][5:], p["log_scales"][3] - np.log(0.8 * 5))
-    assert not torch.equal(out["means"][1], out["means"][2])
-
-
-def test_quat_to_rotmat_is_rotation():
-    R = quat_to_rotmat(torch.randn(50, 4, dtype=torch.float64))
-    eye = torch.eye(3, dtype=torch.float64).expand(50, 3, 3)
-    assert torch.allclose(R @ R.transpose(1, 2), eye, atol=1e-12)
-    assert torch.allclose(torch.linalg.det(R), torch.ones(50, dtype=torch.float64))
-    # 90 degrees about z (wxyz): x -> y.
-    Rz = quat_to_rotmat(torch.tensor([[np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]], dtype=torch.float64))[0]
-    assert torch.allclose(Rz @ torch.tensor([1.0, 0, 0], dtype=torch.float64),
-                          torch.tensor([0.0, 1, 0], dtype=torch.float64), atol=1e-12)
+        assert torch.equal(model.params[name].detach(), p[name][uid])
+    ls = model.params["log_scales"].detach()
+    means = model.params["means"].detach()
+    for i in range(10):
+        u = int(uid[i])
+        if k[u] == 1:  # unchanged
+            assert torch.equal(means[i], p["means"][u]) and torch.equal(ls[i], p["log_scales"][u])
+        else:  # scales / (0.8 N), new positions
+            assert torch.allclose(ls[i], p["log_scales"][u] - np.log(0.8 * k[u]), atol=1e-6)
+            assert not torch.equal(means[i], p["means"][u])
 
 
 def test_child_positions_follow_parent_distribution():
     """Sample mean and covariance over many children match the parent Gaussian."""
-    p = random_params(1, seed=3)
-    p["log_scales"] = torch.log(torch.tensor([[0.5, 0.1, 0.02]], dtype=torch.float64))
+    model = random_model(1, seed=3)
+    with torch.no_grad():
+        model.params["log_scales"].copy_(torch.log(torch.tensor([[0.5, 0.1, 0.02]])))
+    R = quat_to_rotmat(model.params["quats"].detach().double())[0].numpy()
+    mu = model.params["means"].detach().double()[0].numpy()
+    var = np.array([0.5, 0.1, 0.02]) ** 2
     n = 20000
-    out, _ = densify_by_factors(p, np.array([n]), torch.Generator().manual_seed(7))
-    x = out["means"].numpy()
-    R = quat_to_rotmat(p["quats"])[0].numpy()
-    cov = R @ np.diag(np.exp(2 * p["log_scales"][0].numpy())) @ R.T
+    densify_text_model(model, np.array([n]), torch.Generator().manual_seed(7))
+    x = model.params["means"].detach().double().numpy()
+    assert x.shape == (n, 3)
+    cov = R @ np.diag(var) @ R.T
     se = np.sqrt(np.diag(cov) / n)
-    assert np.all(np.abs(x.mean(0) - p["means"][0].numpy()) < 5 * se)
+    assert np.all(np.abs(x.mean(0) - mu) < 5 * se)
     emp = np.cov(x.T)
-    assert np.allclose(emp, cov, atol=0.05 * 0.25)  # 5 % of the largest variance
-    assert np.allclose(np.linalg.eigvalsh(emp), np.sort(np.exp(2 * p["log_scales"][0].numpy())), rtol=0.05, atol=1e-5)
+    assert np.allclose(emp, cov, atol=0.05 * var.max())
+    assert np.allclose(np.linalg.eigvalsh(emp), np.sort(var), rtol=0.05, atol=1e-5)
+    # Children's scales: parent / (0.8 n).
+    assert np.allclose(np.exp(model.params["log_scales"].detach().double().numpy()),
+                       np.array([0.5, 0.1, 0.02]) / (0.8 * n), rtol=1e-5)
 
 
 @pytest.mark.parametrize("n_max", [1, 100])
 def test_extreme_n_max_finite_and_bounded(n_max):
     rng = np.random.default_rng(0)
     counts = rng.integers(1, 30, size=500)
-    p = random_params(500)
+    model = random_model(500)
+    p = snapshot(model)
     k = densification_factors(counts, n_max)
-    out, parent = densify_by_factors(p, k, torch.Generator().manual_seed(0))
-    assert len(parent) == int(k.sum()) <= n_max * 500
-    assert all(torch.isfinite(t).all() for t in out.values())
+    densify_text_model(model, k, torch.Generator().manual_seed(0))
+    assert len(model) == int(k.sum()) <= n_max * 500
+    assert all(torch.isfinite(t).all() for t in model.params.values())
     if n_max == 1:
-        assert all(torch.equal(out[name], p[name]) for name in p)
+        assert all(torch.equal(model.params[name].detach(), p[name]) for name in p)
 
 
 def test_memory_cap_refuses_clearly():
-    p = random_params(10)
     with pytest.raises(TrainingError, match="n_max"):
-        densify_by_factors(p, np.full(10, 100), max_gaussians=500)
+        densify_text_model(random_model(10), np.full(10, 100), max_gaussians=500)
