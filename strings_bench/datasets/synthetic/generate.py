@@ -1,0 +1,460 @@
+"""Generate a synthetic scene folder: rendered views, GT text masks and polygons, and a sparse
+point cloud triangulated by pycolmap from SIFT matches on the rendered images with the known poses.
+
+Layout written (COLMAP style, loadable with `Scene.load`):
+
+    <cache_root>/synthetic/<scene>-<key>/
+      images/view_000.png ...      rendered views (PNG)
+      masks/view_000.png ...       GT text masks (255 = a ray of the pixel's majority hits a word box)
+      sparse/0/                    COLMAP binary model, one PINHOLE camera per view, all registered
+      text_annotations.json        per view: visible words and their 4-corner polygons (full-res px)
+      scene_meta.json              generator version, settings, seed, timings, point counts, fallback
+
+`key` hashes the generator version and every setting, so changing either builds a new folder.
+The scene is built in a hidden sibling folder and renamed into place: an interrupted build never
+leaves a half-written cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from tqdm.auto import tqdm
+
+from ...camera import Camera
+from ...colmap_io import ColmapModel, read_model, write_model
+from ...errors import DatasetError
+from ...io_utils import atomic_write_json, cache_root
+from ...scene import KnownWord, write_annotations
+from .scenes import BUILDERS, SceneSpec
+
+log = logging.getLogger(__name__)
+
+# Bump whenever rendering, scene content or SfM settings change what a build produces.
+GENERATOR_VERSION = "1"
+SCENE_NAMES = tuple(BUILDERS)
+META_FILE = "scene_meta.json"
+
+
+@dataclass(frozen=True)
+class SyntheticSettings:
+    width: int = 320
+    height: int = 240
+    n_views: int = 48
+    seed: int = 0
+    supersample: int = 2  # s x s rays per pixel (3 is ~3x slower)
+    max_features: int = 2048  # SIFT keypoints per image
+    match_overlap: int = 8  # each view is matched with the next `match_overlap` views around the orbit
+    min_points: int = 300  # fewer triangulated points than this triggers the relaxed retry, then the fallback
+    min_word_px: float = 4.0  # words whose projected box is shorter than this are not annotated
+    min_facing_cos: float = 0.2  # words seen more obliquely than ~78 degrees are not annotated
+
+    def __post_init__(self):
+        if self.width < 32 or self.height < 24:
+            raise DatasetError(f"synthetic image size {self.width}x{self.height} is too small", hint="use at least 32x24")
+        if not 8 <= self.n_views <= 400:
+            raise DatasetError(f"n_views={self.n_views} is out of range", hint="use 8..400 views (default 48)")
+        if self.supersample < 1:
+            raise DatasetError("supersample must be >= 1", hint="use 2 or 3")
+
+    def key(self, scene: str) -> str:
+        blob = json.dumps({"version": GENERATOR_VERSION, "scene": scene, **asdict(self)}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+
+def check_scene_name(scene: str) -> None:
+    if scene not in BUILDERS:
+        raise DatasetError(f"unknown synthetic scene {scene!r}", hint=f"synthetic scenes: {', '.join(SCENE_NAMES)}")
+
+
+def scene_dir(scene: str, settings: SyntheticSettings | None = None) -> Path:
+    """Where the scene's cache folder is (whether or not it has been built)."""
+    check_scene_name(scene)
+    settings = settings or SyntheticSettings()
+    return cache_root() / "synthetic" / f"{scene}-{settings.key(scene)}"
+
+
+def is_built(scene: str, settings: SyntheticSettings | None = None) -> bool:
+    return (scene_dir(scene, settings) / META_FILE).exists()
+
+
+def read_meta(path: str | Path) -> dict:
+    p = Path(path) / META_FILE
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"cannot read {p}: {exc}", hint="delete the folder and run `strings-bench datasets prepare` again") from exc
+
+
+def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bool = False,
+                progress: bool = True) -> Path:
+    """Build (or reuse from the cache) one synthetic scene and return its folder."""
+    settings = settings or SyntheticSettings()
+    final = scene_dir(scene, settings)
+    if final.exists() and not force:
+        if (final / META_FILE).exists():
+            return final
+        shutil.rmtree(final, ignore_errors=True)  # a folder without its meta file is not ours to trust
+    tmp = final.parent / f".build-{final.name}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+    tmp.mkdir(parents=True)
+    try:
+        _build_into(scene, settings, tmp, progress)
+        if final.exists():
+            if not force:  # another process finished first: keep its copy
+                shutil.rmtree(tmp, ignore_errors=True)
+                return final
+            shutil.rmtree(final)
+        os.rename(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+
+
+# ---- cameras -------------------------------------------------------------------------------
+def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R, t) for a camera at `center` looking at `target` (x right, y down, z forward)."""
+    f = np.asarray(target, np.float64) - center
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    down = np.cross(f, r)
+    R = np.stack([r, down, f])
+    return R, -R @ center
+
+
+def orbit_cameras(spec: SceneSpec, settings: SyntheticSettings, rng: np.random.Generator) -> list[Camera]:
+    """A full orbit with gently varying elevation and distance, small jitter from the seed."""
+    n, w, h = settings.n_views, settings.width, settings.height
+    fx = 0.5 * w / np.tan(np.deg2rad(spec.fov_x) / 2)
+    az0 = rng.uniform(0, 2 * np.pi)
+    ph_e, ph_r = rng.uniform(0, 2 * np.pi, size=2)
+    e_lo, e_hi = np.deg2rad(spec.elevation[0]), np.deg2rad(spec.elevation[1])
+    cams = []
+    for i in range(n):
+        az = az0 + 2 * np.pi * i / n + rng.uniform(-0.2, 0.2) * 2 * np.pi / n
+        el = e_lo + (e_hi - e_lo) * (0.5 + 0.5 * np.sin(4 * np.pi * i / n + ph_e))
+        rad = spec.radius * (1 + 0.06 * np.sin(6 * np.pi * i / n + ph_r))
+        center = spec.target + rad * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        target = spec.target + rng.normal(0, 0.02, 3)
+        R, t = look_at(center, target)
+        cams.append(Camera(fx, fx, w / 2, h / 2, w, h, R, t, name=f"view_{i:03d}.png"))
+    return cams
+
+
+# ---- ground-truth text -------------------------------------------------------------------------
+SAMPLE_FRACTIONS = (0.1, 0.5, 0.9)
+
+
+def word_corners_3d(spec: SceneSpec) -> list[np.ndarray]:
+    """(4, 3) world corners of every word's box (TL, TR, BR, BL as read), on its surface."""
+    return [spec.world.primitives[w.prim].point(w.uv) for w in spec.words]
+
+
+def _bilinear(corners: np.ndarray, a: float, b: float) -> np.ndarray:
+    tl, tr, br, bl = corners
+    return (1 - b) * ((1 - a) * tl + a * tr) + b * ((1 - a) * bl + a * br)
+
+
+def visible_words(spec: SceneSpec, cam: Camera, settings: SyntheticSettings) -> list[KnownWord]:
+    """Words of the scene that this camera sees whole: all 4 corners in the frame, the surface
+    facing the camera at 9 sample points of the box, none of them occluded (a ray from the camera
+    to each sample must not hit anything first), and a projected height >= min_word_px."""
+    world = spec.world
+    C = cam.center
+    candidates, sample_pts = [], []
+    for word in spec.words:
+        prim = world.primitives[word.prim]
+        corners = prim.point(word.uv)
+        px, z = cam.project(corners)
+        if not np.all(np.isfinite(px)) or np.any(z <= 0):
+            continue
+        if np.any(px[:, 0] < 0) or np.any(px[:, 0] > cam.width) or np.any(px[:, 1] < 0) or np.any(px[:, 1] > cam.height):
+            continue
+        height = 0.5 * (np.linalg.norm(px[0] - px[3]) + np.linalg.norm(px[1] - px[2]))
+        if height < settings.min_word_px:
+            continue
+        suv = np.array([_bilinear(word.uv, a, b) for b in SAMPLE_FRACTIONS for a in SAMPLE_FRACTIONS])
+        pts = prim.point(suv)
+        _, normals = prim.surface(pts)
+        to_cam = C - pts
+        cos = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
+        if np.any(cos < settings.min_facing_cos):
+            continue
+        candidates.append((word, px))
+        sample_pts.append(pts)
+    if not candidates:
+        return []
+    pts = np.concatenate(sample_pts)
+    t = world.first_hit(C, pts - C)  # t = 1 at the sample itself
+    free = (t >= 1 - 1e-4).reshape(len(candidates), -1).all(axis=1)
+    return [KnownWord(w.text, px) for (w, px), ok in zip(candidates, free) if ok]
+
+
+# ---- SfM -----------------------------------------------------------------------------------
+@contextmanager
+def _quiet_colmap():
+    import pycolmap
+
+    old = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2  # errors only; COLMAP logs every image at INFO
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def _write_pairs(path: Path, names: list[str], overlap: int) -> int:
+    """Circular sequential pairs: the orbit closes, so the last views are matched with the first."""
+    n = len(names)
+    pairs = {tuple(sorted((i, (i + k) % n))) for i in range(n) for k in range(1, min(overlap, n - 1) + 1)}
+    path.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in sorted(pairs)))
+    return len(pairs)
+
+
+def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Camera], settings: SyntheticSettings,
+                                 relaxed: bool = False) -> tuple[ColmapModel, dict]:
+    """SIFT features + matching on the rendered images, then pycolmap.triangulate_points with the
+    known cameras. Returns the triangulated model and stage timings."""
+    import pycolmap
+
+    work.mkdir(parents=True, exist_ok=True)
+    db = work / "database.db"
+    db.unlink(missing_ok=True)
+    names = [c.name for c in cameras]
+    cam0 = cameras[0]
+    timings = {}
+    threads = min(2, os.cpu_count() or 1)
+    with _quiet_colmap():
+        t0 = time.perf_counter()
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = f"{cam0.fx},{cam0.fy},{cam0.cx},{cam0.cy}"
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = threads
+        extraction.sift.max_num_features = settings.max_features * (2 if relaxed else 1)
+        pycolmap.extract_features(db, images_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+        timings["features_s"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        pairs_file = work / "pairs.txt"
+        n_pairs = _write_pairs(pairs_file, names, settings.match_overlap + (4 if relaxed else 0))
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = threads
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = str(pairs_file)
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = settings.seed
+        pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
+                                   verification_options=verification, device=pycolmap.Device.cpu)
+        timings["matching_s"] = time.perf_counter() - t0
+        timings["pairs"] = n_pairs
+
+        t0 = time.perf_counter()
+        database = pycolmap.Database.open(str(db))
+        try:
+            db_images = {im.name: im for im in database.read_all_images()}
+        finally:
+            database.close()
+        missing = [n for n in names if n not in db_images]
+        if missing:
+            raise DatasetError(f"pycolmap did not import {len(missing)} rendered image(s) ({missing[:3]})",
+                               hint="the render or the PNG write failed; delete the cache folder and retry")
+        rec = pycolmap.Reconstruction()
+        for cam in cameras:
+            im = db_images[cam.name]
+            if im.camera_id not in rec.cameras:
+                rec.add_camera_with_trivial_rig(pycolmap.Camera(
+                    camera_id=im.camera_id, model="PINHOLE", width=cam.width, height=cam.height,
+                    params=[cam.fx, cam.fy, cam.cx, cam.cy]))
+            image = pycolmap.Image(name=cam.name, camera_id=im.camera_id, image_id=im.image_id)
+            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.hstack([cam.R, cam.t[:, None]])))
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = threads
+        options.random_seed = settings.seed
+        if relaxed:
+            options.triangulation.min_angle = 1.0
+            options.triangulation.ignore_two_view_tracks = False
+        out = work / "triangulated"
+        out.mkdir(exist_ok=True)
+        rec = pycolmap.triangulate_points(rec, db, images_dir, out, clear_points=True, options=options)
+        timings["triangulation_s"] = time.perf_counter() - t0
+    model = read_model(out)
+    _check_poses_kept(model, cameras)
+    return model, timings
+
+
+def _check_poses_kept(model: ColmapModel, cameras: list[Camera]) -> None:
+    by_name = {c.name: c for c in cameras}
+    if len(model.cameras) != len(cameras):
+        raise DatasetError(f"triangulation registered {len(model.cameras)} of {len(cameras)} views",
+                           hint="this is a generator bug; report it with the scene name and settings")
+    for cam in model.cameras:
+        ref = by_name[cam.name]
+        if not (np.allclose(cam.R, ref.R, atol=1e-6) and np.allclose(cam.t, ref.t, atol=1e-6)):
+            raise DatasetError(f"triangulation moved the known pose of {cam.name}",
+                               hint="this is a generator bug; report it with the scene name and settings")
+
+
+def depth_sample_points(cameras: list[Camera], depths: list[np.ndarray], images: list[np.ndarray],
+                        n_target: int, rng: np.random.Generator) -> ColmapModel:
+    """FALLBACK ONLY (SfM failed): points sampled from the rendered depth maps, with tracks of the
+    views where each point is in frame and not occluded (its depth agrees with that view's map)."""
+    per_view = max(1, n_target // max(1, len(cameras) // 4))
+    xyz, rgb = [], []
+    for v in range(0, len(cameras), 4):
+        cam, depth = cameras[v], depths[v]
+        ys, xs = np.nonzero(np.isfinite(depth) & (depth < 6.0))  # not the far backdrop
+        if len(ys) == 0:
+            continue
+        pick = rng.choice(len(ys), size=min(per_view, len(ys)), replace=False)
+        ys, xs = ys[pick], xs[pick]
+        z = depth[ys, xs]
+        pc = np.stack([(xs + 0.5 - cam.cx) / cam.fx * z, (ys + 0.5 - cam.cy) / cam.fy * z, z], axis=1)
+        xyz.append((pc - cam.t) @ cam.R)
+        rgb.append(images[v][ys, xs])
+    xyz = np.concatenate(xyz) if xyz else np.zeros((0, 3))
+    rgb = np.concatenate(rgb) if rgb else np.zeros((0, 3), np.uint8)
+    obs_view = [[] for _ in range(len(xyz))]
+    obs_xy = [[] for _ in range(len(xyz))]
+    for v, cam in enumerate(cameras):
+        px, z = cam.project(xyz)
+        ok = np.isfinite(px).all(1) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        idx = np.nonzero(ok)[0]
+        d = depths[v][px[idx, 1].astype(int), px[idx, 0].astype(int)]
+        for i in idx[np.abs(d - z[idx]) < 0.01 * z[idx]]:
+            obs_view[i].append(v)
+            obs_xy[i].append(px[i])
+    keep = [i for i in range(len(xyz)) if len(obs_view[i]) >= 2]
+    ptr = np.concatenate([[0], np.cumsum([len(obs_view[i]) for i in keep])]).astype(np.int64)
+    return ColmapModel(
+        cameras=cameras, xyz=xyz[keep], rgb=rgb[keep].astype(np.uint8), track_ptr=ptr,
+        track_view=np.array([v for i in keep for v in obs_view[i]], np.int32),
+        track_xy=np.array([p for i in keep for p in obs_xy[i]], np.float64).reshape(-1, 2),
+        point_ids=np.arange(1, len(keep) + 1, dtype=np.int64))
+
+
+def count_text_points(model: ColmapModel, masks: dict[str, np.ndarray]) -> int:
+    """Points that project inside the GT text mask of at least one view of their track
+    (Algorithm 1 of STRinGS with tau = 1, on the undilated GT masks)."""
+    index = {c.name: i for i, c in enumerate(model.cameras)}
+    hits = np.zeros(model.num_points, bool)
+    point_of_obs = np.repeat(np.arange(model.num_points), np.diff(model.track_ptr))
+    for name, mask in masks.items():
+        v = index[name]
+        sel = np.nonzero(model.track_view == v)[0]
+        if len(sel) == 0:
+            continue
+        pts = point_of_obs[sel]
+        cam = model.cameras[v]
+        px, z = cam.project(model.xyz[pts])
+        ok = np.isfinite(px).all(1) & (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        pts, px = pts[ok], px[ok]
+        inside = mask[px[:, 1].astype(int), px[:, 0].astype(int)]
+        hits[pts[inside]] = True
+    return int(hits.sum())
+
+
+# ---- the build -------------------------------------------------------------------------------
+def make_spec(scene: str, seed: int) -> SceneSpec:
+    check_scene_name(scene)
+    # The scene content and the orbit draw from separate streams of the same seed.
+    return BUILDERS[scene](np.random.default_rng([seed, 1]))
+
+
+def render_views(spec: SceneSpec, settings: SyntheticSettings, progress: bool = False):
+    """Yield (camera, RenderResult, visible words) for every view of the orbit."""
+    cams = orbit_cameras(spec, settings, np.random.default_rng([settings.seed, 2]))
+    for cam in tqdm(cams, desc=f"render {spec.name}", unit="view", disable=not progress, leave=False):
+        res = spec.world.render(cam, settings.supersample)
+        yield cam, res, visible_words(spec, cam, settings)
+
+
+def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bool) -> None:
+    t_start = time.perf_counter()
+    spec = make_spec(scene, settings.seed)
+    images_dir, masks_dir = out / "images", out / "masks"
+    images_dir.mkdir()
+    masks_dir.mkdir()
+    cameras, depths, images, annotations, masks = [], [], [], {}, {}
+    t0 = time.perf_counter()
+    for cam, res, words in render_views(spec, settings, progress):
+        Image.fromarray(res.rgb).save(images_dir / cam.name)
+        stem = Path(cam.name).stem
+        Image.fromarray((res.text_mask * 255).astype(np.uint8)).save(masks_dir / f"{stem}.png")
+        cameras.append(cam)
+        depths.append(res.depth)
+        images.append(res.rgb)
+        masks[cam.name] = res.text_mask
+        annotations[cam.name] = words
+    render_s = time.perf_counter() - t0
+    write_annotations(out / "text_annotations.json", annotations)
+
+    attempts = []
+    fallback = None
+    model = None
+    bar = tqdm(total=2, desc=f"sfm {scene}", unit="attempt", disable=not progress, leave=False)
+    for relaxed in (False, True):
+        try:
+            model, timings = triangulate_with_known_poses(images_dir, out / "_sfm", cameras, settings, relaxed=relaxed)
+            attempts.append({"relaxed": relaxed, "points": model.num_points, **timings})
+        except DatasetError:
+            raise
+        except Exception as exc:  # pycolmap raises RuntimeError/ValueError on failed stages
+            attempts.append({"relaxed": relaxed, "error": f"{type(exc).__name__}: {exc}"})
+            model = None
+        bar.update(1)
+        if model is not None and model.num_points >= settings.min_points:
+            break
+    bar.close()
+    if model is None or model.num_points < settings.min_points:
+        got = 0 if model is None else model.num_points
+        log.warning("synthetic/%s: SfM triangulated only %d points (< %d) even with relaxed settings; FALLING BACK to "
+                    "points sampled from the rendered depth maps. This scene's point cloud is not SfM-like; see "
+                    "scene_meta.json", scene, got, settings.min_points)
+        fallback = "depth_samples"
+        model = depth_sample_points(cameras, depths, images, max(4 * settings.min_points, 2000),
+                                    np.random.default_rng([settings.seed, 3]))
+    shutil.rmtree(out / "_sfm", ignore_errors=True)
+    write_model(model, out / "sparse" / "0")
+    n_text = count_text_points(model, masks)
+    sfm_s = sum(a.get("features_s", 0) + a.get("matching_s", 0) + a.get("triangulation_s", 0) for a in attempts)
+    counts = model.visibility_counts()
+    n_words = [len(v) for v in annotations.values()]
+    meta = {
+        "generator_version": GENERATOR_VERSION,
+        "scene": scene,
+        "description": spec.description,
+        "settings": asdict(settings),
+        "key": settings.key(scene),
+        "views": len(cameras),
+        "registered_views": len(model.cameras),
+        "points": model.num_points,
+        "text_points": n_text,
+        "mean_track_length": float(counts.mean()) if len(counts) else 0.0,
+        "words_in_scene": len(spec.words),
+        "visible_words_per_view": {"mean": float(np.mean(n_words)), "min": int(np.min(n_words)), "max": int(np.max(n_words))},
+        "text_pixel_fraction": float(np.mean([m.mean() for m in masks.values()])),
+        "fallback": fallback,
+        "sfm_attempts": attempts,
+        "timings_s": {"render": render_s, "sfm": sfm_s, "total": time.perf_counter() - t_start},
+        "cpu_count": os.cpu_count(),
+    }
+    atomic_write_json(out / META_FILE, meta)
+
+
+def settings_with(**overrides) -> SyntheticSettings:
+    """Default settings with some fields replaced (None values are ignored)."""
+    return replace(SyntheticSettings(), **{k: v for k, v in overrides.items() if v is not None})
