@@ -317,8 +317,9 @@ def _check_masks(root: Path, rep: SceneReport, registered: dict, on_disk: dict, 
         rep.add(WARNING, masks_dir, f"the masks folder {masks_dir} is empty", "remove it, or fill it with <image stem>.png masks")
         return
     if without:
-        rep.add(WARNING, masks_dir, f"{len(without)} image(s) have no mask in {masks_dir} (treated as text-free "
-                f"by the 'dataset' mask source): {_list(without)}", "masks are named <image stem>.png")
+        rep.add(WARNING, masks_dir, f"{len(without)} image(s) have no mask in {masks_dir}: {_list(without)}",
+                "masks are named <image stem>.png; STRinGS with the 'dataset' mask source refuses a view without "
+                "one, so give text-free views an all-black mask")
     if orphans:
         rep.add(WARNING, masks_dir, f"{len(orphans)} mask(s) match no image: {_list(orphans)}",
                 "masks are named <image stem>.png after the images in images/")
