@@ -30,6 +30,9 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ocr", default="rapidocr", help="OCR backend for OCR-CER (rapidocr, tesseract, gcv)")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS), help="where jobs run (default local)")
     p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the preset's, 1)")
+    p.add_argument("--set", dest="settings", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                   help="override a method setting (VALUE parsed as JSON when it can be), e.g. "
+                        "--set ply.ply_path=/models/{scene}/point_cloud.ply; repeatable")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
@@ -50,10 +53,30 @@ def _run(args) -> int:
 
     out = run(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
               downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-              progress=not args.no_progress)
+              progress=not args.no_progress, method_overrides=parse_settings(args.settings))
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     return 0
+
+
+def parse_settings(items: list[str]) -> dict[str, dict]:
+    """['ply.ply_path=/x', 'strings.n_max=25'] -> {'ply': {'ply_path': '/x'}, 'strings': {'n_max': 25}}."""
+    import json
+
+    from .errors import StringsBenchError
+
+    out: dict[str, dict] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        method, dot, name = key.partition(".")
+        if not eq or not dot or not method or not name:
+            raise StringsBenchError(f"--set {item!r} is not METHOD.KEY=VALUE", hint="e.g. --set strings.n_max=25")
+        try:
+            parsed = json.loads(value)
+        except ValueError:
+            parsed = value
+        out.setdefault(method, {})[name] = parsed
+    return out
 
 
 def _report(args) -> int:

@@ -493,7 +493,8 @@ def cell_row(rec: dict) -> dict:
         "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
         "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
         "lpips": num(rec["metrics"].get("lpips")),
-        "train_seconds": num(rec["timings"].get("train_seconds")), "gaussians": rec.get("gaussians", ""),
+        "train_seconds": num(rec["timings"].get("train_seconds")),
+        "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
@@ -544,14 +545,13 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     jobs = []
     for m in methods:
         spec = specs[m]
-        adapter_settings = dict(spec.defaults)
-        if preset in spec.presets:
-            adapter_settings.update(spec.presets[preset])
-        adapter_settings.update(overrides.get(m, {}))
-        steps_scale = float(adapter_settings.get("steps_scale", p.steps_scale))
+        adapter = spec.build(preset=preset if preset in spec.presets else None, **overrides.get(m, {}))
+        # A method may carry its own schedule scale (its preset), else the run preset's applies.
+        steps_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
         checkpoints = p.checkpoints(steps_scale)
-        if "checkpoints" in adapter_settings and adapter_settings["checkpoints"]:
-            checkpoints = sorted(int(c) for c in adapter_settings["checkpoints"])
+        fixed = getattr(adapter, "fixed_checkpoints", None)
+        if callable(fixed) and fixed():
+            checkpoints = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
         labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
         for ref in refs:
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
@@ -637,7 +637,9 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 
 def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
-        progress: bool = True, write_report: bool = True, ocr_backend=None) -> Path:
-    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale)
+        progress: bool = True, write_report: bool = True, ocr_backend=None,
+        method_overrides: dict[str, dict] | None = None) -> Path:
+    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
+    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
                    write_report=write_report)

@@ -220,3 +220,87 @@ def test_methods_list_cli(capsys):
     run_cli._methods_list(None)
     out = capsys.readouterr().out
     assert "fake-a" in out and "Test'25" in out and "presets: tiny" in out
+
+
+# ---- the external-command adapter ----------------------------------------------------------------
+COPY_SCRIPT = r"""
+import json, sys
+from pathlib import Path
+from PIL import Image
+scene, out, it, mode = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+if mode == "fail":
+    print("trainer exploded", file=sys.stderr); sys.exit(3)
+names = sys.argv[5].split(",")
+for n in names[: (1 if mode == "missing" else None)]:
+    im = Image.open(scene / "images" / n)
+    if mode == "small":
+        im = im.resize((10, 10))
+    im.save(out / (Path(n).stem + ".png"))
+json.dump({"train_seconds": it / 10, "gaussians": 777}, open(out / "stats.json", "w"))
+"""
+
+
+def _external(tmp_path, scene_dir, mode, out_name="run"):
+    script = tmp_path / "trainer.py"
+    script.write_text(COPY_SCRIPT)
+    cmd = f"{sys.executable} {script} {{scene}} {{out}} {{iteration}} {mode} {{test_views}}"
+    return runner.run(["external"], [str(scene_dir)], run_dir=tmp_path / out_name, preset="tiny", ocr="fake",
+                      ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
+                      method_overrides={"external": {"command": cmd}})
+
+
+def test_external_adapter_reads_renders(tmp_path, scene_dir):
+    out = _external(tmp_path, scene_dir, "ok")
+    rows = _rows(out)
+    assert [int(r["iteration"]) for r in rows] == [15, 35, 150]
+    assert all(r["gaussians"] == "777" for r in rows)
+    assert [float(r["train_seconds"]) for r in rows] == [1.5, 3.5, 15.0]
+    assert all(float(r["cer"]) == 0.0 for r in rows)  # renders are the (PNG) ground truth
+
+
+@pytest.mark.parametrize("mode,match", [("fail", "(?s)exit code 3.*trainer exploded"), ("missing", "no render for 1 test view"),
+                                        ("small", "is 10x10, expected 64x48")])
+def test_external_adapter_errors(tmp_path, scene_dir, mode, match):
+    with pytest.raises(StringsBenchError, match=match):
+        _external(tmp_path, scene_dir, mode)
+
+
+def test_external_adapter_unknown_placeholder(tmp_path, scene_dir):
+    from strings_bench.methods.external import ExternalCommandAdapter
+    from strings_bench.scene import Scene
+
+    a = ExternalCommandAdapter(command="train {scene} {nope}")
+    with pytest.raises(StringsBenchError, match="unknown placeholder"):
+        a.build_command(Scene.load(scene_dir), tmp_path, 7000, 1)
+
+
+def test_parse_settings():
+    from strings_bench.run_cli import parse_settings
+
+    assert parse_settings(["ply.ply_path=/m/{scene}.ply", "strings.n_max=25", "x.flag=true"]) == {
+        "ply": {"ply_path": "/m/{scene}.ply"}, "strings": {"n_max": 25}, "x": {"flag": True}}
+    with pytest.raises(StringsBenchError):
+        parse_settings(["nodot=1"])
+
+
+# ---- the PLY adapter ---------------------------------------------------------------------------------
+def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
+    pytest.importorskip("strings_bench.raster")
+    from strings_bench.gaussians import GaussianModel
+    from strings_bench.ply import write_ply
+    from strings_bench.scene import Scene
+
+    scene = Scene.load(scene_dir)
+    model = GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=1)
+    n = model.params["means"].shape[0]
+    write_ply(tmp_path / "models" / "toy" / "point_cloud.ply", model)
+    out = runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run", preset="tiny", ocr="fake",
+                     ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
+                     method_overrides={"ply": {"ply_path": str(tmp_path / "models" / "{scene}" / "point_cloud.ply")}})
+    rows = _rows(out)
+    assert len(rows) == 1 and rows[0]["iteration"] == "30000" and rows[0]["label"] == "30K"
+    assert int(rows[0]["gaussians"]) == n and rows[0]["train_seconds"] == ""
+    with pytest.raises(StringsBenchError, match="does not exist"):
+        runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", preset="tiny", ocr="fake",
+                   ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
+                   method_overrides={"ply": {"ply_path": str(tmp_path / "nowhere.ply")}})

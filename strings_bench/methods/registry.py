@@ -21,7 +21,10 @@ log = logging.getLogger(__name__)
 ENTRY_POINT_GROUP = "strings_bench.methods"
 
 # One module per method; each calls register_method() at import.
-BUILTIN_MODULES: list[str] = []
+BUILTIN_MODULES: list[str] = [
+    "strings_bench.methods.ply_adapter",
+    "strings_bench.methods.external",
+]
 
 
 @dataclass

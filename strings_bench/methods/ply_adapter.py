@@ -1,0 +1,84 @@
+"""Method "ply": evaluate 3DGS models trained elsewhere, saved as PLY files in the 3DGS layout.
+
+Nothing is trained: the PLY is read (`strings_bench.ply.read_ply`) and the scene's test views are
+rendered with our rasterizer (`GaussianModel.render`). Settings:
+
+- `ply_path` (required): the PLY file, or a template with `{scene}`, `{dataset}` and `{iteration}`
+  placeholders so one setting covers several scenes, e.g.
+  `/models/{scene}/point_cloud/iteration_{iteration}/point_cloud.ply` (the 3DGS output layout).
+- `iteration` (default 30000): the checkpoint iteration the model stands for; the run records one
+  cell at this iteration (labelled e.g. "30K"). A list in `iterations` gives several checkpoints.
+- `background` (default black, as 3DGS), `sh_degree` (default: the file's), `backend` (raster backend).
+- `train_seconds` (optional): the training time to report; otherwise NaN (tables show n/a).
+
+    strings-bench run --methods ply --set ply.ply_path=/models/{scene}/point_cloud.ply --datasets strings360
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import StringsBenchError
+from .base import CheckpointResult, MethodAdapter
+from .registry import MethodSpec, register_method
+
+
+class PlyAdapter(MethodAdapter):
+    name = "ply"
+    paper = ""
+
+    def fixed_checkpoints(self) -> list[int]:
+        """The runner evaluates these iterations instead of the preset's (nothing is trained)."""
+        its = self.settings.get("iterations") or [self.settings.get("iteration", 30000)]
+        return sorted(int(i) for i in its)
+
+    def resolve_path(self, scene, iteration: int) -> Path:
+        template = self.settings.get("ply_path")
+        if not template:
+            raise StringsBenchError("method ply needs the setting ply_path",
+                                    hint="e.g. --set ply.ply_path=/models/{scene}/point_cloud.ply")
+        dataset = scene.root.parent.name
+        try:
+            path = Path(str(template).format(scene=scene.name, dataset=dataset, iteration=iteration))
+        except (KeyError, IndexError) as exc:
+            raise StringsBenchError(f"ply_path {template!r} has an unknown placeholder {exc}",
+                                    hint="placeholders: {scene}, {dataset}, {iteration}") from exc
+        if not path.is_file():
+            raise StringsBenchError(f"PLY model {path} (scene {scene.name}, iteration {iteration}) does not exist",
+                                    hint="check ply_path; it may use {scene}, {dataset} and {iteration}")
+        return path
+
+    def train(self, scene, checkpoints: list[int], downscale: float = 1) -> Iterator[CheckpointResult]:
+        import torch
+
+        from ..ply import read_ply
+
+        bg = tuple(float(x) for x in self.settings.get("background", (0.0, 0.0, 0.0)))
+        for it in sorted(checkpoints):
+            path = self.resolve_path(scene, it)
+            model = read_ply(path)
+            renders = {}
+            with torch.no_grad():
+                for i in scene.test_idx:
+                    out = model.render(scene.camera(i, downscale), bg, sh_degree=self.settings.get("sh_degree"),
+                                       **({"backend": self.settings["backend"]} if "backend" in self.settings else {}))
+                    renders[scene.names[i]] = np.clip(out.color.detach().cpu().numpy(), 0, 1).astype(np.float32)
+            yield CheckpointResult(iteration=it, renders=renders,
+                                   train_seconds=float(self.settings.get("train_seconds", math.nan)),
+                                   gaussians=int(model.params["means"].shape[0]), extra={"ply_path": str(path)})
+
+
+def _factory(**settings) -> PlyAdapter:
+    return PlyAdapter(**settings)
+
+
+SPEC = register_method(MethodSpec(
+    name="ply",
+    factory=_factory,
+    description="evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
+    defaults={"iteration": 30000},
+))

@@ -1,0 +1,130 @@
+"""Reports: ranking/shading, n/a handling, table layouts, files produced, LaTeX compiles."""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import subprocess
+
+import pandas as pd
+import pytest
+
+import runner_fakes as rf
+from strings_bench import runner
+from strings_bench.reports import tables, write_report
+
+
+def test_rank_classes_ties_and_nan():
+    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], True) == ["third", "first", "second", None]
+    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], False) == ["second", None, "third", "first"]
+    # Ties share a place (the paper shades two "third" 0.392s); NaN never ranks.
+    assert tables.rank_classes([0.392, 0.392, 0.1, math.nan, 0.2], True) == ["third", "third", "first", None, "second"]
+    # Compared as printed: 0.1234 and 0.1231 both show 0.123.
+    assert tables.rank_classes([0.1234, 0.1231, 0.2], True, decimals=3) == ["first", "first", "second"]
+
+
+def _frame(cer_7k: dict, cer_30k: dict, lpips=math.nan, datasets=("synthetic",)):
+    rows = []
+    for d in datasets:
+        for m in cer_7k:
+            for label, it, cer in (("7K", 350, cer_7k[m]), ("30K", 1500, cer_30k[m])):
+                for scene, delta in (("a", -0.01), ("b", 0.01)):  # mean over scenes = the given value
+                    rows.append({"method": m, "dataset": d, "scene": scene, "iteration": it, "label": label,
+                                 "cer": cer + delta, "cer_known": math.nan, "psnr": 25.0, "ssim": 0.9, "lpips": lpips,
+                                 "train_seconds": 60.0 * (1 + len(m)), "gaussians": 12345, "ocr_failed": 0})
+    return pd.DataFrame(rows)
+
+
+def _shade_of(tex: str, method_title: str) -> list[str | None]:
+    line = next(l for l in tex.splitlines() if l.startswith(method_title))
+    cells = line.rstrip(" \\").split(" & ")[1:]
+    return [m.group(1) if (m := re.match(r"\\cellcolor\{(\w+)\}", c)) else None for c in cells]
+
+
+def test_ocr_cer_latex_shades_best_three(tmp_path):
+    cer7 = {"3dgs": 0.736, "mip-splatting": 0.748, "mcmc": 0.927, "absgs": 0.768, "edc": 0.328, "strings": 0.177}
+    cer30 = {"3dgs": 0.148, "mip-splatting": 0.129, "mcmc": 0.110, "absgs": 0.143, "edc": 0.116, "strings": 0.106}
+    df = _frame(cer7, cer30)
+    manifest = {"preset": {"name": "quick", "steps_scale": 0.05},
+                "methods": {"3dgs": {"paper": "SIGGRAPH'23"}, "strings": {"paper": "WACV'26"}}}
+    written = tables.write_tables(df, tmp_path, manifest)
+    tex = written["ocr_cer"]["tex"].read_text()
+    # Same shading as the paper's STRinGS-360 columns.
+    assert _shade_of(tex, r"\textbf{STRinGS}") == ["first", "first"]
+    assert _shade_of(tex, "EDC-AbsGS") == ["second", "third"]
+    assert _shade_of(tex, "3DGS-MCMC") == [None, "second"]
+    assert _shade_of(tex, "3DGS~") == ["third", None]
+    assert _shade_of(tex, "AbsGS") == [None, None]
+    assert r"\papertable{SIGGRAPH'23}" in tex
+    assert "0.177" in tex and "0.106" in tex  # the mean over scenes a and b
+    assert "7K = 350 iterations" in tex and "30K = 1500 iterations" in tex
+    assert r"\cmidrule(lr){2-3}" in tex and "Synthetic" in tex
+    # Paper row order.
+    order = [l.split("~")[0].split(" &")[0] for l in tex.splitlines() if "&" in l and "cellcolor" in l or l.startswith("AbsGS")]
+    assert order.index("3DGS") < order.index(r"\textbf{STRinGS}")
+    md = written["ocr_cer"]["md"].read_text()
+    assert "| STRinGS | 0.177 **(1)** | 0.106 **(1)** |" in md
+    csv = pd.read_csv(written["ocr_cer"]["csv"])
+    assert csv.loc[csv["method"] == "strings", "Synthetic 7K"].iloc[0] == pytest.approx(0.177)
+
+
+def test_missing_lpips_is_na_never_zero(tmp_path):
+    df = _frame({"3dgs": 0.2, "strings": 0.1}, {"3dgs": 0.1, "strings": 0.05}, lpips=math.nan)
+    written = tables.write_tables(df, tmp_path)
+    tex = written["metrics"]["tex"].read_text()
+    rows = [l for l in tex.splitlines() if l.startswith("3DGS") or l.startswith(r"\textbf{STRinGS}")]
+    assert all(" & n/a & " in r for r in rows)
+    assert "0.0000" not in tex
+    assert "12K" in tex  # Points in thousands
+
+
+def test_ablation_table_layout(tmp_path):
+    cer7 = {"strings": 0.177, "strings-no-densify": 0.437, "strings-pos-lr": 0.2}
+    df = _frame(cer7, cer7)
+    extra = df[df["label"] == "7K"].copy()
+    extra["label"], extra["iteration"] = "3K", 150
+    extra.loc[extra["method"] == "strings-pos-lr", "cer"] += 0.6
+    df = pd.concat([df, extra])
+    written = tables.write_tables(df, tmp_path)
+    tex = written["ablations"]["tex"].read_text()
+    assert "Effect of text densification" in tex and "Effect of zero position LR" in tex
+    assert r"0.437 & \textbf{0.177}" in tex
+    assert "(3K iterations)" in tex
+    # Ablation methods stay out of the main table.
+    assert "w/o text densification" not in written["ocr_cer"]["tex"].read_text()
+
+
+@pytest.fixture(scope="module")
+def fake_run(tmp_path_factory):
+    rf.register_fakes()
+    root = tmp_path_factory.mktemp("rep")
+    scene = rf.make_scene(root / "scenes" / "toyset")
+    out = root / "run"
+    runner.run(["fake-a", "fake-b", "fake-c"], [str(scene)], run_dir=out, preset="tiny", ocr="fake",
+               ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
+    return out
+
+
+def test_report_files_produced(fake_run):
+    rep = fake_run / "report"
+    for name in ("ocr_cer", "training_time", "metrics", "known_text_cer"):
+        for ext in ("tex", "md", "csv"):
+            assert (rep / "tables" / f"{name}.{ext}").stat().st_size > 0
+    for fig in ("cer_vs_time_7K", "cer_over_iterations", "qualitative_7K", "qualitative_30K"):
+        assert (rep / "figures" / f"{fig}.png").stat().st_size > 1000
+    md = (rep / "report.md").read_text()
+    assert "figures/cer_vs_time_7K.png" in md and "| fake-a |" in md
+    # A report can be rebuilt on its own from the cells (e.g. after deleting results.csv).
+    (fake_run / "results.csv").unlink()
+    write_report(fake_run)
+    assert len(pd.read_csv(fake_run / "results.csv")) == 9
+
+
+@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed")
+def test_latex_compiles(fake_run, tmp_path):
+    d = fake_run / "report" / "tables"
+    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "-output-directory", str(tmp_path),
+                           "tables.tex"], cwd=d, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    assert (tmp_path / "tables.pdf").stat().st_size > 1000
