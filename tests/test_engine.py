@@ -1,0 +1,325 @@
+"""Engine: Gaussian init, Adam (vs torch.optim.Adam), LR schedule, densification ops (state, extras,
+children statistics), the vanilla 3DGS strategy, and the trainer (end to end, repeatability, NaN)."""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _engine_helpers import install_stand_in_raster, make_tiny_scene  # noqa: E402
+
+from strings_bench.errors import TrainingError  # noqa: E402
+from strings_bench.gaussians import SH_C0, GaussianModel  # noqa: E402
+from strings_bench.optim import GaussianAdam, LearningRates, exponential_lr  # noqa: E402
+from strings_bench.strategies import DefaultStrategy, Strategy, ops  # noqa: E402
+from strings_bench.trainer import TrainConfig, Trainer  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    # Tiny tensors: thread start-up costs more than the work, badly so on a busy 2-core machine.
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    install_stand_in_raster()
+    return make_tiny_scene(tmp_path_factory.mktemp("tiny"))
+
+
+def _random_model(n=40, seed=0, degree=1):
+    rng = np.random.default_rng(seed)
+    m = GaussianModel.from_points(rng.normal(size=(n, 3)), rng.integers(0, 256, (n, 3)).astype(np.uint8),
+                                  sh_degree=degree, extras={"is_text": torch.from_numpy(rng.random(n) < 0.5),
+                                                            "tag": torch.arange(n)})
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in m.params.values():
+            p.add_(0.1 * torch.randn(p.shape, generator=g))
+    return m
+
+
+# ---- model ------------------------------------------------------------------------------------
+def test_from_points_matches_3dgs_init():
+    rng = np.random.default_rng(1)
+    xyz = rng.normal(size=(30, 3))
+    rgb = rng.integers(0, 256, (30, 3)).astype(np.uint8)
+    m = GaussianModel.from_points(xyz, rgb, sh_degree=3)
+    d2 = ((xyz[:, None] - xyz[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    expected = np.log(np.sqrt(np.sort(d2, axis=1)[:, :3].mean(1)))
+    np.testing.assert_allclose(m.params["log_scales"].detach().numpy(), np.repeat(expected[:, None], 3, 1), rtol=1e-5)
+    np.testing.assert_allclose(m.opacities.detach().numpy(), 0.1, rtol=1e-5)
+    np.testing.assert_array_equal(m.params["quats"].detach().numpy(), np.tile([1, 0, 0, 0], (30, 1)))
+    np.testing.assert_allclose(m.params["sh0"].detach().numpy()[:, 0], (rgb / 255 - 0.5) / SH_C0, rtol=1e-5, atol=1e-6)
+    assert m.params["shN"].shape == (30, 15, 3) and not m.params["shN"].detach().any()
+    assert len(m) == 30 and m.sh.shape == (30, 16, 3)
+
+
+def test_concat_and_subset_keep_extras():
+    a, b = _random_model(5, 1), _random_model(7, 2)
+    del b.extras["tag"]
+    c = GaussianModel.concat([a, b])
+    assert len(c) == 12 and c.extras["tag"][5:].eq(0).all() and c.extras["is_text"].dtype == torch.bool
+    s = c.subset(c.extras["is_text"])
+    assert len(s) == int(c.extras["is_text"].sum())
+    torch.testing.assert_close(s.params["means"], c.params["means"][c.extras["is_text"]])
+
+
+# ---- optimizer -------------------------------------------------------------------------------
+def test_adam_matches_torch_adam():
+    m1, m2 = _random_model(seed=3), _random_model(seed=3)
+    lrs = {"means": 1e-2, "quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 0.05, "sh0": 2.5e-3, "shN": 1e-4}
+    ours = GaussianAdam(m1.params, lrs)
+    ref = torch.optim.Adam([{"params": [m2.params[k]], "lr": v} for k, v in lrs.items()], eps=1e-15)
+    for it in range(5):
+        for m in (m1, m2):
+            loss = sum(((p - 0.3 * it) ** 2 * (1 + i)).sum() for i, p in enumerate(m.params.values()))
+            loss.backward()
+        ours.step()
+        ref.step()
+        ours.zero_grad()
+        ref.zero_grad()
+    for k in lrs:
+        torch.testing.assert_close(m1.params[k], m2.params[k], rtol=1e-6, atol=1e-7)
+
+
+def test_row_scale_scales_the_update_not_the_gradient():
+    m = _random_model(10, seed=4)
+    before = m.params["means"].detach().clone()
+    opt = GaussianAdam(m.params, {"means": 0.1})
+    (m.params["means"] * torch.arange(1.0, 31.0).reshape(10, 3)).sum().backward()
+    scale = torch.tensor([0.0, 0.5, 1.0, 2.0] + [1.0] * 6)
+    opt.step({"means": scale})
+    step = m.params["means"].detach() - before
+    # First Adam step moves every coordinate by lr * sign(grad), whatever the gradient's size.
+    torch.testing.assert_close(step, -0.1 * scale[:, None].expand(10, 3), rtol=1e-5, atol=1e-7)
+
+
+def test_exponential_lr_schedule():
+    assert exponential_lr(0, 1.6e-4, 1.6e-6, 30000) == pytest.approx(1.6e-4)
+    assert exponential_lr(30000, 1.6e-4, 1.6e-6, 30000) == pytest.approx(1.6e-6)
+    assert exponential_lr(15000, 1.6e-4, 1.6e-6, 30000) == pytest.approx(math.sqrt(1.6e-4 * 1.6e-6))
+    assert exponential_lr(60000, 1.6e-4, 1.6e-6, 30000) == pytest.approx(1.6e-6)
+    lrs = LearningRates().group_lrs(extent=2.0)
+    assert lrs["means"] == pytest.approx(3.2e-4) and lrs["opacity_logits"] == 0.05 and lrs["shN"] == pytest.approx(1.25e-4)
+
+
+# ---- ops ------------------------------------------------------------------------------------------
+def _adam_with_state(m):
+    opt = GaussianAdam(m.params, {k: 1e-3 for k in m.params})
+    for k, p in m.params.items():  # distinct, recognisable moments per row
+        rows = torch.arange(len(m), dtype=torch.float32).reshape((-1,) + (1,) * (p.ndim - 1))
+        opt.state[k]["exp_avg"] = (rows + 1).expand(p.shape).clone()
+        opt.state[k]["exp_avg_sq"] = (rows + 1000).expand(p.shape).clone()
+    return opt
+
+
+def test_ops_move_optimizer_state_extras_and_strategy_state():
+    m = _random_model(10, seed=5)
+    opt = _adam_with_state(m)
+    state = {"grad2d": torch.arange(10.0), "scalar": 3}
+    old_means = m.params["means"].detach().clone()
+    clone = torch.zeros(10, dtype=torch.bool)
+    clone[[2, 7]] = True
+    ops.duplicate(m, opt, clone, state=state)
+    assert len(m) == 12 and m.extras["tag"].tolist() == list(range(10)) + [2, 7]
+    torch.testing.assert_close(m.params["means"][10:], old_means[[2, 7]])
+    ea = opt.state["means"]["exp_avg"]
+    assert ea[:10, 0].tolist() == [float(i + 1) for i in range(10)] and ea[10:].eq(0).all()
+    assert opt.state["means"]["exp_avg_sq"][10:].eq(0).all()
+    assert state["grad2d"].tolist() == list(map(float, range(10))) + [2.0, 7.0] and state["scalar"] == 3
+    assert opt.params["means"] is m.params["means"]
+
+    split = torch.zeros(12, dtype=torch.bool)
+    split[[0, 11]] = True
+    ops.split(m, opt, split, n_children=3, state=state)
+    assert len(m) == 12 - 2 + 6 and m.extras["tag"].tolist() == [1, 2, 3, 4, 5, 6, 7, 8, 9, 2, 0, 0, 0, 7, 7, 7]
+    assert opt.state["quats"]["exp_avg"][:10, 0].tolist() == [2.0, 3, 4, 5, 6, 7, 8, 9, 10, 0]
+    assert opt.state["quats"]["exp_avg"][10:].eq(0).all() and opt.state["sh0"]["exp_avg_sq"][10:].eq(0).all()
+    assert m.extras["is_text"].dtype == torch.bool and len(m.extras["is_text"]) == 16
+
+    remove = m.extras["tag"] == 7
+    kept_sq = opt.state["log_scales"]["exp_avg_sq"][~remove].clone()
+    ops.remove(m, opt, remove, state=state)
+    assert len(m) == 12 and 7 not in m.extras["tag"].tolist()
+    torch.testing.assert_close(opt.state["log_scales"]["exp_avg_sq"], kept_sq)
+    assert state["grad2d"].shape == (12,)
+    for k, p in m.params.items():
+        assert isinstance(p, torch.nn.Parameter) and opt.state[k]["exp_avg"].shape == p.shape
+
+    new = {k: v.detach()[:2].clone() for k, v in m.params.items()}
+    ops.append(m, opt, new, new_extras={"tag": torch.tensor([100, 101])})
+    assert len(m) == 14 and m.extras["tag"][-2:].tolist() == [100, 101] and not m.extras["is_text"][-2:].any()
+
+
+def test_split_children_sample_the_parent_gaussian():
+    m = _random_model(1, seed=6)
+    with torch.no_grad():
+        m.params["log_scales"].copy_(torch.log(torch.tensor([[0.5, 0.2, 0.05]])))
+        m.params["quats"].copy_(torch.tensor([[0.9, 0.3, -0.2, 0.25]]))
+    cov = m.covariances()[0].double()
+    mean = m.params["means"].detach()[0].double()
+    parent_log_scales = m.params["log_scales"].detach().clone()
+    torch.manual_seed(0)
+    n = 40000
+    ops.split(m, None, torch.tensor([True]), n_children=n, scale_divisor=1.6)
+    x = m.params["means"].detach().double()
+    assert len(m) == n
+    torch.testing.assert_close(x.mean(0), mean, atol=0.01, rtol=0)
+    torch.testing.assert_close(torch.cov(x.T), cov, atol=0.004, rtol=0.03)
+    torch.testing.assert_close(m.params["log_scales"].detach(), (parent_log_scales - math.log(1.6)).expand(n, 3))
+
+    # default divisor 0.8 * n: 3DGS split (n = 2) divides scales by 1.6
+    m2 = _random_model(4, seed=7)
+    before = m2.scales.detach().clone()
+    ops.split(m2, None, torch.tensor([True, False, False, False]))
+    torch.testing.assert_close(m2.scales.detach()[3:], (before[0] / 1.6).expand(2, 3))
+
+
+def test_reset_opacity_caps_and_zeroes_state():
+    m = _random_model(6, seed=8)
+    with torch.no_grad():
+        m.params["opacity_logits"].copy_(torch.logit(torch.tensor([0.001, 0.005, 0.01, 0.2, 0.5, 0.9])))
+    opt = _adam_with_state(m)
+    ops.reset_opacity(m, opt, 0.01)
+    np.testing.assert_allclose(m.opacities.detach().numpy(), [0.001, 0.005, 0.01, 0.01, 0.01, 0.01], rtol=1e-5)
+    assert opt.state["opacity_logits"]["exp_avg"].eq(0).all() and opt.state["means"]["exp_avg"].ne(0).all()
+    assert opt.params["opacity_logits"] is m.params["opacity_logits"]
+
+
+# ---- strategy ----------------------------------------------------------------------------------
+def test_default_strategy_clone_split_prune():
+    m = _random_model(6, seed=9)
+    with torch.no_grad():
+        m.params["log_scales"].copy_(torch.log(torch.tensor([0.005, 0.005, 0.05, 0.05, 0.005, 0.005])).unsqueeze(1).expand(6, 3))
+        m.params["opacity_logits"].copy_(torch.logit(torch.tensor([0.5, 0.5, 0.5, 0.5, 0.001, 0.5])))
+    opt = GaussianAdam(m.params, {})
+    strat = DefaultStrategy()
+    state = strat.initialize_state(scene_extent=1.0)
+    # NDC gradient norms: 3e-4 (high) for Gaussians 0 and 2, 1e-4 (low) otherwise; all visible.
+    px = torch.tensor([3e-4, 1e-4, 3e-4, 1e-4, 1e-4, 1e-4])
+    means2d = torch.zeros(6, 2, requires_grad=True)
+    means2d.grad = torch.stack([px / (64 / 2), torch.zeros(6)], 1)
+    info = {"means2d": means2d, "radii": torch.ones(6, dtype=torch.long), "width": 64, "height": 48}
+    strat.update_state(m, state, info)
+    torch.testing.assert_close(state["grad2d"], px)
+    strat.step_post_backward(m, opt, state, step=600, info=info)  # 600: refine step, grads counted twice
+    # 0 cloned (small), 2 split into 2 (large), 4 pruned (opacity 0.001)
+    assert state["last_clone"] == 1 and state["last_split"] == 1 and state["last_prune"] == 1
+    assert m.extras["tag"].tolist() == [0, 1, 3, 5, 0, 2, 2]
+    assert state["grad2d"] is None
+
+
+def test_default_strategy_schedule_scales_with_steps():
+    strat = DefaultStrategy()
+    state = strat.initialize_state(1.0, steps_scale=0.1)
+    assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 10
+    assert strat.every(state, strat.reset_every) == 300 and strat.at(state, strat.refine_stop_iter) == 1500
+
+
+# ---- trainer -----------------------------------------------------------------------------------
+def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
+    cfg = TrainConfig(checkpoints=(1000, 7000), steps_scale=0.05, sh_degree=1, progress=False,
+                      ply_dir=str(tmp_path / "ply"))
+    tr = Trainer(tiny_scene, cfg)
+    losses = []
+    orig = tr.train_step
+
+    def record(step):
+        losses.append(orig(step))
+        return losses[-1]
+
+    tr.train_step = record
+    results = list(tr.train())
+    assert [r.iteration for r in results] == [1000, 7000]
+    assert [r.extra["steps"] for r in results] == [50, 350]
+    assert results[0].train_seconds < results[1].train_seconds
+    assert all(r.gaussians > 0 and r.peak_memory_mb > 0 for r in results)
+    names = [tiny_scene.names[i] for i in tiny_scene.test_idx]
+    for r in results:
+        assert sorted(r.renders) == sorted(names)
+        for img in r.renders.values():
+            assert img.shape == (24, 32, 3) and img.dtype == np.float32 and 0 <= img.min() and img.max() <= 1
+    assert np.mean(losses[-30:]) < 0.6 * np.mean(losses[:10])
+    assert results[1].gaussians != 120  # densification ran (clones/splits/prunes at scaled steps)
+    assert Path(results[1].extra["ply"]).exists()
+    # held-out views are reproduced much better than by the initial point cloud
+    gt = {tiny_scene.names[i]: tiny_scene.load_image(i) for i in tiny_scene.test_idx}
+    tr.set_model(tr.initial_model(tiny_scene))
+    err0 = np.mean([np.abs(img - gt[k]).mean() for k, img in tr.render_views(tiny_scene.test_idx).items()])
+    err = np.mean([np.abs(results[1].renders[k] - gt[k]).mean() for k in gt])
+    assert err < 0.5 * err0, (err, err0)
+
+
+def test_trainer_is_repeatable(tiny_scene):
+    def run(seed):
+        cfg = TrainConfig(checkpoints=(1000,), steps_scale=0.02, sh_degree=0, progress=False, seed=seed)
+        return next(iter(Trainer(tiny_scene, cfg).train()))
+
+    a, b, c = run(0), run(0), run(1)
+    for k in a.renders:
+        np.testing.assert_array_equal(a.renders[k], b.renders[k])
+    assert any(not np.array_equal(a.renders[k], c.renders[k]) for k in a.renders)
+
+
+def test_trainer_schedules_scale():
+    class FakeScene:
+        extent = 2.0
+        name = "fake"
+
+    tr = Trainer(FakeScene(), TrainConfig(checkpoints=(7000, 30000), steps_scale=0.1))
+    assert tr.checkpoint_steps() == {700: 7000, 3000: 30000}
+    assert tr.sh_degree_for_step(99) == 0 and tr.sh_degree_for_step(100) == 1 and tr.sh_degree_for_step(2000) == 3
+    assert tr.position_lr(1500) == pytest.approx(2 * math.sqrt(1.6e-4 * 1.6e-6))
+    assert tr.position_lr(3000) == pytest.approx(1.6e-6 * 2)
+
+
+def test_nan_parameter_stops_training_naming_group(tiny_scene):
+    class Poison(Trainer):
+        def on_step_start(self, step):
+            if step == 7:
+                with torch.no_grad():
+                    self.model.params["log_scales"][3, 0] = float("nan")
+
+    cfg = TrainConfig(checkpoints=(20,), sh_degree=0, progress=False)
+    with pytest.raises(TrainingError, match=r"iteration 7.*log_scales"):
+        list(Poison(tiny_scene, cfg, strategy=Strategy()).train())
+
+
+def test_nan_gradient_stops_training_naming_group(tiny_scene):
+    class BadGrad(Trainer):
+        def loss(self, out, gt, view_idx, step):
+            base = super().loss(out, gt, view_idx, step)
+            if step == 4:  # finite value, infinite derivative: sqrt at 0
+                base = base + 0 * torch.sqrt(self.model.params["quats"][:, 1] * 0).sum()
+            return base
+
+    cfg = TrainConfig(checkpoints=(10,), sh_degree=0, progress=False)
+    with pytest.raises(TrainingError, match=r"iteration 4.*quats"):
+        list(BadGrad(tiny_scene, cfg, strategy=Strategy()).train())
+
+
+def test_per_row_position_lr_scale(tiny_scene):
+    class Frozen(Trainer):
+        def initial_model(self, scene):
+            m = super().initial_model(scene)
+            m.extras["is_text"] = torch.arange(len(m)) % 2 == 0
+            self.start = m.params["means"].detach().clone()
+            return m
+
+        def position_lr_scale(self, step):
+            return (~self.model.extras["is_text"]).float()  # text rows get position LR 0
+
+    tr = Frozen(tiny_scene, TrainConfig(checkpoints=(15,), sh_degree=0, progress=False), strategy=Strategy())
+    list(tr.train())
+    moved = (tr.model.params["means"].detach() - tr.start).abs().sum(1) > 0
+    is_text = tr.model.extras["is_text"]
+    assert not moved[is_text].any() and moved[~is_text].float().mean() > 0.5
