@@ -1,0 +1,46 @@
+"""Shared pytest setup.
+
+- STRINGS_BENCH_CACHE points at a per-session temporary folder unless the caller already set it,
+  so tests never write into (or read stale scenes from) the user's cache.
+- `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
+  session (a few seconds) and shared by every test that needs a real scene folder (images,
+  sparse/0 from pycolmap, masks, text_annotations.json). Treat it as read-only.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_OWN_CACHE: str | None = None
+if not os.environ.get("STRINGS_BENCH_CACHE"):
+    _OWN_CACHE = tempfile.mkdtemp(prefix="strings-bench-test-cache-")
+    os.environ["STRINGS_BENCH_CACHE"] = _OWN_CACHE
+
+# Settings of the shared small scene (also reachable from the CLI:
+# `strings-bench datasets prepare synthetic/books --width 160 --height 120 --views 24`).
+SMALL_BOOKS = {"width": 160, "height": 120, "n_views": 24}
+
+
+def pytest_unconfigure(config):
+    if _OWN_CACHE is not None:
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def synthetic_small_settings():
+    from strings_bench.datasets.synthetic import settings_with
+
+    return settings_with(**SMALL_BOOKS)
+
+
+@pytest.fixture(scope="session")
+def synthetic_books_small(synthetic_small_settings) -> Path:
+    """Path of the small `books` scene folder (loadable with Scene.load)."""
+    from strings_bench.datasets.synthetic import build_scene
+
+    return build_scene("books", synthetic_small_settings, progress=False)
