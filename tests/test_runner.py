@@ -304,3 +304,29 @@ def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
         runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", preset="tiny", ocr="fake",
                    ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                    method_overrides={"ply": {"ply_path": str(tmp_path / "nowhere.ply")}})
+
+
+# ---- end to end (opt-in) ------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_end_to_end_cli_3dgs_on_synthetic_books(tmp_path):
+    """The real pipeline: `strings-bench run --methods 3dgs --datasets synthetic/books --preset tiny`."""
+    from strings_bench.cli import main
+    from strings_bench.methods.registry import list_methods
+
+    if "3dgs" not in {s.name for s in list_methods()}:
+        pytest.skip("method 3dgs is not registered yet")
+    out = tmp_path / "run"
+    rc = main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--preset", "tiny", "--out", str(out),
+               "--no-progress"])
+    assert rc == 0
+    rows = _rows(out)
+    assert [r["label"] for r in rows] == ["3K", "7K", "30K"]
+    for r in rows:
+        assert r["cer"] != "" and 0 <= float(r["cer"]) and float(r["psnr"]) > 5 and int(r["gaussians"]) > 0
+        assert float(r["train_seconds"]) > 0
+    assert (out / "report" / "report.md").exists()
+    # Re-running the same command does nothing and keeps every cell.
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("result.json")}
+    assert main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--preset", "tiny", "--out", str(out),
+                 "--no-progress"]) == 0
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("result.json")} == before
