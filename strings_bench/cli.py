@@ -17,6 +17,7 @@ from .errors import StringsBenchError
 
 # One entry per command module; each defines add_cli(subparsers).
 COMMAND_MODULES = [
+    "strings_bench.engine_cli",
     "strings_bench.datasets.cli",
     "strings_bench.ocr.cli",
     "strings_bench.run_cli",

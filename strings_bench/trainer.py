@@ -15,9 +15,9 @@ overriding the hooks (see docs/engine.md):
     on_step_start(step)             -> None                          (e.g. switch phase: self.set_model(...))
     checkpoint_extra(step)          -> dict                          (method stats for CheckpointResult.extra)
 
-Steps are 1-based, as in 3DGS. Checkpoints and every schedule are nominal iteration numbers (for the
-30 000-step run) multiplied by `steps_scale`; a CheckpointResult carries the nominal number in
-`iteration` and the steps actually run in `extra["steps"]`.
+Steps are 1-based, as in 3DGS. Checkpoints are the steps actually run (as the runner asks for them:
+round(paper iteration x steps_scale)); every schedule inside (densification, opacity reset, SH degree,
+position-LR decay) is its nominal 3DGS iteration number multiplied by `steps_scale`.
 
 Training time counts the optimisation steps only (render, loss, backward, Adam, densification),
 not the checkpoint renders or file writes. Peak memory is the process's peak resident set size
@@ -56,7 +56,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class TrainConfig:
-    checkpoints: tuple[int, ...] = (7_000, 30_000)  # nominal iterations
+    checkpoints: tuple[int, ...] = (7_000, 30_000)  # steps actually run (already x steps_scale)
     steps_scale: float = 1.0  # multiplies every iteration number (quick runs)
     seed: int = 0
     sh_degree: int = 3
@@ -70,7 +70,7 @@ class TrainConfig:
     device: str = "cpu"
     backend: str = "auto"  # rasterizer backend
     progress: bool = True
-    ply_dir: str | None = None  # write <ply_dir>/iteration_<nominal>.ply at each checkpoint
+    ply_dir: str | None = None  # write <ply_dir>/iteration_<step>.ply at each checkpoint
     render_test: bool = True
 
     def __post_init__(self):
@@ -190,20 +190,18 @@ class Trainer:
         np.random.seed(self.config.seed)
         self.rng = np.random.default_rng(self.config.seed)
 
-    def checkpoint_steps(self, checkpoints=None) -> dict[int, int]:
-        """actual step -> nominal checkpoint."""
-        noms = sorted({int(c) for c in (checkpoints or self.config.checkpoints)})
-        out: dict[int, int] = {}
-        for c in noms:
-            out.setdefault(max(1, self.at(c)), c)
-        return out
+    def checkpoint_steps(self, checkpoints=None) -> list[int]:
+        steps = sorted({int(c) for c in (checkpoints or self.config.checkpoints)})
+        if steps[0] < 1:
+            raise StringsBenchError(f"checkpoint iterations must be >= 1, got {steps}")
+        return steps
 
     def train(self, checkpoints=None) -> Iterator[CheckpointResult]:
         from tqdm.auto import tqdm
 
         self.seed_everything()
         self.set_model(self._given_model if self._given_model is not None else self.initial_model(self.scene))
-        at_steps = self.checkpoint_steps(checkpoints)
+        at_steps = set(self.checkpoint_steps(checkpoints))
         total = max(at_steps)
         train_seconds = 0.0
         bar = tqdm(total=total, desc=f"train {self.scene.name}", disable=not self.config.progress, leave=False,
@@ -217,7 +215,7 @@ class Trainer:
                 if step % 10 == 0 or step == total:
                     bar.set_postfix(loss=f"{self.last_loss:.4f}", gaussians=len(self.model))
                 if step in at_steps:
-                    yield self.checkpoint(at_steps[step], step, train_seconds)
+                    yield self.checkpoint(step, train_seconds)
         finally:
             bar.close()
 
@@ -276,17 +274,61 @@ class Trainer:
             out[self.scene.names[i]] = r.color.detach().clamp(0, 1).cpu().numpy().astype(np.float32)
         return out
 
-    def checkpoint(self, nominal: int, step: int, train_seconds: float) -> CheckpointResult:
+    def checkpoint(self, step: int, train_seconds: float) -> CheckpointResult:
         degree = self.sh_degree_for_step(step)
         renders = self.render_views(list(self.scene.test_idx), sh_degree=degree) if self.config.render_test else {}
-        extra = {"steps": step, "steps_scale": self.config.steps_scale, "sh_degree": degree,
+        extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
+                 "sh_degree": degree,
                  "last_loss": self.last_loss}
         if self.config.ply_dir:
             from .ply import write_ply
 
-            path = Path(self.config.ply_dir) / f"iteration_{nominal}.ply"
+            path = Path(self.config.ply_dir) / f"iteration_{step}.ply"
             write_ply(path, self.model)
             extra["ply"] = str(path)
         extra.update(self.checkpoint_extra(step))
-        return CheckpointResult(iteration=nominal, renders=renders, train_seconds=train_seconds,
+        return CheckpointResult(iteration=step, renders=renders, train_seconds=train_seconds,
                                 gaussians=len(self.model), peak_memory_mb=peak_memory_mb(self.device), extra=extra)
+
+
+# ---- settings dicts (method presets, CLI --set) -> config + strategy ---------------------------------
+def config_from_settings(settings: dict, checkpoints=None, downscale: float | None = None,
+                         strategy_cls: type[Strategy] = DefaultStrategy, ignore: tuple[str, ...] = ()):
+    """Split a flat settings dict into (TrainConfig, strategy).
+
+    Keys: TrainConfig fields (steps_scale, seed, sh_degree, background, ...), learning rates as
+    `lr_<group>` (lr_means, lr_means_final, lr_opacity_logits, ...), and fields of `strategy_cls`
+    (grow_grad2d, refine_every, ...). Unknown keys are an error (typos must not pass silently);
+    keys in `ignore` are left to the caller.
+    """
+    from dataclasses import fields as dc_fields
+
+    cfg_fields = {f.name for f in dc_fields(TrainConfig)} - {"lrs"}
+    lr_fields = {f.name for f in dc_fields(LearningRates)}
+    strat_fields = {f.name for f in dc_fields(strategy_cls)}
+    cfg_kw, lr_kw, strat_kw, unknown = {}, {}, {}, []
+    for key, value in settings.items():
+        if key in ignore:
+            continue
+        if key in cfg_fields:
+            cfg_kw[key] = value
+        elif key.startswith("lr_") and key[3:] in lr_fields:
+            lr_kw[key[3:]] = float(value)
+        elif key in strat_fields:
+            strat_kw[key] = value
+        else:
+            unknown.append(key)
+    if unknown:
+        raise StringsBenchError(
+            f"unknown setting(s) {', '.join(sorted(unknown))}",
+            hint=f"trainer settings: {', '.join(sorted(cfg_fields))}; learning rates: "
+                 f"{', '.join('lr_' + f for f in sorted(lr_fields))}; strategy: {', '.join(sorted(strat_fields))}")
+    if checkpoints is not None:
+        cfg_kw["checkpoints"] = tuple(int(c) for c in checkpoints)
+    elif "checkpoints" in cfg_kw:
+        cfg_kw["checkpoints"] = tuple(int(c) for c in cfg_kw["checkpoints"])
+    if downscale is not None:
+        cfg_kw["downscale"] = downscale
+    if "background" in cfg_kw:
+        cfg_kw["background"] = tuple(float(x) for x in cfg_kw["background"])
+    return TrainConfig(lrs=LearningRates(**lr_kw), **cfg_kw), strategy_cls(**strat_kw)

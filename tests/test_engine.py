@@ -227,7 +227,7 @@ def test_default_strategy_schedule_scales_with_steps():
 
 # ---- trainer -----------------------------------------------------------------------------------
 def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
-    cfg = TrainConfig(checkpoints=(1000, 7000), steps_scale=0.05, sh_degree=1, progress=False,
+    cfg = TrainConfig(checkpoints=(50, 350), steps_scale=0.05, sh_degree=1, progress=False,
                       ply_dir=str(tmp_path / "ply"))
     tr = Trainer(tiny_scene, cfg)
     losses = []
@@ -239,8 +239,8 @@ def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
 
     tr.train_step = record
     results = list(tr.train())
-    assert [r.iteration for r in results] == [1000, 7000]
-    assert [r.extra["steps"] for r in results] == [50, 350]
+    assert [r.iteration for r in results] == [50, 350]
+    assert [r.extra["paper_iteration"] for r in results] == [1000, 7000]
     assert results[0].train_seconds < results[1].train_seconds
     assert all(r.gaussians > 0 and r.peak_memory_mb > 0 for r in results)
     names = [tiny_scene.names[i] for i in tiny_scene.test_idx]
@@ -261,7 +261,7 @@ def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
 
 def test_trainer_is_repeatable(tiny_scene):
     def run(seed):
-        cfg = TrainConfig(checkpoints=(1000,), steps_scale=0.02, sh_degree=0, progress=False, seed=seed)
+        cfg = TrainConfig(checkpoints=(20,), steps_scale=0.02, sh_degree=0, progress=False, seed=seed)
         return next(iter(Trainer(tiny_scene, cfg).train()))
 
     a, b, c = run(0), run(0), run(1)
@@ -276,7 +276,7 @@ def test_trainer_schedules_scale():
         name = "fake"
 
     tr = Trainer(FakeScene(), TrainConfig(checkpoints=(7000, 30000), steps_scale=0.1))
-    assert tr.checkpoint_steps() == {700: 7000, 3000: 30000}
+    assert tr.checkpoint_steps([3000, 700, 700]) == [700, 3000]
     assert tr.sh_degree_for_step(99) == 0 and tr.sh_degree_for_step(100) == 1 and tr.sh_degree_for_step(2000) == 3
     assert tr.position_lr(1500) == pytest.approx(2 * math.sqrt(1.6e-4 * 1.6e-6))
     assert tr.position_lr(3000) == pytest.approx(1.6e-6 * 2)
@@ -323,3 +323,19 @@ def test_per_row_position_lr_scale(tiny_scene):
     moved = (tr.model.params["means"].detach() - tr.start).abs().sum(1) > 0
     is_text = tr.model.extras["is_text"]
     assert not moved[is_text].any() and moved[~is_text].float().mean() > 0.5
+
+
+def test_gs3d_method_registered_and_trains(tiny_scene):
+    from strings_bench.errors import StringsBenchError
+    from strings_bench.methods.registry import get_method
+
+    spec = get_method("3dgs")
+    assert spec.presets["paper"]["steps_scale"] == 1.0 and "quick" in spec.presets
+    adapter = spec.build(preset="quick", sh_degree=0, progress=False, lr_opacity_logits=0.025, grow_grad2d=3e-4)
+    trainer = adapter.make_trainer(tiny_scene, [10, 20], 1)
+    assert trainer.config.lrs.opacity_logits == 0.025 and trainer.strategy.grow_grad2d == 3e-4
+    assert trainer.config.steps_scale == 0.05
+    results = list(adapter.train(tiny_scene, [10, 20]))
+    assert [r.iteration for r in results] == [10, 20]
+    with pytest.raises(StringsBenchError, match="unknown setting"):
+        spec.build(grow_grad_2d=1).make_trainer(tiny_scene, [10], 1)
