@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 # Modules imported before the `datasets` parser is built; each calls register_subcommand().
-EXTRA_SUBCOMMAND_MODULES: list[str] = []
+EXTRA_SUBCOMMAND_MODULES: list[str] = ["strings_bench.datasets.prepare_cli"]
 
 
 @dataclass(frozen=True)

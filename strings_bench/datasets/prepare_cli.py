@@ -56,26 +56,51 @@ def _run_prepare(args: argparse.Namespace) -> int:
 
 
 # ---- datasets add / check / download ----------------------------------------------------------
-def add_dataset_subcommands(sub) -> None:
-    """Add `add`, `check` and `download` to the `datasets` subparsers."""
-    p = sub.add_parser("add", help="validate a local copy of a dataset or scene and register it under NAME",
-                       description="Check PATH (read-only) and record it in the dataset index. NAME is a "
-                       "built-in dataset id (strings360, tandt, dl3dv: PATH holds its scene folders) or a "
-                       "new name for your own scene folder or folder of scenes.")
+def _setup_add(p: argparse.ArgumentParser) -> None:
+    p.description = ("Check PATH (read-only) and record it in the dataset index. NAME is a built-in dataset id "
+                     "(strings360, tandt, dl3dv: PATH holds its scene folders) or a new name for your own scene "
+                     "folder or folder of scenes.")
     p.add_argument("name")
     p.add_argument("path", type=Path)
     p.add_argument("--force", action="store_true", help="register even if the check finds errors")
     p.set_defaults(func=_run_add)
 
-    p = sub.add_parser("check", help="validate a registered dataset or a scene folder (never modifies files)")
+
+def _setup_check(p: argparse.ArgumentParser) -> None:
+    p.description = "Validate scenes without modifying any file; exit status 1 when a scene has errors."
     p.add_argument("target", nargs="?", default=None,
                    help="registered NAME (or NAME/SCENE) or a PATH; default: every registered local copy")
     p.set_defaults(func=_run_check)
 
-    p = sub.add_parser("download", help="download a dataset with a direct URL, or print the steps to get it")
+
+def _setup_download(p: argparse.ArgumentParser) -> None:
+    p.description = ("Download a dataset that has a direct URL (resumable, hash printed or verified, safe "
+                     "unpacking), then check and register it; for the others print the exact steps.")
     p.add_argument("name")
     p.add_argument("--dest", type=Path, default=None, help="where to unpack (default: CACHE/datasets/NAME)")
     p.set_defaults(func=_run_download)
+
+
+SUBCOMMANDS = (
+    ("add", "validate a local copy of a dataset or scene and register it under NAME", _setup_add),
+    ("check", "validate a registered dataset or a scene folder (never modifies files)", _setup_check),
+    ("download", "download a dataset with a direct URL, or print the steps to get it", _setup_download),
+)
+
+
+def add_dataset_subcommands(sub) -> None:
+    """Add `add`, `check` and `download` to a `datasets` subparsers object (tests, other front ends)."""
+    for name, help_text, setup in SUBCOMMANDS:
+        setup(sub.add_parser(name, help=help_text))
+
+
+def _register_with_datasets_group() -> None:
+    try:
+        from .cli import register_subcommand
+    except ImportError:  # the `datasets` group is not there: add_dataset_subcommands still works
+        return
+    for name, help_text, setup in SUBCOMMANDS:
+        register_subcommand(name, help_text, setup)
 
 
 def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> list:
@@ -144,3 +169,6 @@ def _run_download(args: argparse.Namespace) -> int:
 
     download_dataset(args.name, dest=args.dest)
     return 0
+
+
+_register_with_datasets_group()

@@ -174,6 +174,9 @@ def prepare_scene(
         t = stage(f"match features ({matcher})")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = num_threads
+        # Guided matching re-matches with the verified geometry; on the wall-clock capture it took
+        # registration from 27 to 42 of 44 photos (plain walls give few putative matches).
+        matching.guided_matching = True
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
         else:
