@@ -42,7 +42,7 @@ from .scenes import BUILDERS, SceneSpec
 log = logging.getLogger(__name__)
 
 # Bump whenever rendering, scene content or SfM settings change what a build produces.
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"
 SCENE_NAMES = tuple(BUILDERS)
 META_FILE = "scene_meta.json"
 

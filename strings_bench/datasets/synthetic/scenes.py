@@ -135,7 +135,7 @@ def room(b: Builder, floor: str = "tiles", wall_palette=None) -> None:
         ftex = tiles(rng, 512, 512, 4, 4)
         b.add(lambda m: Disc((0, 0, 0), (0, 0, 1), 7.0, m), Material(ftex, tile=(5, 5)))
     palette = wall_palette or [(200, 196, 184), (120, 140, 170), (170, 110, 90), (90, 120, 90), (60, 60, 70)]
-    wtex = blobs(rng, 384, 1536, palette, 140)
+    wtex = blobs(rng, 512, 2048, palette, 600)
     b.add(lambda m: Cylinder((0, 0, 0), (0, 0, 1), 7.0, 4.0, m), Material(wtex, tile=(3, 1)))
 
 

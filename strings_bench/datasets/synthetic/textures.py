@@ -98,7 +98,7 @@ def tiles(rng: np.random.Generator, h: int, w: int, n_x: int, n_y: int) -> np.nd
         for j in range(n_x):
             c = np.array([150, 140, 125], np.float32) * (0.75 + 0.5 * rng.random()) + rng.normal(0, 10, 3)
             img[ys[i]:ys[i + 1], xs[j]:xs[j + 1]] = c
-    img *= 0.8 + 0.4 * noise_field(rng, h, w, (8, 48, 160))[..., None]
+    img *= 0.75 + 0.5 * noise_field(rng, h, w, (8, 48, 160, 400))[..., None]
     grout = np.zeros((h, w), bool)
     gw = max(1, h // (n_y * 20))
     for yv in ys:
@@ -111,12 +111,13 @@ def tiles(rng: np.random.Generator, h: int, w: int, n_x: int, n_y: int) -> np.nd
 
 def blobs(rng: np.random.Generator, h: int, w: int, palette, n: int) -> np.ndarray:
     """(h, w, 3) uint8 a wall/backdrop: soft noise ground with scattered coloured ellipses (no text)."""
-    base = tinted_noise(rng, h, w, palette[0], amplitude=0.18, octaves=(6, 24, 96))
+    base = tinted_noise(rng, h, w, palette[0], amplitude=0.25, octaves=(6, 24, 96, 384))
     im = Image.fromarray(base)
     draw = ImageDraw.Draw(im)
-    for _ in range(n):
+    for k in range(n):
         cx, cy = rng.random() * w, rng.random() * h
-        rx, ry = (0.01 + 0.04 * rng.random()) * w, (0.03 + 0.12 * rng.random()) * h
+        scale = 1.0 if k < n // 3 else 0.35  # a few large blobs, many small ones
+        rx, ry = scale * (0.01 + 0.03 * rng.random()) * w, scale * (0.03 + 0.1 * rng.random()) * h
         col = tuple(int(v) for v in np.clip(np.asarray(palette[1 + rng.integers(len(palette) - 1)]) + rng.normal(0, 15, 3), 0, 255))
         draw.ellipse([cx - rx, cy - ry, cx + rx, cy + ry], fill=col)
     return np.asarray(im)
