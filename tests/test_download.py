@@ -74,7 +74,7 @@ def server(tmp_path):
     root.mkdir()
     handler = type("H", (RangeHandler,), {"ignore_range": False, "cut_after": None, "requests": []})
     httpd = ThreadingHTTPServer(("127.0.0.1", 0), partial(handler, directory=str(root)))
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     thread.start()
     try:
         yield root, f"http://127.0.0.1:{httpd.server_address[1]}", handler
@@ -242,3 +242,83 @@ def test_extract_refuses_existing_target(tmp_path):
     (tmp_path / "t").mkdir()
     with pytest.raises(Exception, match="already exists"):
         safe_extract(arc, tmp_path / "t", progress=False)
+
+
+# ---- datasets: direct URL end to end, manual steps otherwise -----------------------------------
+def _tiny_scene_zip(path: Path, prefix: str) -> Path:
+    """A valid 3-view PINHOLE scene (written by pycolmap) inside a zip, under `prefix`/."""
+    import numpy as np
+    import pycolmap
+    from PIL import Image
+
+    stage = path.parent / "stage"
+    scene = stage / prefix
+    (scene / "images").mkdir(parents=True)
+    (scene / "sparse" / "0").mkdir(parents=True)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model="PINHOLE", width=32, height=24,
+                                                    params=[30.0, 30.0, 16.0, 12.0]))
+    for i in range(3):
+        Image.fromarray(np.full((24, 32, 3), 60 * i, np.uint8)).save(scene / "images" / f"{i:05d}.jpg")
+        im = pycolmap.Image(name=f"{i:05d}.jpg", keypoints=np.zeros((0, 2)), camera_id=1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(im, pycolmap.Rigid3d(np.hstack([np.eye(3), [[0.1 * i], [0], [0]]])))
+    rec.write_binary(str(scene / "sparse" / "0"))
+    with zipfile.ZipFile(path, "w") as zf:
+        for p in sorted(stage.rglob("*")):
+            if p.is_file():
+                zf.write(p, p.relative_to(stage).as_posix())
+    return path
+
+
+def test_download_dataset_end_to_end(server, tmp_path, monkeypatch):
+    from strings_bench.datasets.download import download_dataset
+    from strings_bench.datasets.registry import (DatasetCard, SceneCard, _REGISTRY, read_index,
+                                                 register_dataset, resolve_scenes)
+
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+    root, url, _ = server
+    arc = _tiny_scene_zip(root / "tandt_test.zip", "tandt/truck")
+    digest = hashlib.sha256(arc.read_bytes()).hexdigest()
+    card = register_dataset(DatasetCard(
+        id="tandt_test", title="test card", scenes=[SceneCard("truck", {"n_max": 20})],
+        download={"url": f"{url}/tandt_test.zip", "sha256": digest, "archive_subdir": "tandt",
+                  "filename": "tandt_test.zip"}))
+    try:
+        said = []
+        got = download_dataset("tandt_test", progress=False, echo=said.append)
+        assert got == tmp_path / "cache" / "datasets" / "tandt_test" / "tandt"
+        assert read_index()["tandt_test"] == str(got.resolve())
+        assert any("1 OK" in s for s in said)
+        (ref,) = resolve_scenes(["tandt_test/truck"])
+        assert ref.settings == {"n_max": 20} and (ref.path / "sparse" / "0" / "images.bin").exists()
+        # Running it again reuses the verified archive and the unpacked folder.
+        assert download_dataset("tandt_test", progress=False, echo=said.append) == got
+    finally:
+        _REGISTRY.pop(card.id, None)
+
+
+@pytest.mark.parametrize("dataset", ["strings360", "dl3dv"])
+def test_manual_datasets_print_steps(dataset, tmp_path, monkeypatch):
+    from strings_bench.datasets.download import download_dataset
+
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+    said = []
+    assert download_dataset(dataset, echo=said.append) is None
+    text = "\n".join(said)
+    assert "Steps:" in text and f"datasets add {dataset} ROOT" in text
+    if dataset == "dl3dv":
+        assert "huggingface.co/datasets/DL3DV/DL3DV-Benchmark" in text and "scenes.json" in text
+    else:
+        assert "strings-official.github.io" in text
+    assert not (tmp_path / "cache" / "downloads").exists()
+
+
+def test_real_cards_carry_the_paper_settings():
+    from strings_bench.datasets.registry import get_dataset
+
+    n_max = {c.id: {s.name: s.settings["n_max"] for s in c.scenes} for c in map(get_dataset, ["strings360", "tandt", "dl3dv"])}
+    assert n_max["strings360"] == dict.fromkeys(["extinguisher", "books", "chemicals", "globe", "shelf"], 25)
+    assert n_max["tandt"] == {"truck": 20, "train": 15}
+    assert n_max["dl3dv"] == dict.fromkeys(["3", "21", "80", "92", "107", "132", "136"], 15)
+    tandt = get_dataset("tandt")
+    assert tandt.download["url"].startswith("https://repo-sam.inria.fr/") and tandt.download["sha256"] is None
