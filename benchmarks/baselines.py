@@ -1,0 +1,78 @@
+"""Train 3DGS and the four baselines on one scene and print PSNR, training time and Gaussians.
+
+    python benchmarks/baselines.py                         # synthetic/books, quick schedule
+    python benchmarks/baselines.py --methods 3dgs mcmc --preset tiny --small --json out.json
+
+PSNR is the mean over the scene's test views of the checkpoint renders (strings_bench.metrics.psnr).
+Training time is the trainer's optimisation time (no checkpoint renders). `--small` uses the
+160x120, 24-view variant of the synthetic scene (the one the tests use).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+DEFAULT_METHODS = ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]
+STEPS_SCALE = {"paper": 1.0, "quick": 0.05, "tiny": 0.005}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="synthetic/books", help="dataset/scene spec or a scene folder")
+    ap.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
+    ap.add_argument("--preset", default="quick", choices=sorted(STEPS_SCALE))
+    ap.add_argument("--downscale", type=float, default=1)
+    ap.add_argument("--small", action="store_true", help="synthetic scenes at 160x120 with 24 views")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--json", help="also write the figures to this JSON file")
+    args = ap.parse_args(argv)
+
+    from strings_bench.io_utils import atomic_write_json
+    from strings_bench.methods.registry import get_method
+    from strings_bench.metrics import psnr
+    from strings_bench.scene import Scene
+
+    if args.small and args.scene.startswith("synthetic/"):
+        from strings_bench.datasets.synthetic import build_scene, settings_with
+
+        name = args.scene.split("/", 1)[1]
+        scene = Scene.load(build_scene(name, settings_with(width=160, height=120, n_views=24), progress=True),
+                           name=name, settings={"n_max": 15})
+    else:
+        from strings_bench.datasets.registry import resolve_scenes
+
+        ref = resolve_scenes([args.scene])[0]
+        scene = Scene.load(ref.path, name=ref.scene, settings=ref.settings)
+
+    s = STEPS_SCALE[args.preset]
+    checkpoints = sorted({max(1, round(c * s)) for c in (7000, 30000)})
+    gts = {scene.names[i]: scene.load_image(i, args.downscale) for i in scene.test_idx}
+    rows = []
+    for method in args.methods:
+        adapter = get_method(method).build(args.preset, seed=args.seed, device=args.device)
+        t0 = time.perf_counter()
+        for res in adapter.train(scene, checkpoints, args.downscale):
+            vals = [psnr(img, gts[name]) for name, img in res.renders.items()]
+            rows.append({"method": method, "iteration": res.iteration, "psnr": float(np.mean(vals)),
+                         "train_seconds": res.train_seconds, "gaussians": res.gaussians,
+                         "wall_seconds": time.perf_counter() - t0})
+            r = rows[-1]
+            print(f"{method:14s} it {r['iteration']:6d}  PSNR {r['psnr']:6.2f} dB  train {r['train_seconds']:7.1f} s  "
+                  f"Gaussians {r['gaussians']:7d}", flush=True)
+    print(f"\n{scene.name}, preset {args.preset} (steps x {s}), {len(gts)} test views, downscale {args.downscale}")
+    print(f"{'method':14s} {'iter':>6s} {'PSNR':>7s} {'train s':>8s} {'Gaussians':>10s}")
+    for r in rows:
+        print(f"{r['method']:14s} {r['iteration']:6d} {r['psnr']:7.2f} {r['train_seconds']:8.1f} {r['gaussians']:10d}")
+    if args.json:
+        atomic_write_json(args.json, {"scene": scene.name, "preset": args.preset, "downscale": args.downscale,
+                                      "seed": args.seed, "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
