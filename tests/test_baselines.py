@@ -334,3 +334,27 @@ def test_absgs_clones_on_ordinary_and_splits_on_absolute_gradient():
     assert len(model) == 6 + 1 + 1
     np.testing.assert_array_equal(np.sort(model.extras["tag"].numpy()), [0, 0, 1, 2, 3, 4, 4, 5])
     assert state["grad2d_abs"] is None and state["grad2d"] is None
+
+
+# ---------------------------------------------------------------------------------------------
+# Training to quality (slow): every baseline on the small synthetic books scene, quick schedule
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small):
+    from strings_bench.methods.registry import get_method
+    from strings_bench.metrics import psnr
+    from strings_bench.scene import Scene
+
+    scene = Scene.load(synthetic_books_small, name="books")
+    gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}
+    final = {}
+    for method in ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]:
+        adapter = get_method(method).build("quick", progress=False)
+        results = list(adapter.train(scene, [350, 1500], 1))
+        assert [r.iteration for r in results] == [350, 1500]
+        last = results[-1]
+        for img in last.renders.values():
+            assert np.isfinite(img).all()
+        final[method] = float(np.mean([psnr(img, gts[name]) for name, img in last.renders.items()]))
+    for method in ["absgs", "edc-absgs", "mip-splatting", "mcmc"]:
+        assert final[method] >= final["3dgs"] - 1.5, final
