@@ -172,14 +172,34 @@ class LPIPSVGG:
         return t.permute(0, 3, 1, 2)
 
     @torch.inference_mode()
+    def reference(self, img) -> list[torch.Tensor]:
+        """Unit-normalised taps of one image, to compare many images against it (`distance_to`)."""
+        x = self._to_tensor(img).to(self.device) * 2.0 - 1.0
+        self._check_size(x)
+        return [f / (torch.sqrt((f * f).sum(1, keepdim=True)) + 1e-10) for f in self.features((x - self.shift) / self.scale)]
+
+    @torch.inference_mode()
+    def distance_to(self, img, ref: list[torch.Tensor]) -> float:
+        """LPIPS between `img` and the image `ref` was made from (same result as __call__, half the work)."""
+        taps = self.reference(img)
+        if taps[0].shape != ref[0].shape:
+            raise StringsBenchError(f"LPIPS: image shapes differ: {tuple(taps[0].shape)} vs {tuple(ref[0].shape)} (first tap)",
+                                    hint="compare a render with its own ground truth")
+        return float(sum(((a - b) ** 2 * lin).sum(1).mean(dim=(1, 2)) for a, b, lin in zip(taps, ref, self.lins))[0])
+
+    @staticmethod
+    def _check_size(x: torch.Tensor) -> None:
+        if min(x.shape[-2:]) < 16:
+            raise StringsBenchError(f"LPIPS needs images of at least 16x16 pixels (got {tuple(x.shape[-2:])})",
+                                    hint="VGG16 pools four times; use a smaller downscale")
+
+    @torch.inference_mode()
     def __call__(self, img0, img1) -> float | np.ndarray:
         a = self._to_tensor(img0).to(self.device)
         b = self._to_tensor(img1).to(self.device)
         if a.shape != b.shape:
             raise StringsBenchError(f"LPIPS: image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}", hint="compare a render with its own ground truth")
-        if min(a.shape[-2:]) < 16:
-            raise StringsBenchError(f"LPIPS needs images of at least 16x16 pixels (got {tuple(a.shape[-2:])})",
-                                    hint="VGG16 pools four times; use a smaller downscale")
+        self._check_size(a)
         n = a.shape[0]
         x = torch.cat([a, b]) * 2.0 - 1.0
         x = (x - self.shift) / self.scale

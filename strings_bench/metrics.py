@@ -79,8 +79,11 @@ def ssim(img: np.ndarray, gt: np.ndarray) -> float:
     return float(ssim_map(img, gt).mean())
 
 
-def lpips(img: np.ndarray, gt: np.ndarray) -> float:
-    """LPIPS-VGG, or NaN when the weights are not installed (logged once)."""
+def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None) -> float:
+    """LPIPS-VGG, or NaN when the weights are not installed (logged once).
+
+    `gt_reference` (from `lpips_reference(gt)`) skips recomputing the ground truth's features.
+    """
     from . import lpips_net
 
     _check_pair(img, gt)
@@ -89,7 +92,20 @@ def lpips(img: np.ndarray, gt: np.ndarray) -> float:
     except lpips_net.LPIPSUnavailable as exc:
         _warn_lpips_once(exc)
         return math.nan
+    if gt_reference is not None:
+        return net.distance_to(np.asarray(img, dtype=np.float32), gt_reference)
     return float(net(np.asarray(img, dtype=np.float32), np.asarray(gt, dtype=np.float32)))
+
+
+def lpips_reference(gt: np.ndarray):
+    """The ground truth's LPIPS features, reused for every render of that view; None if unavailable."""
+    from . import lpips_net
+
+    try:
+        return lpips_net.get_lpips().reference(np.asarray(gt, dtype=np.float32))
+    except lpips_net.LPIPSUnavailable as exc:
+        _warn_lpips_once(exc)
+        return None
 
 
 _warned = False
@@ -108,9 +124,9 @@ def lpips_available() -> bool:
     return lpips_net.available()
 
 
-def image_metrics(img: np.ndarray, gt: np.ndarray, with_lpips: bool = True) -> dict[str, float]:
+def image_metrics(img: np.ndarray, gt: np.ndarray, with_lpips: bool = True, gt_reference=None) -> dict[str, float]:
     out = {"psnr": psnr(img, gt), "ssim": ssim(img, gt)}
-    out["lpips"] = lpips(img, gt) if with_lpips else math.nan
+    out["lpips"] = lpips(img, gt, gt_reference) if with_lpips else math.nan
     return out
 
 

@@ -34,6 +34,8 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
                    help="override a method setting (VALUE parsed as JSON when it can be), e.g. "
                         "--set ply.ply_path=/models/{scene}/point_cloud.ply; repeatable")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
+    p.add_argument("--lpips-at", default="last", choices=["last", "all"],
+                   help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
@@ -53,7 +55,7 @@ def _run(args) -> int:
 
     out = run(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
               downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-              progress=not args.no_progress, method_overrides=parse_settings(args.settings))
+              progress=not args.no_progress, method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at)
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     return 0

@@ -47,6 +47,7 @@ from .io_utils import atomic_write, atomic_write_json, atomic_write_text
 log = logging.getLogger(__name__)
 
 RESULT_FILE = "result.json"
+LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
 RUN_FILE = "run.json"
 RESULTS_CSV = "results.csv"
 DEFAULT_RUN_DIR = Path("runs") / "default"
@@ -264,6 +265,7 @@ class Evaluator:
         self._masks: dict[str, np.ndarray | None] = {}
         self._gt_ocr: dict[str, list | None] = {}
         self._gt_ocr_error: dict[str, str] = {}
+        self._lpips_ref: dict[str, object] = {}
 
     def gt(self, name: str) -> np.ndarray:
         if name not in self._gt:
@@ -310,8 +312,17 @@ class Evaluator:
                 raise StringsBenchError(f"method {method}: render of {n} ({self.scene.name}) has NaN/Inf pixels",
                                         hint="training diverged; run with -v for details")
 
-    def evaluate(self, method: str, renders: dict) -> dict:
+    def lpips_ref(self, name: str):
+        from . import metrics
+
+        if name not in self._lpips_ref:
+            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name))
+        return self._lpips_ref[name]
+
+    def evaluate(self, method: str, renders: dict, with_lpips: bool | None = None) -> dict:
         from . import cer, metrics
+
+        with_lpips = self.with_lpips if with_lpips is None else with_lpips
 
         self.check_renders(method, renders)
         per_view: dict[str, dict] = {}
@@ -321,7 +332,8 @@ class Evaluator:
         for i, name in zip(self.views, self.names):
             gt = self.gt(name)
             r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
-            per_view[name] = metrics.image_metrics(r, gt, with_lpips=self.with_lpips)
+            per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
+                                                   gt_reference=self.lpips_ref(name) if with_lpips else None)
             gt_words = self.gt_words(name)
             render_words, render_err = self._read(r, self.mask(name))
             pairs[name] = (gt_words, render_words)
@@ -378,10 +390,13 @@ class Runner:
     """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests)."""
 
     def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress=None,
-                 on_cell: Callable[[CellKey], None] | None = None):
+                 on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last"):
         self.run_dir = Path(run_dir)
         self.ocr = ocr
         self.with_lpips = with_lpips
+        if lpips_at not in LPIPS_AT:
+            raise StringsBenchError(f"unknown LPIPS policy {lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
+        self.lpips_at = lpips_at
         self.progress = progress
         self.on_cell = on_cell
 
@@ -423,7 +438,10 @@ class Runner:
 
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene) -> None:
         t0 = time.perf_counter()
-        ev = evaluator.evaluate(job.method, result.renders)
+        # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
+        # the paper reports it at 30K.
+        lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
+        ev = evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here)
         cell_dir = key.path(self.run_dir)
         for name, img in result.renders.items():
             if name in evaluator.names:
@@ -589,7 +607,7 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
 
 
 def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lpips: bool = True,
-            progress: bool = True, write_report: bool = True) -> Path:
+            progress: bool = True, write_report: bool = True, lpips_at: str = "last") -> Path:
     """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -607,7 +625,8 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             bar.update(1)
             bar.set_postfix_str(f"{key.method} {key.dataset}/{key.scene} @{key.iteration}")
 
-    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips, on_cell=on_cell)
+    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips, on_cell=on_cell,
+                    lpips_at=lpips_at)
     ex = get_executor(executor, runner) if isinstance(executor, str) else executor
     errors: list[tuple[Job, BaseException]] = []
     try:
@@ -638,8 +657,8 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
         progress: bool = True, write_report: bool = True, ocr_backend=None,
-        method_overrides: dict[str, dict] | None = None) -> Path:
+        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last") -> Path:
     """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
     plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
-                   write_report=write_report)
+                   write_report=write_report, lpips_at=lpips_at)

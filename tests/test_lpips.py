@@ -107,3 +107,10 @@ def test_too_small_is_clear(net):
 
     with pytest.raises(StringsBenchError, match="16x16"):
         net(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))
+
+
+def test_reference_path_equals_pairwise(net):
+    x, y = _img(8), _img(9)
+    ref = net.reference(y)
+    assert net.distance_to(x, ref) == pytest.approx(net(x, y), rel=1e-5, abs=1e-7)
+    assert net.distance_to(y, ref) == 0.0
