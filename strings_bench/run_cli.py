@@ -98,7 +98,9 @@ def _methods_list(args) -> int:
         return 1
     for s in specs:
         presets = ", ".join(s.presets) or "-"
-        print(f"{s.name:22s} {s.paper or '-':24s} presets: {presets}")
+        print(f"{s.name:20s} presets: {presets}")
         if s.description:
-            print(f"{'':22s} {s.description}")
+            print(f"{'':20s} {s.description}")
+        if s.paper:
+            print(f"{'':20s} paper: {s.paper}")
     return 0

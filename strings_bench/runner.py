@@ -563,7 +563,10 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     jobs = []
     for m in methods:
         spec = specs[m]
-        adapter = spec.build(preset=preset if preset in spec.presets else None, **overrides.get(m, {}))
+        m_over = dict(overrides.get(m, {}))
+        if preset not in spec.presets and "steps_scale" in spec.defaults and "steps_scale" not in m_over:
+            m_over["steps_scale"] = p.steps_scale  # the method has no such preset: scale it like the run
+        adapter = spec.build(preset=preset if preset in spec.presets else None, **m_over)
         # A method may carry its own schedule scale (its preset), else the run preset's applies.
         steps_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
         checkpoints = p.checkpoints(steps_scale)
@@ -573,7 +576,7 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
         labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
         for ref in refs:
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
-                            tuple(checkpoints), labels, preset, ds, ocr, dict(overrides.get(m, {}))))
+                            tuple(checkpoints), labels, preset, ds, ocr, m_over))
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr,
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},

@@ -128,3 +128,10 @@ def test_latex_compiles(fake_run, tmp_path):
                            "tables.tex"], cwd=d, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:]
     assert (tmp_path / "tables.pdf").stat().st_size > 1000
+
+
+def test_short_venue():
+    assert tables.short_venue("Kerbl et al.: 3D Gaussian Splatting (SIGGRAPH 2023)") == "SIGGRAPH'23"
+    assert tables.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
+    assert tables.short_venue("CVPR'24") == "CVPR'24"
+    assert tables.short_venue("no venue here") == ""

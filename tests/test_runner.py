@@ -225,7 +225,7 @@ def test_methods_list_cli(capsys):
     rf.register_fakes()
     run_cli._methods_list(None)
     out = capsys.readouterr().out
-    assert "fake-a" in out and "Test'25" in out and "presets: tiny" in out
+    assert "fake-a" in out and "paper: Test'25" in out and "presets: tiny" in out
 
 
 # ---- the external-command adapter ----------------------------------------------------------------
@@ -346,3 +346,13 @@ def test_lpips_at_all_checkpoints(tmp_path, scene_dir):
     out = _run(tmp_path / "run", scene_dir, methods=["fake-b"], with_lpips=True, lpips_at="all", write_report=False)
     lp = [float(r["lpips"]) for r in _rows(out)]
     assert lp[0] > lp[1] > lp[2] == pytest.approx(0.0, abs=1e-6)  # fades less with every checkpoint
+
+
+def test_run_preset_scales_methods_without_that_preset(tmp_path, scene_dir):
+    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+                               presets={"quick": {"steps_scale": 0.05}}))
+    tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake")
+    assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}
+    quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "quick", "fake")
+    assert quick.jobs[0].checkpoints == (150, 350, 1500)
+    assert quick.jobs[0].labels == {150: "3K", 350: "7K", 1500: "30K"}

@@ -62,6 +62,20 @@ def method_order(methods) -> list[str]:
     return known + sorted(m for m in ms if m not in known)
 
 
+def short_venue(paper: str) -> str:
+    """'... Rendering (SIGGRAPH 2023)' -> "SIGGRAPH'23"; "CVPR'24" stays; '' when no venue/year is found."""
+    import re
+
+    paper = str(paper or "").strip()
+    if re.fullmatch(r"[\w .-]+'\d\d", paper):
+        return paper
+    found = re.findall(r"\(([A-Za-z][\w .-]*?)\s+((?:19|20)\d\d)\)", paper)
+    if not found:
+        return ""
+    venue, year = found[-1]
+    return f"{venue.strip()}'{year[2:]}"
+
+
 def method_title(method: str, papers: dict | None = None, latex: bool = False) -> str:
     title = METHOD_TITLES.get(method, method)
     if not latex:
@@ -69,8 +83,8 @@ def method_title(method: str, papers: dict | None = None, latex: bool = False) -
     t = latex_escape(title)
     if method == "strings":
         t = r"\textbf{" + t + "}"
-    paper = (papers or {}).get(method)
-    if paper:
+    paper = short_venue((papers or {}).get(method, ""))
+    if paper and method not in ABLATION_METHODS:
         t += r"~\papertable{" + latex_escape(paper) + "}"
     return t
 
