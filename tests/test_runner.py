@@ -354,5 +354,5 @@ def test_run_preset_scales_methods_without_that_preset(tmp_path, scene_dir):
     tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake")
     assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}
     quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "quick", "fake")
-    assert quick.jobs[0].checkpoints == (150, 350, 1500)
-    assert quick.jobs[0].labels == {150: "3K", 350: "7K", 1500: "30K"}
+    assert quick.jobs[0].checkpoints == (350, 1500)
+    assert quick.jobs[0].labels == {350: "7K", 1500: "30K"}
