@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ..io_utils import atomic_write
-from .tables import ABLATION_METHODS, dataset_means, label_value, main_labels, method_order, method_title
+from .tables import ABLATION_METHODS, main_labels, method_order, method_title
 
 CROP_PAD = 0.25  # fraction of the text box added on every side of a crop
 
