@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).parent))  # tests/_engine_helpers
 
 from strings_bench.camera import Camera
 from strings_bench.gaussians import GaussianModel
@@ -334,6 +338,60 @@ def test_absgs_clones_on_ordinary_and_splits_on_absolute_gradient():
     assert len(model) == 6 + 1 + 1
     np.testing.assert_array_equal(np.sort(model.extras["tag"].numpy()), [0, 0, 1, 2, 3, 4, 4, 5])
     assert state["grad2d_abs"] is None and state["grad2d"] is None
+
+
+# ---------------------------------------------------------------------------------------------
+# Method wiring: Mip-Splatting trainer, MCMC initialisation (tiny scene)
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    import _engine_helpers as eh
+
+    eh.install_stand_in_raster()  # only while strings_bench.raster is missing
+    return eh.make_tiny_scene(tmp_path_factory.mktemp("tiny"))
+
+
+def test_mip_trainer_renders_through_the_filter_and_keeps_it_current(tiny_scene):
+    from strings_bench.methods.registry import get_method
+
+    adapter = get_method("mip-splatting").build(None, steps_scale=0.01, sh_degree=0, progress=False)
+    trainer = adapter.make_trainer(tiny_scene, [12], 1)
+    trainer.set_model(trainer.initial_model(tiny_scene))
+    cams = [trainer.camera(i) for i in trainer.train_views()]
+    np.testing.assert_allclose(trainer.model.extras[FILTER_KEY].numpy(),
+                               filter_sigma(trainer.model.means, cams).numpy(), rtol=1e-6)
+    view = tiny_scene.test_idx[0]
+    with torch.no_grad():
+        got = trainer.render(view, sh_degree=0).color
+        folded = fold_3d_filter(trainer.model).render(trainer.camera(view), trainer.background, sh_degree=0,
+                                                      mip_filter=True).color
+        raw = trainer.model.render(trainer.camera(view), trainer.background, sh_degree=0, mip_filter=True).color
+    assert torch.allclose(got, folded, atol=1e-5)
+    assert not torch.allclose(got, raw, atol=1e-4)  # the filter changes the image
+    results = list(trainer.train())
+    assert results[-1].iteration == 12 and np.isfinite(next(iter(results[-1].renders.values()))).all()
+    # recomputed at the last densification step (refine every max(1, round(100 x 0.01)) = 1 step)
+    np.testing.assert_allclose(trainer.model.extras[FILTER_KEY].numpy(),
+                               filter_sigma(trainer.model.means, cams).numpy(), rtol=1e-5)
+
+
+def test_mcmc_initialisation_and_short_run(tiny_scene):
+    from strings_bench.gaussians import GaussianModel as GM
+    from strings_bench.methods.registry import get_method
+
+    adapter = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, progress=False)
+    trainer = adapter.make_trainer(tiny_scene, [12], 1)
+    model = trainer.initial_model(tiny_scene)
+    plain = GM.from_points(tiny_scene.model.xyz, tiny_scene.model.rgb, sh_degree=0)
+    np.testing.assert_allclose(model.opacities.detach().numpy(), 0.5, rtol=1e-6)
+    np.testing.assert_allclose(model.scales.detach().numpy(), 0.1 * plain.scales.detach().numpy(), rtol=1e-5)
+    results = list(trainer.train())
+    n0 = len(model)
+    # growth by 5 % at each of steps 6..12 (refine window (5, 250), every step), capped at 10 x n0
+    expected = n0
+    for _ in range(6, 13):
+        expected = min(10 * n0, int(expected * 1.05))
+    assert results[-1].gaussians == expected
 
 
 # ---------------------------------------------------------------------------------------------
