@@ -317,3 +317,81 @@ def test_scene_split_default_and_override(scene_copy):
         Scene.load(scene_copy)
     (rep,) = check_path(scene_copy)  # the checker reports what Scene.load refuses
     assert any("nope.jpg" in m for m in _messages([rep], "error"))
+
+
+# ---- prepare (SfM) on a few real photos ---------------------------------------------------------
+@pytest.fixture(scope="module")
+def few_photos(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("photos")
+    names = sorted(p.name for p in (MOUSE / "images").iterdir())[:12]
+    for n in names:
+        shutil.copy(MOUSE / "images" / n, d / n)
+    return d
+
+
+def test_prepare_small_real_capture(few_photos, tmp_path, monkeypatch):
+    from strings_bench.datasets import sfm
+    from strings_bench.datasets.registry import read_index, resolve_scenes
+    from strings_bench.ocr import Word
+
+    class FakeOCR:  # stands in for the detector: one word box per image
+        def read(self, img, mask=None):
+            h, w = img.shape[:2]
+            return [Word.from_box("MOUSE", w * 0.25, h * 0.25, w * 0.5, h * 0.4)]
+
+    monkeypatch.setattr("strings_bench.ocr.get_backend", lambda name="rapidocr", **kw: FakeOCR())
+    before = tree_hash(few_photos)
+    out = tmp_path / "scenes" / "mouse12"
+    said = []
+    r = sfm.prepare_scene(few_photos, "mouse12", out=out, max_size=480, masks=True, progress=False, echo=said.append)
+    assert tree_hash(few_photos) == before  # the photos are only read
+    assert r.num_photos == 12 and 3 <= r.num_registered <= 12 and r.num_points > 50, r.summary()
+    assert set(r.stage_seconds) == {"resize", "features", "matching", "mapping", "undistort", "downscale", "masks"}
+    assert "registered" in r.summary() and any(s.startswith("[1/7]") for s in said)
+    assert not any(p.name.endswith("prepare-tmp") for p in out.parent.iterdir())
+    assert read_index()["mouse12"] == str(out)
+    (rep,) = check_path(out)
+    assert rep.ok, rep.format()
+    assert rep.stats["camera models"] in ("PINHOLE", "SIMPLE_PINHOLE") and rep.stats["masks"] == r.num_registered
+    scene = Scene.load(resolve_scenes(["mouse12"])[0].path)
+    cam = scene.camera(0)
+    assert max(cam.width, cam.height) <= 480
+    m = scene.load_mask(0)
+    assert m[int(cam.height * 0.3), int(cam.width * 0.37)] and not m[int(cam.height * 0.8), int(cam.width * 0.8)]
+    with Image.open(scene.image_path(0, 2)) as im2:  # images_2/ holds round(w / 2) x round(h / 2)
+        assert scene.image_path(0, 2).parent.name == "images_2"
+        assert im2.size == (int(round(cam.width / 2)), int(round(cam.height / 2)))
+    with pytest.raises(DatasetError, match="already exists"):
+        sfm.prepare_scene(few_photos, "mouse12", out=out, progress=False, echo=said.append)
+
+
+def test_prepare_refuses_too_few_photos(tmp_path):
+    from strings_bench.datasets.sfm import prepare_scene
+
+    (tmp_path / "p").mkdir()
+    shutil.copy(next((MOUSE / "images").iterdir()), tmp_path / "p" / "one.jpg")
+    with pytest.raises(DatasetError, match="needs at least 3"):
+        prepare_scene(tmp_path / "p", "x", out=tmp_path / "out", progress=False, echo=lambda s: None)
+    with pytest.raises(DatasetError, match="does not exist"):
+        prepare_scene(tmp_path / "nope", "x", out=tmp_path / "out", progress=False, echo=lambda s: None)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.xfail(strict=True, reason="scene.py: Scene.camera(i, f) scales by the width ratio only, so for an odd "
+                   "width its height can differ by 1 px from load_image(i, f) (reported to the lead)")
+def test_downscaled_camera_matches_downscaled_image(tmp_path):
+    import pycolmap
+
+    scene_dir = tmp_path / "odd"
+    (scene_dir / "images").mkdir(parents=True)
+    (scene_dir / "sparse" / "0").mkdir(parents=True)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model="PINHOLE", width=301, height=400,
+                                                    params=[300.0, 300.0, 150.5, 200.0]))
+    Image.fromarray(np.zeros((400, 301, 3), np.uint8)).save(scene_dir / "images" / "a.png")
+    rec.add_image_with_trivial_frame(pycolmap.Image(name="a.png", keypoints=np.zeros((0, 2)), camera_id=1, image_id=1),
+                                     pycolmap.Rigid3d())
+    rec.write_binary(str(scene_dir / "sparse" / "0"))
+    scene = Scene.load(scene_dir)
+    cam = scene.camera(0, 2)
+    assert scene.load_image(0, 2).shape[:2] == (cam.height, cam.width)

@@ -134,6 +134,11 @@ def prepare_scene(
     if matcher == "auto":
         matcher = "exhaustive" if len(photos) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
 
+    # COLMAP logs every image and every BA step; keep its warnings, show the rest with -v.
+    old_log_level = pycolmap.logging.minloglevel
+    if not log.isEnabledFor(logging.DEBUG):
+        pycolmap.logging.minloglevel = max(old_log_level, 1)
+
     work = scene_dir.with_name(f".{scene_dir.name}.prepare-tmp")
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
@@ -206,7 +211,11 @@ def prepare_scene(
         # 5. undistort into the final layout
         t = stage("undistort to pinhole cameras")
         undist = work / "undistorted"
-        pycolmap.undistort_images(undist, best_dir, raw, output_type="COLMAP")
+        undistort_options = pycolmap.UndistortCameraOptions()
+        if max_size and max_size > 0:
+            # The undistorted frame can come out larger than the input; keep the --max-size promise.
+            undistort_options.max_image_size = max_size
+        pycolmap.undistort_images(undist, best_dir, raw, output_type="COLMAP", undistort_options=undistort_options)
         scene_tmp = work / "scene"
         scene_tmp.mkdir()
         os.replace(undist / "images", scene_tmp / "images")
@@ -251,6 +260,7 @@ def prepare_scene(
         os.replace(scene_tmp, scene_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+        pycolmap.logging.minloglevel = old_log_level
 
     if register:
         from .registry import read_index, write_index
