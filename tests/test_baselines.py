@@ -340,6 +340,52 @@ def test_absgs_clones_on_ordinary_and_splits_on_absolute_gradient():
     assert state["grad2d_abs"] is None and state["grad2d"] is None
 
 
+def test_absgs_statistic_matches_per_pixel_brute_force_with_the_reference_rasterizer():
+    """sum over pixels of |dL_p/dmean2d| from the rasterizer's backward (compute_absgrad=True), and the
+    strategy's NDC statistic built on it, against one float64 backward per pixel through the brute-force
+    reference rasterizer."""
+    from strings_bench.raster import rasterize
+    from strings_bench.raster.reference import rasterize_reference
+
+    g = torch.Generator().manual_seed(0)
+    n, W, H = 5, 12, 10
+    leaves = [torch.cat([torch.rand(n, 2, generator=g) * 1.2 - 0.6, torch.rand(n, 1, generator=g) + 3], 1),
+              torch.randn(n, 4, generator=g), torch.log(torch.rand(n, 3, generator=g) * 0.25 + 0.1),
+              torch.randn(n, generator=g), torch.randn(n, 1, 3, generator=g) * 0.5]
+    for t in leaves:
+        t.requires_grad_()
+    cam = Camera(fx=14.0, fy=14.0, cx=6.0, cy=5.0, width=W, height=H, R=np.eye(3), t=np.zeros(3))
+    weights = torch.randn(H, W, 3, generator=g, dtype=torch.float64)  # loss = sum_p w_p . colour_p
+
+    strategy = AbsGSStrategy()
+    out = rasterize(*leaves, cam, torch.zeros(3), backend="cpu", **strategy.get_raster_kwargs(1))
+    out.means2d.retain_grad()
+    (out.color.double() * weights).sum().backward()
+
+    ref = rasterize_reference(*leaves, cam, torch.zeros(3))
+    brute = torch.zeros(n, 2, dtype=torch.float64)
+    for y in range(H):
+        for x in range(W):
+            (gp,) = torch.autograd.grad((ref["color"][y, x] * weights[y, x]).sum(), ref["means2d"],
+                                        retain_graph=True, allow_unused=True)
+            if gp is not None:
+                brute += gp.abs()
+    assert (brute > 0).all()  # every Gaussian covers some pixels
+    np.testing.assert_allclose(out.absgrad.double().numpy(), brute.numpy(), rtol=1e-4, atol=1e-6)
+    # opposite-signed pixel gradients cancel in the ordinary gradient but not in the absolute one
+    assert torch.all(out.means2d.grad.abs() <= out.absgrad + 1e-6)
+    assert (out.means2d.grad.abs() < 0.9 * out.absgrad).any()
+
+    model = GaussianModel({"means": leaves[0].detach(), "quats": leaves[1].detach(), "log_scales": leaves[2].detach(),
+                           "opacity_logits": leaves[3].detach(), "sh0": leaves[4].detach(), "shN": torch.zeros(n, 0, 3)})
+    state = strategy.initialize_state(1.0)
+    info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": W, "height": H, "n_cameras": 1}
+    strategy.update_state(model, state, info)
+    expected = (brute * torch.tensor([W / 2, H / 2], dtype=torch.float64)).norm(dim=1)
+    np.testing.assert_allclose(state["grad2d_abs"].double().numpy(), expected.numpy(), rtol=1e-4)
+    assert torch.all(state["count"] == 1)
+
+
 # ---------------------------------------------------------------------------------------------
 # Method wiring: Mip-Splatting trainer, MCMC initialisation (tiny scene)
 # ---------------------------------------------------------------------------------------------
