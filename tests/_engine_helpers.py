@@ -4,6 +4,7 @@ synthetic COLMAP scene built on disk."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -78,8 +79,31 @@ def dense_rasterize(means, quats, log_scales, opacity_logits, sh, camera, backgr
     return DenseRasterOutput(img.reshape(H, W, 3), acc.reshape(H, W), depth.reshape(H, W), radii, means2d)
 
 
+@contextlib.contextmanager
+def raster_or_stand_in():
+    """Use strings_bench.raster when it exists; else register the dense stand-in under that name for
+    the duration of the block only (other test modules must not see it)."""
+    try:
+        import strings_bench.raster  # noqa: F401
+        yield False
+        return
+    except ImportError:
+        pass
+    mod = types.ModuleType("strings_bench.raster")
+    mod.rasterize = dense_rasterize
+    sys.modules["strings_bench.raster"] = mod
+    try:
+        yield True
+    finally:
+        if sys.modules.get("strings_bench.raster") is mod:
+            del sys.modules["strings_bench.raster"]
+
+
 def install_stand_in_raster() -> bool:
-    """Use strings_bench.raster when it exists; else register the dense stand-in under that name."""
+    """Register the stand-in for the rest of the session if strings_bench.raster is missing.
+
+    Prefer `raster_or_stand_in()`: a session-wide stand-in is also seen by other test modules.
+    """
     try:
         import strings_bench.raster  # noqa: F401
         return False
