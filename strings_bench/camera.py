@@ -47,10 +47,12 @@ class Camera:
 
     def scaled(self, factor: float) -> "Camera":
         """The same camera for an image downscaled by `factor` (2 -> half resolution)."""
-        w = max(1, int(round(self.width / factor)))
-        h = max(1, int(round(self.height / factor)))
-        sx, sy = w / self.width, h / self.height
-        return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
+        return self.resized(max(1, int(round(self.width / factor))), max(1, int(round(self.height / factor))))
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera for the image resampled to width x height (each axis scaled on its own)."""
+        sx, sy = width / self.width, height / self.height
+        return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=width, height=height)
 
     def world_to_camera(self, xyz: np.ndarray) -> np.ndarray:
         return np.asarray(xyz, dtype=np.float64) @ self.R.T + self.t

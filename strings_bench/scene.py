@@ -137,7 +137,7 @@ class Scene:
         if downscale == 1:
             return cam
         w, h = self._image_size(i, downscale)
-        return cam.scaled(cam.width / w) if (w, h) != (cam.width, cam.height) else cam
+        return cam.resized(w, h) if (w, h) != (cam.width, cam.height) else cam
 
     @property
     def extent(self) -> float:

@@ -377,8 +377,6 @@ def test_prepare_refuses_too_few_photos(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.xfail(strict=True, reason="scene.py: Scene.camera(i, f) scales by the width ratio only, so for an odd "
-                   "width its height can differ by 1 px from load_image(i, f) (reported to the lead)")
 def test_downscaled_camera_matches_downscaled_image(tmp_path):
     import pycolmap
 
