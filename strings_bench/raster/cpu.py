@@ -1,0 +1,132 @@
+"""CPU backend: torch projection + numba tile rasterizer with a hand-written backward."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import torch
+
+from . import cpu_kernels as K
+
+
+CHUNK = 2  # tiles per work item: tiles differ a lot in cost, so hand them out in small chunks
+
+
+def _np(x: torch.Tensor, dtype) -> np.ndarray:
+    return np.ascontiguousarray(x.detach().cpu().numpy(), dtype=dtype)
+
+
+class RasterizeTiles(torch.autograd.Function):
+    """Blend (means2d, conics, opacities, features) over an H x W image.
+
+    Returns features (H, W, NF) = sum_i w_i f_i and alpha (H, W) = 1 - prod_i (1 - alpha_i).
+    `absgrad_out` (N, 2), if given, is filled in backward with sum over pixels of |dL/dmean2d|.
+    """
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, feats, radii, bbox, depths, width, height, absgrad_out):
+        N = means2d.shape[0]
+        H, W = int(height), int(width)
+        tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
+        with torch.no_grad():
+            vis = torch.nonzero(radii > 0).flatten()
+            order = vis[torch.argsort(depths.detach()[vis], stable=True)]
+            P = torch.cat([means2d[order], conics[order], opacities[order, None], feats[order]], dim=1)
+        P = _np(P, np.float64)
+        P = np.concatenate([P, K.span_limit(P[:, 5])[:, None]], axis=1)
+        BB = _np(bbox[order], np.int64)
+        tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
+        out_f = np.empty((H, W, K.NF), np.float32)
+        out_T = np.empty((H, W), np.float64)
+        out_last = np.empty((H, W), np.int64)
+        with numba.parallel_chunksize(CHUNK):
+            K.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+        ctx.saved = (tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x)
+        ctx.order = order
+        ctx.N = N
+        ctx.size = (W, H)
+        ctx.absgrad_out = absgrad_out
+        ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, feats.dtype)
+        feat_img = torch.from_numpy(out_f).to(feats.dtype)
+        alpha = torch.from_numpy((1.0 - out_T).astype(np.float32)).to(feats.dtype)
+        return feat_img, alpha
+
+    @staticmethod
+    def backward(ctx, grad_f, grad_alpha):
+        tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x = ctx.saved
+        W, H = ctx.size
+        N = ctx.N
+        if grad_f is None:
+            grad_f = torch.zeros((H, W, K.NF))
+        if grad_alpha is None:
+            grad_alpha = torch.zeros((H, W))
+        gF = _np(grad_f, np.float32)
+        gA = _np(grad_alpha, np.float32)
+        M = lst.shape[0]
+        buf = np.empty((M, K.N_GRAD), np.float32)
+        with numba.parallel_chunksize(CHUNK):
+            K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
+        red = np.empty((P.shape[0], K.N_GRAD), np.float64)
+        K.reduce_intersections(buf, g_start, isect_pos, red)
+        g = torch.zeros((N, K.N_GRAD), dtype=torch.float64)
+        g[ctx.order] = torch.from_numpy(red)
+        d_m, d_c, d_o, d_f = ctx.dtypes
+        if ctx.absgrad_out is not None:
+            ctx.absgrad_out.copy_(g[:, 6 + K.NF:])
+        return (g[:, 0:2].to(d_m), g[:, 2:5].to(d_c), g[:, 5].to(d_o), g[:, 6:6 + K.NF].to(d_f),
+                None, None, None, None, None, None)
+
+
+def camera_array(camera) -> np.ndarray:
+    """R (9), t (3), fx, fy, cx, cy, Jacobian clamp limits (x-, x+, y-, y+), camera centre (3)."""
+    W, H = camera.width, camera.height
+    fx, fy, cx, cy = float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)
+    tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
+    lims = [cx / fx + 0.3 * tan_x, (W - cx) / fx + 0.3 * tan_x, cy / fy + 0.3 * tan_y, (H - cy) / fy + 0.3 * tan_y]
+    return np.concatenate([np.asarray(camera.R, np.float64).ravel(), np.asarray(camera.t, np.float64),
+                           [fx, fy, cx, cy], lims, np.asarray(camera.center, np.float64)])
+
+
+class Preprocess(torch.autograd.Function):
+    """Numba per-Gaussian projection + SH colour (see cpu_preprocess). Returns means2d (N,2),
+    conics (N,3), opacities (N,), feats (N,4) = RGB and camera depth, radii (N,) int32, bbox (N,4)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far):
+        from .cpu_preprocess import preprocess_forward
+        from .projection import DILATION, MIP_FILTER
+
+        N = means.shape[0]
+        cam = camera_array(camera)
+        eps = MIP_FILTER if mip else DILATION
+        arrs = [_np(x, np.float64) for x in (means, quats, log_scales, opacity_logits, sh)]
+        means2d = np.empty((N, 2), np.float32)
+        conics = np.empty((N, 3), np.float32)
+        opac = np.empty(N, np.float32)
+        feats = np.empty((N, K.NF), np.float32)
+        radii = np.empty(N, np.int32)
+        bbox = np.empty((N, 4), np.int32)
+        preprocess_forward(*arrs, int(deg), cam, int(camera.width), int(camera.height), float(near), float(far),
+                           eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
+        ctx.arrs = arrs
+        ctx.setup = (int(deg), cam, eps, bool(mip), radii)
+        ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)]
+        dt = means.dtype
+        radii_t, bbox_t = torch.from_numpy(radii), torch.from_numpy(bbox)
+        ctx.mark_non_differentiable(radii_t, bbox_t)
+        return (torch.from_numpy(means2d).to(dt), torch.from_numpy(conics).to(dt), torch.from_numpy(opac).to(dt),
+                torch.from_numpy(feats).to(dt), radii_t, bbox_t)
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
+        from .cpu_preprocess import preprocess_backward
+
+        means, quats, log_scales, logits, sh = ctx.arrs
+        deg, cam, eps, mip, radii = ctx.setup
+        N = means.shape[0]
+        grads_in = [(_np(g, np.float64) if g is not None else np.zeros(shape))
+                    for g, shape in ((g_means2d, (N, 2)), (g_conics, (N, 3)), (g_opac, (N,)), (g_feats, (N, K.NF)))]
+        outs = [np.empty_like(x) for x in (means, quats, log_scales, logits, sh)]
+        preprocess_backward(means, quats, log_scales, logits, sh, deg, cam, eps, mip, radii, *grads_in, *outs)
+        res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs, ctx.dtypes)]
+        return (*res, None, None, None, None, None)

@@ -1,0 +1,307 @@
+"""Numba kernels of the CPU rasterizer: tile binning, forward blending, hand-written backward.
+
+Layout: Gaussians are first sorted front to back; `P` holds their parameters in that order, one row
+each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera depth), then `qmin`
+(see `span_limit`). `BB` holds the
+pixel boxes (x0, x1, y0, y1), inclusive. Binning gives, per 16x16 tile, a slice of `lst` (indices
+into P, front to back). Blending runs tile by tile in parallel (prange); inside a tile the loop is
+Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel state (transmittance,
+accumulated features, done flag) kept in small per-tile arrays.
+
+The backward pass walks each tile's list back to front (as 3DGS does per pixel), re-deriving the
+transmittance by division, and writes the gradient summed over the tile's pixels into the row of a
+per-intersection buffer; a second parallel pass sums each Gaussian's rows. No two threads write the
+same memory, results do not depend on the thread count, and memory scales with the number of
+tile-Gaussian intersections.
+
+All per-pixel arithmetic is float64 (the parameters come in as float32 values).
+
+Work skipping that does not change results: a Gaussian with opacity < 1/255 can never reach
+alpha >= 1/255 and is skipped; in each pixel row of its box only the span of pixels where
+power >= -log(255 o) - 1e-3 is visited (a conservative, widened bound from the quadratic; the exact
+per-pixel tests still decide).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+TILE = 16
+NF = 4  # blended features: R, G, B, camera depth
+ALPHA_MAX = 0.99
+ALPHA_MIN = 1.0 / 255.0
+T_MIN = 1e-4
+N_GRAD = 6 + NF + 2  # mean2d x, y, conic a, b, c, opacity, features, |d mean2d| x, y
+N_PARAM = 6 + NF + 1
+SPAN_SLACK = 1e-3
+
+
+def span_limit(opacity: np.ndarray) -> np.ndarray:
+    """qmin = 2 (log(255 o) + slack): a pixel can pass alpha >= 1/255 only where
+    a dx^2 + 2 b dx dy + c dy^2 <= qmin. NaN (never) where o < 1/255."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = 2.0 * (np.log(255.0 * opacity) + SPAN_SLACK)
+    return np.where(opacity >= ALPHA_MIN, q, np.nan)
+
+
+@njit(cache=True, inline="always")
+def row_span(ca, cb, cc, qmin, mx, dy, xs, xe):
+    """Pixel columns [lo, hi] of one row that may pass the alpha threshold, clipped to [xs, xe]."""
+    bq = cb * dy
+    disc = bq * bq - ca * (cc * dy * dy - qmin)
+    if not disc >= 0.0:  # also catches NaN (opacity below 1/255)
+        return 1, 0
+    sq = math.sqrt(disc)
+    # dx = mx - (px + 0.5) in [(-bq - sq) / ca, (-bq + sq) / ca], one pixel of slack each side
+    lo = mx - 0.5 - (-bq + sq) / ca - 1.0
+    hi = mx - 0.5 - (-bq - sq) / ca + 1.0
+    lo = max(lo, float(xs))
+    hi = min(hi, float(xe))
+    if lo > hi:
+        return 1, 0
+    return int(math.ceil(lo)), int(math.floor(hi))
+
+
+@njit(cache=True)
+def bin_tiles(BB, tiles_x, tiles_y):
+    """Counting sort of (tile, depth) keys; BB rows are already front to back.
+
+    Returns tile_start (n_tiles+1), lst (M) of Gaussian rows, g_start (V+1) and isect_pos (M): the
+    intersections of Gaussian i are lst positions isect_pos[g_start[i]:g_start[i+1]].
+    """
+    V = BB.shape[0]
+    n_tiles = tiles_x * tiles_y
+    g_start = np.empty(V + 1, np.int64)
+    tile_start = np.zeros(n_tiles + 1, np.int64)
+    g_start[0] = 0
+    for i in range(V):
+        tx0, tx1 = BB[i, 0] // TILE, BB[i, 1] // TILE
+        ty0, ty1 = BB[i, 2] // TILE, BB[i, 3] // TILE
+        g_start[i + 1] = g_start[i] + (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                tile_start[ty * tiles_x + tx + 1] += 1
+    for t in range(n_tiles):
+        tile_start[t + 1] += tile_start[t]
+    M = g_start[V]
+    lst = np.empty(M, np.int32)
+    isect_pos = np.empty(M, np.int64)
+    fill = tile_start[:n_tiles].copy()
+    for i in range(V):
+        j = g_start[i]
+        tx0, tx1 = BB[i, 0] // TILE, BB[i, 1] // TILE
+        ty0, ty1 = BB[i, 2] // TILE, BB[i, 3] // TILE
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                t = ty * tiles_x + tx
+                k = fill[t]
+                fill[t] = k + 1
+                lst[k] = i
+                isect_pos[j] = k
+                j += 1
+    return tile_start, lst, g_start, isect_pos
+
+
+@njit(parallel=True, cache=True)
+def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
+    """out_f (H, W, NF) float32, out_T (H, W) float64 final transmittance, out_last (H, W) int64:
+    one past the lst position of the last Gaussian blended into the pixel (0 = none)."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        T = np.ones(TILE * TILE, np.float64)
+        acc = np.zeros((TILE * TILE, NF), np.float64)
+        done = np.zeros(TILE * TILE, np.bool_)
+        last = np.zeros(TILE * TILE, np.int64)
+        n_done = 0
+        n_pix = pw * ph
+        for k in range(tile_start[t], tile_start[t + 1]):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            qmin = P[i, 6 + NF]
+            for py in range(ys, ye + 1):
+                dy = my - (py + 0.5)
+                row = (py - py0) * TILE - px0
+                lo, hi = row_span(ca, cb, cc, qmin, mx, dy, xs, xe)
+                for px in range(lo, hi + 1):
+                    p = row + px
+                    if done[p]:
+                        continue
+                    dx = mx - (px + 0.5)
+                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    if power > 0.0:
+                        continue
+                    alpha = op * math.exp(power)
+                    if alpha > ALPHA_MAX:
+                        alpha = ALPHA_MAX
+                    if alpha < ALPHA_MIN:
+                        continue
+                    test_T = T[p] * (1.0 - alpha)
+                    if test_T < T_MIN:
+                        done[p] = True
+                        n_done += 1
+                        continue
+                    w = alpha * T[p]
+                    for c in range(NF):
+                        acc[p, c] += w * P[i, 6 + c]
+                    T[p] = test_T
+                    last[p] = k + 1
+            if n_done == n_pix:
+                break
+        for py in range(ph):
+            for px in range(pw):
+                p = py * TILE + px
+                for c in range(NF):
+                    out_f[py0 + py, px0 + px, c] = acc[p, c]
+                out_T[py0 + py, px0 + px] = T[p]
+                out_last[py0 + py, px0 + px] = last[p]
+
+
+@njit(parallel=True, cache=True)
+def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, grad_alpha, buf):
+    """grad_f (H, W, NF), grad_alpha (H, W): dL/d(outputs). buf (M, N_GRAD) float32: per-intersection
+    gradient w.r.t. the Gaussian's row of P (summed over the tile's pixels) and the sums of |dL/dmean2d|."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        T = np.zeros(TILE * TILE, np.float64)
+        Tfin = np.zeros(TILE * TILE, np.float64)
+        lastk = np.zeros(TILE * TILE, np.int64)
+        gf = np.zeros((TILE * TILE, NF), np.float64)
+        ga = np.zeros(TILE * TILE, np.float64)
+        accum = np.zeros((TILE * TILE, NF), np.float64)
+        last_f = np.zeros((TILE * TILE, NF), np.float64)
+        last_a = np.zeros(TILE * TILE, np.float64)
+        kmax = tile_start[t]
+        for py in range(ph):
+            for px in range(pw):
+                p = py * TILE + px
+                T[p] = T_final[py0 + py, px0 + px]
+                Tfin[p] = T[p]
+                lastk[p] = last_k[py0 + py, px0 + px]
+                kmax = max(kmax, lastk[p])
+                ga[p] = grad_alpha[py0 + py, px0 + px]
+                for c in range(NF):
+                    gf[p, c] = grad_f[py0 + py, px0 + px, c]
+        for k in range(kmax, tile_start[t + 1]):
+            for j in range(N_GRAD):
+                buf[k, j] = 0.0
+        feat = np.empty(NF, np.float64)
+        g_feat = np.empty(NF, np.float64)
+        for k in range(kmax - 1, tile_start[t] - 1, -1):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            for c in range(NF):
+                feat[c] = P[i, 6 + c]
+                g_feat[c] = 0.0
+            g_mx = 0.0
+            g_my = 0.0
+            g_ca = 0.0
+            g_cb = 0.0
+            g_cc = 0.0
+            g_op = 0.0
+            abs_x = 0.0
+            abs_y = 0.0
+            qmin = P[i, 6 + NF]
+            for py in range(ys, ye + 1):
+                dy = my - (py + 0.5)
+                row = (py - py0) * TILE - px0
+                lo, hi = row_span(ca, cb, cc, qmin, mx, dy, xs, xe)
+                for px in range(lo, hi + 1):
+                    p = row + px
+                    if k >= lastk[p]:
+                        continue
+                    dx = mx - (px + 0.5)
+                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    if power > 0.0:
+                        continue
+                    G = math.exp(power)
+                    a_unclamped = op * G
+                    alpha = min(a_unclamped, ALPHA_MAX)
+                    if alpha < ALPHA_MIN:
+                        continue
+                    one_m = 1.0 - alpha
+                    T[p] = T[p] / one_m
+                    w = alpha * T[p]
+                    dL_da = 0.0
+                    la = last_a[p]
+                    for c in range(NF):
+                        g = gf[p, c]
+                        g_feat[c] += w * g
+                        acc_c = la * last_f[p, c] + (1.0 - la) * accum[p, c]
+                        accum[p, c] = acc_c
+                        last_f[p, c] = feat[c]
+                        dL_da += (feat[c] - acc_c) * g
+                    dL_da *= T[p]
+                    last_a[p] = alpha
+                    dL_da += Tfin[p] / one_m * ga[p]
+                    if a_unclamped > ALPHA_MAX:
+                        continue  # alpha clamped: no gradient to opacity or shape
+                    dL_dG = op * dL_da
+                    g_op += G * dL_da
+                    gdx = G * dx
+                    gdy = G * dy
+                    gx = dL_dG * (-gdx * ca - gdy * cb)
+                    gy = dL_dG * (-gdy * cc - gdx * cb)
+                    g_mx += gx
+                    g_my += gy
+                    abs_x += abs(gx)
+                    abs_y += abs(gy)
+                    g_ca += -0.5 * gdx * dx * dL_dG
+                    g_cb += -gdx * dy * dL_dG
+                    g_cc += -0.5 * gdy * dy * dL_dG
+            buf[k, 0] = g_mx
+            buf[k, 1] = g_my
+            buf[k, 2] = g_ca
+            buf[k, 3] = g_cb
+            buf[k, 4] = g_cc
+            buf[k, 5] = g_op
+            for c in range(NF):
+                buf[k, 6 + c] = g_feat[c]
+            buf[k, 6 + NF] = abs_x
+            buf[k, 7 + NF] = abs_y
+
+
+@njit(cache=True)
+def reduce_intersections(buf, g_start, isect_pos, out):
+    """out[i] = sum of buf rows of Gaussian i's intersections (float64)."""
+    V = g_start.shape[0] - 1
+    n = buf.shape[1]
+    for i in range(V):
+        for j in range(n):
+            out[i, j] = 0.0
+        for s in range(g_start[i], g_start[i + 1]):
+            k = isect_pos[s]
+            for j in range(n):
+                out[i, j] += buf[k, j]
