@@ -238,8 +238,13 @@ class Trainer:
         if not math.isfinite(value):
             raise self._nonfinite_error(step, f"the loss is {value}")
         loss.backward()
-        bad_grads = [k for k, p in model.params.items() if p.grad is not None and not torch.isfinite(p.grad).all()]
-        if bad_grads:
+        grads = [p.grad for p in model.params.values() if p.grad is not None]
+        # One reduction per group: a sum is non-finite when any element is, or when the gradients are so
+        # large (> 3e38 in total) that the run has diverged anyway.
+        if grads and not torch.isfinite(torch.stack([g.sum() for g in grads])).all():
+            bad_grads = [k for k, p in model.params.items() if p.grad is not None and not torch.isfinite(p.grad).all()]
+            bad_grads = bad_grads or [k for k, p in model.params.items() if p.grad is not None
+                                      and not torch.isfinite(p.grad.sum())]
             raise self._nonfinite_error(step, f"the gradient of {', '.join(bad_grads)} is not finite", bad_grads)
         scale = self.position_lr_scale(step)
         row_scale = None
