@@ -11,6 +11,7 @@ Training time is the trainer's optimisation time (no checkpoint renders). `--sma
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -29,6 +30,10 @@ def main(argv=None) -> int:
     ap.add_argument("--small", action="store_true", help="synthetic scenes at 160x120 with 24 views")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--paper-checkpoints", nargs="+", type=int, default=[7000, 30000],
+                    help="paper iterations to evaluate (scaled by the preset's steps_scale)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="setting for every method, e.g. steps_scale=0.02 (values parsed as JSON when possible)")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
 
@@ -49,12 +54,20 @@ def main(argv=None) -> int:
         ref = resolve_scenes([args.scene])[0]
         scene = Scene.load(ref.path, name=ref.scene, settings=ref.settings)
 
-    s = STEPS_SCALE[args.preset]
-    checkpoints = sorted({max(1, round(c * s)) for c in (7000, 30000)})
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        try:
+            overrides[key] = json.loads(value)
+        except ValueError:
+            overrides[key] = value
+    s = float(overrides.get("steps_scale", STEPS_SCALE[args.preset]))
+    checkpoints = sorted({max(1, round(c * s)) for c in args.paper_checkpoints})
     gts = {scene.names[i]: scene.load_image(i, args.downscale) for i in scene.test_idx}
     rows = []
     for method in args.methods:
-        adapter = get_method(method).build(args.preset, seed=args.seed, device=args.device)
+        adapter = get_method(method).build(args.preset, seed=args.seed, device=args.device,
+                                                     **overrides)
         t0 = time.perf_counter()
         for res in adapter.train(scene, checkpoints, args.downscale):
             vals = [psnr(img, gts[name]) for name, img in res.renders.items()]
