@@ -23,6 +23,7 @@ ENTRY_POINT_GROUP = "strings_bench.methods"
 # One module per method; each calls register_method() at import.
 BUILTIN_MODULES: list[str] = [
     "strings_bench.methods.gs3d",
+    "strings_bench.methods.strings",
     "strings_bench.methods.absgs",
     "strings_bench.methods.edc_absgs",
     "strings_bench.methods.mip_splatting",
