@@ -222,6 +222,10 @@ class Trainer:
     def train_step(self, step: int) -> float:
         self.on_step_start(step)
         model, opt, strategy = self.model, self.optimizer, self.strategy
+        # The rasterizer may cull a Gaussian with NaN parameters without a NaN loss: check the values too.
+        with torch.no_grad():
+            if not torch.isfinite(torch.stack([p.sum() for p in model.params.values()])).all():
+                raise self._nonfinite_error(step, "a parameter is not finite")
         opt.set_lr("means", self.position_lr(step))
         view = self.views_for_step(step)
         cam = self.camera(view)
