@@ -43,7 +43,22 @@ def _ensure_numba_cache_dir() -> None:
         pass
 
 
+def _prefer_workqueue_threads() -> None:
+    """numba's OpenMP layer brings a second libgomp next to torch's; both spin-wait after each
+    parallel region and starve each other on few cores. The workqueue layer sleeps instead.
+    NUMBA_THREADING_LAYER, when set, wins."""
+    if os.environ.get("NUMBA_THREADING_LAYER"):
+        return
+    try:
+        import numba.core.config as nconfig
+
+        nconfig.THREADING_LAYER = "workqueue"
+    except ImportError:
+        pass
+
+
 _ensure_numba_cache_dir()
+_prefer_workqueue_threads()
 
 
 @dataclass

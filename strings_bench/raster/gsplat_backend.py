@@ -1,0 +1,82 @@
+"""gsplat backend (CUDA): the same interface on top of gsplat.rasterization (gsplat >= 1.4).
+
+Written against gsplat's documented API and NOT run in this project's CPU-only CI (no GPU here);
+tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
+
+Mapping: scales = exp(log_scales); opacities = sigmoid(logits); colours are evaluated by our own SH
+code (sh.py) and passed as plain RGB (sh_degree=None) so both backends share one colour rule;
+render_mode "RGB+D" gives the accumulated depth, divided by alpha here; the background is
+composited here (color + (1 - alpha) bg). mip_filter -> rasterize_mode="antialiased", eps2d=0.1
+(gsplat's compensation sqrt(det Sigma / det(Sigma + eps2d I)) is the Mip-Splatting 2D filter);
+otherwise eps2d=0.3 (3DGS dilation). packed=False.
+
+Differences from the CPU backend (both follow 3DGS; see docs/raster.md): gsplat lets a Gaussian
+touch every pixel of the tiles its radius overlaps (the CPU backend only pixels in its radius box),
+clamps alpha at 0.999 instead of 0.99 in some versions, and keeps Gaussians exactly on the near plane.
+
+means2d: gsplat returns (C=1, N, 2); we expose an (N, 2) leaf whose .grad is filled by a hook on
+gsplat's tensor during backward (retain_grad() on it is harmless), so callers see the same shape
+and pixel units as on the CPU. absgrad likewise comes from gsplat's `means2d.absgrad`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def gsplat_available() -> bool:
+    try:
+        import gsplat  # noqa: F401
+    except Exception:  # ImportError, or a CUDA extension that fails to load
+        return False
+    return torch.cuda.is_available()
+
+
+def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background, mip_filter,
+                     compute_absgrad, near, far):
+    from . import RasterInputError, RasterOutput
+
+    try:
+        from gsplat import rasterization
+    except Exception as exc:
+        raise RasterInputError(f"rasterize: backend 'gsplat' requested but gsplat does not import ({exc})",
+                               hint="pip install 'strings-bench[cuda]' on a CUDA machine, or use backend='cpu'")
+    if means.device.type != "cuda":
+        raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
+                               hint="move the tensors to a CUDA device, or use backend='cpu'")
+    dev, dt = means.device, means.dtype
+    n = means.shape[0]
+    viewmat = torch.as_tensor(camera.viewmat, dtype=dt, device=dev)[None]
+    Ks = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]
+    # gsplat normalises quaternions without a guard: a zero quaternion becomes the identity here,
+    # as on the CPU (where q / max(|q|, 1e-12) = 0 gives the identity rotation).
+    qn = quats.norm(dim=-1, keepdim=True)
+    ident = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dt, device=dev).expand_as(quats)
+    quats = torch.where(qn > 1e-12, quats, ident)
+    render, alphas, meta = rasterization(
+        means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), colors, viewmat, Ks,
+        int(camera.width), int(camera.height), near_plane=float(near), far_plane=float(far),
+        eps2d=0.1 if mip_filter else 0.3, sh_degree=None, packed=False, tile_size=16, backgrounds=None,
+        render_mode="RGB+D", absgrad=bool(compute_absgrad),
+        rasterize_mode="antialiased" if mip_filter else "classic")
+    render, alpha = render[0], alphas[0, ..., 0]
+    color = render[..., :3] + (1.0 - alpha)[..., None] * background
+    depth = render[..., 3] / alpha.clamp_min(1e-10)
+    radii = meta["radii"][0]
+    if radii.dim() == 2:  # gsplat >= 1.5 returns per-axis radii (N, 2)
+        radii = radii.max(dim=-1).values
+    radii = radii.to(torch.int32)
+    m2d_gs = meta["means2d"]  # (1, N, 2)
+    means2d = m2d_gs.detach()[0].clone().requires_grad_(m2d_gs.requires_grad)
+    absgrad = torch.zeros((n, 2), dtype=dt, device=dev) if compute_absgrad else None
+    if m2d_gs.requires_grad:
+        def _hook(grad):
+            g = grad[0].detach()
+            means2d.grad = g.clone() if means2d.grad is None else means2d.grad + g
+            if absgrad is not None and getattr(m2d_gs, "absgrad", None) is not None:
+                absgrad.copy_(m2d_gs.absgrad[0])
+            return grad
+
+        m2d_gs.register_hook(_hook)
+    return RasterOutput(color=color, alpha=alpha, depth=depth, radii=radii, means2d=means2d,
+                        absgrad=absgrad, visible=radii > 0, backend="gsplat")
