@@ -102,6 +102,14 @@ def read_model(path: str | Path) -> ColmapModel:
 
     model_dir = find_model_dir(path)
     _check_model_files(model_dir)
+    # pycolmap can spend minutes on a truncated .bin before failing without naming the file;
+    # a record-by-record walk of the binary layout names the file and the record at once.
+    from .datasets.check import diagnose_binary_model
+
+    problems = diagnose_binary_model(model_dir)
+    if problems:
+        raise DatasetError("corrupt COLMAP model: " + "; ".join(problems),
+                           hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified")
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as exc:  # pycolmap raises ValueError/IndexError/MemoryError on corrupt files
