@@ -274,7 +274,7 @@ def test_extreme_one_gaussian_covering_the_image():
     params[2] = torch.log(torch.tensor([[3.0, 2.0, 4.0]]))
     params[3] = torch.tensor([4.0])
     out, _ = _finite_render(params, make_camera())
-    assert out.n_visible == 1 and (out.alpha > 0.85).all()
+    assert out.n_visible == 1 and (out.alpha > 0.5).all()  # every pixel covered
     errs, _, _ = compare(params, make_camera())
     assert max(errs.values()) <= TOL, errs
 
