@@ -36,6 +36,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="runs/strings_vs_3dgs")
     ap.add_argument("--ocr", default="rapidocr")
     ap.add_argument("--methods", default="strings,3dgs")
+    ap.add_argument("--only-7k", action="store_true", help="train and evaluate the 7K checkpoint only (CPU budget)")
+    ap.add_argument("--downscale", type=float, default=None)
     args = ap.parse_args(argv)
 
     from strings_bench import runner
@@ -43,13 +45,21 @@ def main(argv=None) -> int:
     methods = args.methods.split(",")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     run_dir = Path(args.out) / args.preset
-    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=args.preset, ocr=args.ocr,
-               with_lpips=False, write_report=False)
+    preset = args.preset
+    if args.only_7k:
+        # A run preset with the same schedule and only the 7K checkpoint; methods scale like the run.
+        from dataclasses import replace
+
+        preset = f"{args.preset}-7k"
+        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=(7000,))
+        run_dir = run_dir.with_name(preset)
+    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,
+               with_lpips=False, write_report=False, downscale=args.downscale)
 
     rows = [runner.cell_row(r) for r in runner.iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
     rows.sort(key=lambda r: (scenes.index(r["scene"]), int(r["iteration"]), methods.index(r["method"])))
-    print(f"\nSTRinGS vs 3DGS, preset {args.preset}, OCR {args.ocr} (run folder {run_dir})\n")
+    print(f"\nSTRinGS vs 3DGS, preset {preset}, OCR {args.ocr} (run folder {run_dir})\n")
     print(f"| scene | ckpt | method | known-text CER | paper CER | PSNR | train s | Gaussians |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
