@@ -16,6 +16,10 @@ from pathlib import Path
 
 import pytest
 
+# Compiled numba kernels are safe to share and slow to build (tens of seconds): keep them in the
+# user's persistent cache even though everything else goes to the per-session folder.
+os.environ.setdefault("NUMBA_CACHE_DIR", str(Path.home() / ".cache" / "strings-bench" / "numba"))
+
 _OWN_CACHE: str | None = None
 if not os.environ.get("STRINGS_BENCH_CACHE"):
     _OWN_CACHE = tempfile.mkdtemp(prefix="strings-bench-test-cache-")
