@@ -10,7 +10,8 @@ opacities sigmoid(N(0, 2)). Target image: a fixed random image.
 
 Full training step = render (SH deg 3) + loss 0.8 L1 + 0.2 (1 - SSIM) (strings_bench.losses.gs_loss,
 11x11 Gaussian window) + backward + reading means2d.grad (as densification does) + torch Adam step.
-Times are medians over --iters after 2 warm-up steps (kernels are compiled / loaded before that).
+Times are medians over --iters after 2 warm-up steps (kernels are compiled / loaded before that);
+step_cpu_ms is the process CPU time of a step (all threads), loss_ms the loss alone (fwd+bwd).
 
 Peak memory: each configuration runs in a fresh subprocess; peak_mb = (max RSS of that process,
 from resource.getrusage) - (RSS after imports and a warm-up render of a tiny scene). It therefore
@@ -109,20 +110,31 @@ def run_one(width: int, height: int, n: int, iters: int, backend: str, reference
         opt.step()
         return out
 
+    cpu_ms = {}
+
     def timed(fn):
         for _ in range(2):
             fn()
-        ts = []
+        ts, cs = [], []
         for _ in range(iters):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             fn()
             ts.append((time.perf_counter() - t0) * 1e3)
+            cs.append((time.process_time() - c0) * 1e3)
+        cpu_ms[fn.__name__] = statistics.median(cs)
         return statistics.median(ts)
 
     res = {"width": width, "height": height, "gaussians": n, "backend": backend}
     res["fwd_ms"] = timed(fwd)
     res["fwd_bwd_ms"] = timed(fwd_bwd)
     res["step_ms"] = timed(step)
+    res["step_cpu_ms"] = cpu_ms["step"]  # CPU time of all threads: a load-independent cost figure
+    img = torch.rand(height, width, 3, requires_grad=True)
+
+    def loss_only():
+        gs_loss(img, target).backward()
+
+    res["loss_ms"] = timed(loss_only)
     out = step()
     res["visible"] = int((out.radii > 0).sum())
     res["peak_mb"] = _peak_rss_mb() - base_rss
@@ -181,12 +193,13 @@ def main(argv=None) -> int:
     if not args.json:
         print(f"backend {args.backend}; threads torch {rows[0]['threads']['torch']}, numba {rows[0]['threads']['numba']}; "
               f"loss 0.8 L1 + 0.2 (1 - SSIM); median of {args.iters} after 2 warm-ups")
-        hdr = f"{'size':>9} {'N':>7} {'visible':>7} {'fwd ms':>8} {'fwd+bwd':>8} {'step ms':>8} {'peak MB':>8} {'ref step':>9} {'ratio':>6}"
+        hdr = (f"{'size':>9} {'N':>7} {'visible':>7} {'fwd ms':>8} {'fwd+bwd':>8} {'step ms':>8} {'step cpu':>8} "
+               f"{'loss ms':>8} {'peak MB':>8} {'ref step':>9} {'ratio':>6}")
         print(hdr)
         for r in rows:
             ref = f"{r['reference_step_ms']:9.1f} {r['ratio']:6.1f}" if "reference_step_ms" in r else f"{'-':>9} {'-':>6}"
             print(f"{r['width']}x{r['height']:<5} {r['gaussians']:>7} {r['visible']:>7} {r['fwd_ms']:8.1f} "
-                  f"{r['fwd_bwd_ms']:8.1f} {r['step_ms']:8.1f} {r['peak_mb']:8.1f} {ref}")
+                  f"{r['fwd_bwd_ms']:8.1f} {r['step_ms']:8.1f} {r['step_cpu_ms']:8.1f} {r['loss_ms']:8.1f} {r['peak_mb']:8.1f} {ref}")
     return 0
 
 
