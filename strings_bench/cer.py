@@ -16,14 +16,18 @@ masked rendered view:
    images where either OCR failed are left out; both are counted and named.
 
 `known_text_cer` scores OCR of a view against the known strings (synthetic scenes) with the same
-machinery, the known words taking the place of the GT OCR.
+machinery, the known words taking the place of the GT OCR. Known words whose box is less than
+`min_text_height_px` tall (across the reading direction, at evaluation resolution; see
+`text_height_px`) are left out of it and counted separately: no OCR reads 4 px text, and the
+paper's CER is filtered the same way by construction (only what the GT OCR reads is scored).
+`known_scene_cer` is the per-scene figure with that filter.
 """
 
 from __future__ import annotations
 
 import math
 import unicodedata
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -36,6 +40,10 @@ from .errors import StringsBenchError
 from .ocr.base import Word
 
 IOU_THRESHOLD = 0.1
+# Legibility filter of the known-text CER (not of the paper's CER): known words lower than this many
+# pixels (across the reading direction, at evaluation resolution) are excluded and counted.
+# Chosen by measurement on the synthetic scenes' ground-truth views (docs/ocr.md).
+KNOWN_TEXT_MIN_HEIGHT_PX = 6.0
 
 
 # --------------------------------------------------------------------------- normalisation profiles
@@ -131,6 +139,8 @@ class SceneCER:
     ignored_failed: tuple[str, ...] = ()
     profile: dict[str, Any] = field(default_factory=dict)
     iou_threshold: float = IOU_THRESHOLD
+    # Known-text CER only: the legibility filter and what it left out (None: no filter applied).
+    legibility: dict[str, Any] | None = None
 
     @property
     def n_ignored_empty_gt(self) -> int:
@@ -149,6 +159,7 @@ class SceneCER:
             "ignored": {"empty_gt": list(self.ignored_empty_gt), "failed": list(self.ignored_failed)},
             "profile": dict(self.profile),
             "iou_threshold": self.iou_threshold,
+            **({} if self.legibility is None else {"legibility": dict(self.legibility)}),
         }
 
 
@@ -268,14 +279,91 @@ def image_cer(
     return ImageCER(total, chars, tuple(comps))
 
 
+def text_height_px(polygon: Any) -> float:
+    """Height of a word's box across its reading direction, in pixels (NaN without a usable box).
+
+    4-point boxes are taken in reading order (top-left, top-right, bottom-right, bottom-left as
+    read): height = area / mean length of the top and bottom edges, i.e. the perpendicular
+    distance between them, so a box sheared or foreshortened by perspective is as tall as its
+    glyphs really are on screen. Other polygons: the short side of their minimum rotated rectangle.
+    """
+    geom = polygon_geometry(polygon)
+    if geom is None:
+        return math.nan
+    pts = np.asarray(polygon, dtype=np.float64)
+    if pts.shape == (4, 2):
+        base = 0.5 * (np.linalg.norm(pts[1] - pts[0]) + np.linalg.norm(pts[2] - pts[3]))
+        return float(geom.area / base) if base > 0 else math.nan
+    rect = np.asarray(shapely.minimum_rotated_rectangle(geom).exterior.coords)[:4]
+    sides = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
+    return float(sides.min())
+
+
+def split_legible(
+    known_words: Iterable[Any], min_text_height_px: float
+) -> tuple[list[Word], list[Word]]:
+    """(legible, excluded) known words: excluded = box lower than min_text_height_px (or no usable box)."""
+    legible: list[Word] = []
+    excluded: list[Word] = []
+    for w in (_as_word(k) for k in known_words):
+        h = text_height_px(w.polygon)
+        (legible if min_text_height_px <= 0 or (not math.isnan(h) and h >= min_text_height_px) else excluded).append(w)
+    return legible, excluded
+
+
 def known_text_cer(
     known_words: Iterable[Any],
     predicted_words: Iterable[Any],
     profile: str | NormalizationProfile = "paper",
     iou_threshold: float = IOU_THRESHOLD,
+    min_text_height_px: float = 0.0,
 ) -> ImageCER:
-    """CER of OCR output against the known strings of a view (synthetic scenes), same matching."""
-    return image_cer(known_words, predicted_words, profile=profile, iou_threshold=iou_threshold)
+    """CER of OCR output against the known strings of a view (synthetic scenes), same matching.
+
+    Known words lower than `min_text_height_px` (see `text_height_px`) are left out; 0 keeps all.
+    `known_scene_cer` also counts what was left out.
+    """
+    legible, _ = split_legible(known_words, min_text_height_px)
+    return image_cer(legible, predicted_words, profile=profile, iou_threshold=iou_threshold)
+
+
+def known_scene_cer(
+    per_image: Mapping[str, tuple[Iterable[Any] | None, Iterable[Any] | None]],
+    min_text_height_px: float = KNOWN_TEXT_MIN_HEIGHT_PX,
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+) -> SceneCER:
+    """Known-text CER of a scene: `scene_cer` over {name: (known words, OCR words or None)} after the
+    legibility filter. The result's `legibility` records the threshold and the words and characters
+    excluded (those of images whose OCR failed included); views left with no legible word are
+    named in `ignored_empty_gt`.
+    """
+    if not (math.isfinite(min_text_height_px) and min_text_height_px >= 0):
+        raise StringsBenchError(f"min_text_height_px must be a number >= 0, got {min_text_height_px!r}",
+                                hint=f"0 keeps every known word; the default is {KNOWN_TEXT_MIN_HEIGHT_PX}")
+    prof = get_profile(profile)
+    filtered: dict[str, tuple[Any, Any]] = {}
+    excl_words = excl_chars = 0
+    for name, pair in per_image.items():
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise StringsBenchError(f"known_scene_cer: entry {name!r} is not a (known_words, pred_words) pair",
+                                    hint="pass None for a failed OCR")
+        known, pred = pair
+        if known is None:
+            filtered[name] = (None, pred)
+            continue
+        legible, excluded = split_legible(known, min_text_height_px)
+        excl_words += len(excluded)
+        excl_chars += sum(len(prof.normalize(w.text)) for w in excluded)
+        filtered[name] = (legible, pred)
+    res = scene_cer(filtered, profile=prof, iou_threshold=iou_threshold)
+    legibility = {
+        "min_text_height_px": float(min_text_height_px),
+        "height": "box height across the reading direction at evaluation resolution (cer.text_height_px)",
+        "excluded_words": excl_words,
+        "excluded_chars": excl_chars,
+    }
+    return replace(res, legibility=legibility)
 
 
 def scene_cer(
