@@ -215,11 +215,12 @@ def test_lr_schedule_in_both_phases(tiny_text_scene):
 
 
 def test_restart_schedules(tiny_text_scene):
-    trainer = StringsMethod(**{**FAST, "steps_scale": 0.01, "phase2_schedules": "restart"}).build_trainer(
+    trainer = StringsMethod(**{**FAST, "steps_scale": 0.01}).build_trainer(
         tiny_text_scene, [70], 1)
     assert trainer.strategy_step(20) == 20 and trainer.strategy_step(35) == 5
     assert trainer.sh_degree_for_step(35) == 0 and trainer.sh_degree_for_step(45) == 1  # SH every 10 steps
-    glob = StringsMethod(**{**FAST, "steps_scale": 0.01}).build_trainer(tiny_text_scene, [70], 1)
+    glob = StringsMethod(**{**FAST, "steps_scale": 0.01, "phase2_schedules": "global"}).build_trainer(
+        tiny_text_scene, [70], 1)
     assert glob.strategy_step(35) == 35 and glob.sh_degree_for_step(35) == 1
 
 
