@@ -43,7 +43,7 @@ IOU_THRESHOLD = 0.1
 # Legibility filter of the known-text CER (not of the paper's CER): known words lower than this many
 # pixels (across the reading direction, at evaluation resolution) are excluded and counted.
 # Chosen by measurement on the synthetic scenes' ground-truth views (docs/ocr.md).
-KNOWN_TEXT_MIN_HEIGHT_PX = 6.0
+KNOWN_TEXT_MIN_HEIGHT_PX = 6.5
 
 
 # --------------------------------------------------------------------------- normalisation profiles
