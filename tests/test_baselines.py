@@ -317,6 +317,13 @@ def test_edc_selects_on_absolute_gradient_only_and_recovery_prunes_after_reset()
     assert len(model) == 5
 
 
+def test_edc_recovery_window_in_scaled_schedules():
+    strategy = EDCStrategy()
+    assert strategy.recovery_step(strategy.initialize_state(1.0, 1.0)) == 300       # paper: reset + 300
+    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.05)) == 100      # quick: 15 -> 100 steps
+    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 59       # before the next reset (60)
+
+
 # ---------------------------------------------------------------------------------------------
 # AbsGS selection
 # ---------------------------------------------------------------------------------------------

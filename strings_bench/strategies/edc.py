@@ -8,7 +8,8 @@ Differences from AbsGS:
   axis (R e_long), with scale s_max / 2 on that axis and x `other_axes_factor` (0.85) on the others,
   and opacity x `opacity_factor` (0.6) applied to the activated opacity; rotation and colour copied;
 - recovery-aware pruning: `recovery_delay` (300) iterations after each opacity reset (while
-  densifying), prune opacity < `recovery_prune_opa` (0.05);
+  densifying), prune opacity < `recovery_prune_opa` (0.05); in scaled (quick) schedules the delay is
+  at least `recovery_min_steps` (100) actual steps, see the field's comment;
 - no screen-size pruning (the public code prunes only on opacity and, after 3 000 iterations, on
   world size > 0.1 x extent);
 - position learning rate 4e-5 -> 2e-6 (set in methods/edc_absgs.py).
@@ -71,6 +72,10 @@ class EDCStrategy(AbsGSStrategy):
     opacity_factor: float = 0.6
     recovery_delay: int = 300
     recovery_prune_opa: float = 0.05
+    # Scaled schedules shrink the 300-iteration recovery window (to 15 steps at steps_scale 0.05), too
+    # short for opacities reset to 0.01 to climb back above 0.05 at the unscaled opacity LR: the window
+    # is at least this many actual steps (and ends before the next reset). No effect at steps_scale 1.
+    recovery_min_steps: int = 100
     release_schedule: bool = False
 
     def select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,9 +99,14 @@ class EDCStrategy(AbsGSStrategy):
             self._prune_below(model, optimizer, state, 0.02)
         super().step_post_backward(model, optimizer, state, step, info)
         reset = self.every(state, self.reset_every)
-        if (reset < step < self.at(state, self.refine_stop_iter)
-                and step % reset == self.at(state, self.recovery_delay) % reset):
+        if reset < step < self.at(state, self.refine_stop_iter) and step % reset == self.recovery_step(state):
             self._prune_below(model, optimizer, state, self.recovery_prune_opa)
+
+    def recovery_step(self, state: dict) -> int:
+        """Steps after each opacity reset at which the recovery-aware pruning runs."""
+        reset = self.every(state, self.reset_every)
+        delay = max(self.at(state, self.recovery_delay), self.recovery_min_steps)
+        return min(delay, reset - 1) % reset
 
     @torch.no_grad()
     def _prune_below(self, model, optimizer, state, opacity: float) -> None:
