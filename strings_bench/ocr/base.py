@@ -129,9 +129,13 @@ def load_mask(mask: np.ndarray | str | os.PathLike, shape: tuple[int, int]) -> n
     return arr
 
 
-def apply_mask(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """image * mask, as the authors do: pixels outside the text mask become black."""
-    return image * mask[:, :, None].astype(np.uint8)
+def apply_mask(image: np.ndarray, mask: np.ndarray, fill: int = 0) -> np.ndarray:
+    """image * mask, as the authors do: pixels outside the text mask become black (fill 0), or the
+    grey level `fill` (a backend setting: RapidOCR's detector finds no line at all in some
+    black-surrounded views; see docs/ocr.md)."""
+    if not fill:
+        return image * mask[:, :, None].astype(np.uint8)
+    return np.where(mask[:, :, None], image, np.uint8(fill)).astype(np.uint8)
 
 
 def array_sha256(arr: np.ndarray) -> str:
@@ -200,7 +204,7 @@ class OCRBackend:
             hit = self.cache.get(key)
             if hit is not None:
                 return hit
-        masked = rgb if mask_arr is None else apply_mask(rgb, mask_arr)
+        masked = rgb if mask_arr is None else apply_mask(rgb, mask_arr, int(self.settings.get("mask_fill", 0)))
         try:
             words = self._recognize(masked)
         except OCRError:

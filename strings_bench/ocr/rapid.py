@@ -40,6 +40,9 @@ DEFAULTS: dict[str, Any] = {
     # Words of different rotations whose intersection covers more than this fraction of the
     # smaller one are the same word: the more confident reading is kept.
     "merge_overlap": 0.5,
+    # Grey level of the pixels outside the text mask (the paper: image x mask, i.e. 0). RapidOCR's
+    # detector misses whole views surrounded by black; mid-grey reads them (docs/ocr.md).
+    "mask_fill": 128,
 }
 
 ROTATIONS = (0, 90, 180, 270)
@@ -290,6 +293,10 @@ class RapidOCRBackend(OCRBackend):
         merged["upscale"] = _check_upscale(merged["upscale"])
         merged["rotations"] = _check_rotations(merged["rotations"])
         merged["merge_overlap"] = _check_fraction("merge_overlap", merged["merge_overlap"])
+        if not (isinstance(merged["mask_fill"], int) and not isinstance(merged["mask_fill"], bool)
+                and 0 <= merged["mask_fill"] <= 255):
+            raise OCRError(f"rapidocr setting mask_fill={merged['mask_fill']!r} must be an integer grey level 0..255",
+                           hint="0 = black, as image x mask in the paper; the default is 128")
         super().__init__(merged, cache)
         # Runtime only (does not change results, so not a setting). Default 2: the benchmark machines
         # are small and several jobs may share them; onnxruntime's default takes every core.
