@@ -407,7 +407,8 @@ def tiny_scene(tmp_path_factory):
 def test_mip_trainer_renders_through_the_filter_and_keeps_it_current(tiny_scene):
     from strings_bench.methods.registry import get_method
 
-    adapter = get_method("mip-splatting").build(None, steps_scale=0.01, sh_degree=0, progress=False)
+    # refine every step (nominal 1: never stretched by the quick-schedule floor)
+    adapter = get_method("mip-splatting").build(None, steps_scale=0.01, sh_degree=0, progress=False, refine_every=1)
     trainer = adapter.make_trainer(tiny_scene, [12], 1)
     trainer.set_model(trainer.initial_model(tiny_scene))
     cams = [trainer.camera(i) for i in trainer.train_views()]
@@ -423,7 +424,7 @@ def test_mip_trainer_renders_through_the_filter_and_keeps_it_current(tiny_scene)
     assert not torch.allclose(got, raw, atol=1e-4)  # the filter changes the image
     results = list(trainer.train())
     assert results[-1].iteration == 12 and np.isfinite(next(iter(results[-1].renders.values()))).all()
-    # recomputed at the last densification step (refine every max(1, round(100 x 0.01)) = 1 step)
+    # recomputed at the last densification step (every step)
     np.testing.assert_allclose(trainer.model.extras[FILTER_KEY].numpy(),
                                filter_sigma(trainer.model.means, cams).numpy(), rtol=1e-5)
 
@@ -432,7 +433,7 @@ def test_mcmc_initialisation_and_short_run(tiny_scene):
     from strings_bench.gaussians import GaussianModel as GM
     from strings_bench.methods.registry import get_method
 
-    adapter = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, progress=False)
+    adapter = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, progress=False, refine_every=1)
     trainer = adapter.make_trainer(tiny_scene, [12], 1)
     model = trainer.initial_model(tiny_scene)
     plain = GM.from_points(tiny_scene.model.xyz, tiny_scene.model.rgb, sh_degree=0)

@@ -221,8 +221,12 @@ def test_default_strategy_clone_split_prune():
 def test_default_strategy_schedule_scales_with_steps():
     strat = DefaultStrategy()
     state = strat.initialize_state(1.0, steps_scale=0.1)
-    assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 10
+    # intervals shorter than MIN_SCALED_INTERVAL (50) are held at 50 in scaled runs; starts/stops scale freely
+    assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 50
     assert strat.every(state, strat.reset_every) == 300 and strat.at(state, strat.refine_stop_iter) == 1500
+    assert strat.every(state, 20) == 20  # a nominal interval below the floor is kept as given
+    full = strat.initialize_state(1.0, steps_scale=1.0)
+    assert strat.every(full, strat.refine_every) == 100 and strat.every(full, 1) == 1
 
 
 # ---- trainer -----------------------------------------------------------------------------------

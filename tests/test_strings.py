@@ -218,10 +218,11 @@ def test_restart_schedules(tiny_text_scene):
     trainer = StringsMethod(**{**FAST, "steps_scale": 0.01}).build_trainer(
         tiny_text_scene, [70], 1)
     assert trainer.strategy_step(20) == 20 and trainer.strategy_step(35) == 5
-    assert trainer.sh_degree_for_step(35) == 0 and trainer.sh_degree_for_step(45) == 1  # SH every 10 steps
+    # SH degree +1 every max(1000 x 0.01, 50) = 50 steps, counted from the start of phase 2 (step 30)
+    assert trainer.sh_degree_for_step(79) == 0 and trainer.sh_degree_for_step(80) == 1
     glob = StringsMethod(**{**FAST, "steps_scale": 0.01, "phase2_schedules": "global"}).build_trainer(
         tiny_text_scene, [70], 1)
-    assert glob.strategy_step(35) == 35 and glob.sh_degree_for_step(35) == 1
+    assert glob.strategy_step(35) == 35 and glob.sh_degree_for_step(50) == 1 and glob.sh_degree_for_step(49) == 0
 
 
 def _spy(trainer):

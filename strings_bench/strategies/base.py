@@ -33,8 +33,16 @@ def scaled_step(nominal: float, steps_scale: float) -> int:
     return int(round(nominal * steps_scale))
 
 
+# Shortest interval (refinement, opacity reset, SH increase, relocation) in a scaled-down run.
+# Scaling 3DGS's every-100-steps refinement by 0.05 would refine every 5 steps on 5 steps of
+# gradient statistics, before new Gaussians settle: measured on synthetic/books, 3DGS grew from
+# 2.9k to 131k Gaussians in 150 steps. Quick runs keep at least this many steps between rounds.
+MIN_SCALED_INTERVAL = 50
+
+
 def scaled_interval(nominal: float, steps_scale: float) -> int:
-    return max(1, scaled_step(nominal, steps_scale))
+    floor = min(nominal, MIN_SCALED_INTERVAL) if steps_scale < 1 else 1
+    return int(max(1, scaled_step(nominal, steps_scale), floor))
 
 
 @dataclass
