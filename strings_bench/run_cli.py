@@ -24,7 +24,8 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated dataset ids (synthetic, synthetic/books, strings360/globe) or scene folders "
                         f"(default {DEFAULT_DATASETS})")
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
-                   help="schedule: paper = 30K iterations; quick (default) = scaled down; tiny = smoke test")
+                   help="schedule: paper = 30K iterations (3K/7K/30K); standard = x0.05 (350/1500 steps); "
+                        "quick (default) = x0.01 (70/300 steps, ~10 min for the default run on 2 cores); tiny = smoke test")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
     p.add_argument("--ocr", default="rapidocr", help="OCR backend for OCR-CER (rapidocr, tesseract, gcv)")

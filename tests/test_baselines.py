@@ -321,7 +321,9 @@ def test_edc_recovery_window_in_scaled_schedules():
     strategy = EDCStrategy()
     assert strategy.recovery_step(strategy.initialize_state(1.0, 1.0)) == 300       # paper: reset + 300
     assert strategy.recovery_step(strategy.initialize_state(1.0, 0.05)) == 100      # quick: 15 -> 100 steps
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 59       # before the next reset (60)
+    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 100      # resets 200 apart (floor)
+    strategy = EDCStrategy(recovery_min_steps=250)
+    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 199      # before the next reset (200)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -461,7 +463,7 @@ def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small
     gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}
     final = {}
     for method in ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]:
-        adapter = get_method(method).build("quick", progress=False)
+        adapter = get_method(method).build("standard", progress=False)
         results = list(adapter.train(scene, [350, 1500], 1))
         assert [r.iteration for r in results] == [350, 1500]
         last = results[-1]

@@ -225,6 +225,10 @@ def test_default_strategy_schedule_scales_with_steps():
     assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 50
     assert strat.every(state, strat.reset_every) == 300 and strat.at(state, strat.refine_stop_iter) == 1500
     assert strat.every(state, 20) == 20  # a nominal interval below the floor is kept as given
+    # opacity resets: at least MIN_SCALED_RESET_INTERVAL (200) steps apart in scaled runs
+    assert strat.reset_interval(state, strat.reset_every) == 300
+    quick = strat.initialize_state(1.0, steps_scale=0.01)
+    assert strat.reset_interval(quick, strat.reset_every) == 200 and strat.every(quick, strat.reset_every) == 50
     full = strat.initialize_state(1.0, steps_scale=1.0)
     assert strat.every(full, strat.refine_every) == 100 and strat.every(full, 1) == 1
 
@@ -338,7 +342,7 @@ def test_gs3d_method_registered_and_trains(tiny_scene):
     adapter = spec.build(preset="quick", sh_degree=0, progress=False, lr_opacity_logits=0.025, grow_grad2d=3e-4)
     trainer = adapter.make_trainer(tiny_scene, [10, 20], 1)
     assert trainer.config.lrs.opacity_logits == 0.025 and trainer.strategy.grow_grad2d == 3e-4
-    assert trainer.config.steps_scale == 0.05
+    assert trainer.config.steps_scale == 0.01
     results = list(adapter.train(tiny_scene, [10, 20]))
     assert [r.iteration for r in results] == [10, 20]
     with pytest.raises(StringsBenchError, match="unknown setting"):
@@ -347,7 +351,7 @@ def test_gs3d_method_registered_and_trains(tiny_scene):
 
 @pytest.mark.slow
 def test_vanilla_3dgs_on_synthetic_books_reaches_25db():
-    """Quick schedule (1 500 steps = 30K x 0.05) on synthetic/books at its default 320x240."""
+    """Standard schedule (1 500 steps = 30K x 0.05) on synthetic/books at its default 320x240."""
     pytest.importorskip("strings_bench.raster.reference")  # the real rasterizer, not the test stand-in
     from strings_bench.datasets import resolve_scenes
     from strings_bench.losses import psnr

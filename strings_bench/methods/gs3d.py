@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Iterator
 
+from ..schedules import schedule_presets
 from ..strategies.default import DefaultStrategy
 from .base import CheckpointResult, MethodAdapter
 from .registry import MethodSpec, register_method
@@ -44,9 +45,5 @@ SPEC = register_method(MethodSpec(
     description="vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
     paper=PAPER,
     defaults={"steps_scale": 1.0},
-    presets={
-        "paper": {"steps_scale": 1.0},  # checkpoints 7K and 30K (the runner's preset picks them)
-        # Placeholder until the lead measures the budget: 1/20 of every schedule (1 500 steps for 30K).
-        "quick": {"steps_scale": 0.05},
-    },
+    presets=schedule_presets(),  # paper 1.0, standard 0.05, quick 0.01, tiny 0.005 (the runner picks checkpoints)
 ))

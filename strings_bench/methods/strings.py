@@ -278,18 +278,10 @@ class StringsMethod(MethodAdapter):
 
 
 # ---- registration ----------------------------------------------------------------------------------
-def _schedule_presets() -> dict[str, dict]:
-    """The runner's schedule presets (steps_scale), so `run --preset quick` trains what it evaluates."""
-    try:
-        from ..runner import PRESETS
-
-        return {name: {"steps_scale": p.steps_scale} for name, p in PRESETS.items()}
-    except ImportError:  # runner not installed: the same numbers
-        return {"paper": {"steps_scale": 1.0}, "quick": {"steps_scale": 0.05}, "tiny": {"steps_scale": 0.005}}
-
-
 def _presets() -> dict[str, dict]:
-    presets = _schedule_presets()
+    from ..schedules import schedule_presets
+
+    presets = schedule_presets()
     presets["release"] = {"steps_scale": 1.0, "gamma": 12000, "mask_dilation_px": 225.0,
                           "phase2_schedules": "restart"}
     return presets

@@ -62,7 +62,7 @@ class DefaultStrategy(Strategy):
         self.update_state(model, state, info)
         if step > self.at(state, self.refine_start_iter) and step % self.every(state, self.refine_every) == 0:
             self.refine(model, optimizer, state, step)
-        if step % self.every(state, self.reset_every) == 0:
+        if step % self.reset_interval(state, self.reset_every) == 0:
             ops.reset_opacity(model, optimizer, self.reset_value)
 
     # ---- pieces (overridable) --------------------------------------------------------------

@@ -98,13 +98,13 @@ class EDCStrategy(AbsGSStrategy):
         if self.release_schedule and step == self.at(state, 300):
             self._prune_below(model, optimizer, state, 0.02)
         super().step_post_backward(model, optimizer, state, step, info)
-        reset = self.every(state, self.reset_every)
+        reset = self.reset_interval(state, self.reset_every)
         if reset < step < self.at(state, self.refine_stop_iter) and step % reset == self.recovery_step(state):
             self._prune_below(model, optimizer, state, self.recovery_prune_opa)
 
     def recovery_step(self, state: dict) -> int:
         """Steps after each opacity reset at which the recovery-aware pruning runs."""
-        reset = self.every(state, self.reset_every)
+        reset = self.reset_interval(state, self.reset_every)
         delay = max(self.at(state, self.recovery_delay), self.recovery_min_steps)
         return min(delay, reset - 1) % reset
 

@@ -181,5 +181,5 @@ class MipStrategy(DefaultStrategy):
         if step > self.at(state, self.refine_start_iter) and step % self.every(state, self.refine_every) == 0:
             self.refine(model, optimizer, state, step)
             self.update_filter(model, state)
-        if step % self.every(state, self.reset_every) == 0:
+        if step % self.reset_interval(state, self.reset_every) == 0:
             reset_filtered_opacity(model, optimizer, self.reset_value)

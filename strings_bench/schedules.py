@@ -1,0 +1,22 @@
+"""Schedule scales shared by the runner's presets and every method's presets.
+
+Every iteration number of a method (checkpoints, densification window, resets, LR schedules) is
+multiplied by the preset's steps_scale; intervals keep at least strategies.base.MIN_SCALED_INTERVAL
+steps. Measured on 2 CPU cores (synthetic scenes, 320x240; see README and docs/engine.md):
+- quick (0.01: 70/300 steps for 7K/30K) is what fits `strings-bench run` on the five synthetic
+  scenes, two methods, in about 10 minutes including scene generation and OCR;
+- standard (0.05: 350/1500 steps) gives visibly sharper text, at several minutes per method and scene;
+- paper (1.0) is the paper's 30K schedule (hours per scene on a CPU; meant for a GPU).
+"""
+
+SCHEDULE_SCALES: dict[str, float] = {
+    "paper": 1.0,
+    "standard": 0.05,
+    "quick": 0.01,
+    "tiny": 0.005,
+}
+
+
+def schedule_presets() -> dict[str, dict]:
+    """Method presets {name: {"steps_scale": s}} for every schedule."""
+    return {name: {"steps_scale": s} for name, s in SCHEDULE_SCALES.items()}
