@@ -7,7 +7,7 @@ training time and the Gaussian count; then the check the issue asks for: at the 
 STRinGS has lower known-text CER than 3DGS on >= 4 of 5 scenes and on their mean, and reaches 7K
 in less training time.
 
-    python benchmarks/strings_vs_3dgs.py                     # quick schedule (steps_scale 0.05)
+    python benchmarks/strings_vs_3dgs.py --preset standard  # x0.05 schedule (350/1500 steps); default quick (x0.01)
     python benchmarks/strings_vs_3dgs.py --preset paper --scenes books   # full schedule, one scene
     python benchmarks/strings_vs_3dgs.py --out runs/strings_vs_3dgs      # results folder (resumable)
 

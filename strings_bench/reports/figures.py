@@ -64,9 +64,16 @@ def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path |
             ax.annotate(method_title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
     ax.set_xlabel(f"training time at {label} (minutes)")
     ax.set_ylabel(f"OCR-CER at {label} (lower is better)")
+    _cer_axis(ax, g["cer"])
     ax.grid(True, alpha=0.3)
     ax.set_title(f"Readability vs training time ({label})", fontsize=10)
     return _save(fig, out)
+
+
+def _cer_axis(ax, values) -> None:
+    """CER axes start at 0 and show at least up to 1, so that 0.996 vs 1.0 does not look like a gap."""
+    top = np.nanmax(np.asarray(values, dtype=float)) if len(values) else np.nan
+    ax.set_ylim(0.0, max(1.02, float(top) * 1.02) if np.isfinite(top) else 1.02)
 
 
 def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
@@ -95,6 +102,7 @@ def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("iteration")
         ax.set_ylabel("OCR-CER")
+        _cer_axis(ax, sub["cer"])
         ax.grid(True, alpha=0.3)
     for ax in list(axes.flat)[len(panels):]:
         ax.axis("off")
