@@ -200,6 +200,7 @@ class Trainer:
         from tqdm.auto import tqdm
 
         self.seed_everything()
+        self._deferred_refinement = None
         self.set_model(self._given_model if self._given_model is not None else self.initial_model(self.scene))
         at_steps = set(self.checkpoint_steps(checkpoints))
         total = max(at_steps)
@@ -209,6 +210,11 @@ class Trainer:
         try:
             for step in range(1, total + 1):
                 t0 = time.perf_counter()
+                # At a checkpoint the model is evaluated after the step's optimizer update but before
+                # that step's densification / opacity reset, as the reference code saves before it
+                # densifies; otherwise a reset landing on a checkpoint step (e.g. 3K in 3DGS) would be
+                # evaluated at opacity 0.01.
+                self._defer_refinement = step in at_steps
                 self.train_step(step)
                 train_seconds += time.perf_counter() - t0
                 bar.update(1)
@@ -216,7 +222,12 @@ class Trainer:
                     bar.set_postfix(loss=f"{self.last_loss:.4f}", gaussians=len(self.model))
                 if step in at_steps:
                     yield self.checkpoint(step, train_seconds)
+                    if self._deferred_refinement is not None:  # the step completes as the reference's does
+                        t0 = time.perf_counter()
+                        self._deferred_refinement()
+                        train_seconds += time.perf_counter() - t0
         finally:
+            self._defer_refinement = False
             bar.close()
 
     def train_step(self, step: int) -> float:
@@ -258,9 +269,17 @@ class Trainer:
             else:
                 opt.set_lr("means", opt.lrs["means"] * float(scale))
         opt.step(row_scale)
-        strategy.step_post_backward(model, opt, self.strategy_state, sstep, info)
-        opt.zero_grad()
         self.last_loss = value
+
+        def refine() -> None:
+            self._deferred_refinement = None
+            strategy.step_post_backward(model, opt, self.strategy_state, sstep, info)
+            opt.zero_grad()
+
+        if getattr(self, "_defer_refinement", False):
+            self._deferred_refinement = refine
+        else:
+            refine()
         return value
 
     def _nonfinite_error(self, step: int, what: str, groups: list[str] | None = None) -> TrainingError:

@@ -234,6 +234,17 @@ def test_default_strategy_schedule_scales_with_steps():
 
 
 # ---- trainer -----------------------------------------------------------------------------------
+def test_checkpoint_is_taken_before_that_steps_opacity_reset(tiny_scene):
+    """A reset due on a checkpoint step runs after the checkpoint (the reference saves, then densifies)."""
+    strategy = DefaultStrategy(refine_start_iter=1000, reset_every=10, refine_stop_iter=1000)
+    tr = Trainer(tiny_scene, TrainConfig(checkpoints=(10, 12), sh_degree=0, progress=False), strategy)
+    seen = {}
+    for result in tr.train():
+        seen[result.iteration] = float(tr.model.opacities.max())
+    assert seen[10] > 0.05            # initial opacity 0.1, not reset yet when the checkpoint renders
+    assert seen[12] < 0.02            # reset to 0.01 right after the checkpoint, two Adam steps since
+
+
 def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
     cfg = TrainConfig(checkpoints=(50, 350), steps_scale=0.05, sh_degree=1, progress=False,
                       ply_dir=str(tmp_path / "ply"))
