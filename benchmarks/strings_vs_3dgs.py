@@ -9,6 +9,7 @@ in less training time.
 
     python benchmarks/strings_vs_3dgs.py --preset standard  # x0.05 schedule (350/1500 steps); default quick (x0.01)
     python benchmarks/strings_vs_3dgs.py --preset paper --scenes books   # full schedule, one scene
+    python benchmarks/strings_vs_3dgs.py --steps-scale 0.2 --only-7k --scenes extinguisher   # own scale
     python benchmarks/strings_vs_3dgs.py --out runs/strings_vs_3dgs      # results folder (resumable)
 
 Timings are noisy on a shared machine; the run folder keeps every number (results.csv).
@@ -38,6 +39,8 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", default="strings,3dgs")
     ap.add_argument("--only-7k", action="store_true", help="train and evaluate the 7K checkpoint only (CPU budget)")
     ap.add_argument("--downscale", type=float, default=None)
+    ap.add_argument("--steps-scale", type=float, default=None,
+                    help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the preset's")
     args = ap.parse_args(argv)
 
     from strings_bench import runner
@@ -46,6 +49,13 @@ def main(argv=None) -> int:
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     run_dir = Path(args.out) / args.preset
     preset = args.preset
+    if args.steps_scale is not None:
+        from dataclasses import replace
+
+        preset = f"x{args.steps_scale:g}"
+        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, steps_scale=args.steps_scale)
+        run_dir = run_dir.with_name(preset)
+        args.preset = preset
     if args.only_7k:
         # A run preset with the same schedule and only the 7K checkpoint; methods scale like the run.
         from dataclasses import replace

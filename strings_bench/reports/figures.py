@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,10 @@ def _plt():
 
 def _save(fig, path: Path) -> Path:
     def write(tmp: Path) -> None:
-        fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
+        with warnings.catch_warnings():
+            # OCR of blurred renders sometimes returns CJK glyphs the default font lacks; they show as boxes.
+            warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font")
+            fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
 
     atomic_write(path, write)
     _plt().close(fig)
