@@ -119,9 +119,14 @@ def prepare_scene(
     max_features: int = 8192,
     progress: bool = True,
     echo: Callable[[str], None] = print,
+    seed: int = 0,
 ) -> PrepareResult:
     """Run the whole photos -> scene pipeline; returns counts and per-stage seconds."""
     import pycolmap
+
+    # COLMAP's RANSAC and mapper draw random numbers; a fixed seed makes a re-run register the same
+    # images (on a 12-photo capture an unseeded run registered 2 photos instead of 12 once in 3).
+    pycolmap.set_random_seed(int(seed))
 
     photos = list_photos(Path(photos_dir))
     scene_dir = Path(out) if out is not None else default_scene_dir(name)
