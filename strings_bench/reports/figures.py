@@ -23,15 +23,15 @@ def _plt():
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    # OCR of blurred renders sometimes returns CJK glyphs the default font lacks; they show as boxes.
+    warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
+
     return plt
 
 
 def _save(fig, path: Path) -> Path:
     def write(tmp: Path) -> None:
-        with warnings.catch_warnings():
-            # OCR of blurred renders sometimes returns CJK glyphs the default font lacks; they show as boxes.
-            warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font")
-            fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
+        fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
 
     atomic_write(path, write)
     _plt().close(fig)
