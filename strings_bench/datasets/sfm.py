@@ -124,8 +124,9 @@ def prepare_scene(
     """Run the whole photos -> scene pipeline; returns counts and per-stage seconds."""
     import pycolmap
 
-    # COLMAP's RANSAC and mapper draw random numbers; a fixed seed makes a re-run register the same
-    # images (on a 12-photo capture an unseeded run registered 2 photos instead of 12 once in 3).
+    # COLMAP's RANSAC and mapper draw random numbers: seeded, a single-threaded run (num_threads=1)
+    # is repeatable; multi-threaded runs still vary (on a 12-photo test capture 2 of 12 photos
+    # registered in about 1 run in 5).
     pycolmap.set_random_seed(int(seed))
 
     photos = list_photos(Path(photos_dir))
