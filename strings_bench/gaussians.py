@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from .errors import StringsBenchError
+from .raster.projection import quat_to_rotmat  # noqa: F401  (one definition; re-exported for strategies)
 
 if TYPE_CHECKING:
     from .camera import Camera
@@ -45,17 +46,6 @@ def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
 def logit(p: float | torch.Tensor) -> torch.Tensor:
     p = torch.as_tensor(p, dtype=torch.float32)
     return torch.log(p / (1 - p))
-
-
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz quaternions (any norm) -> (N, 3, 3) rotation matrices."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(-1, 3, 3)
 
 
 def knn_mean_sq_dist(xyz: np.ndarray, k: int = 3) -> np.ndarray:

@@ -214,8 +214,7 @@ class Trainer:
                 # that step's densification / opacity reset, as the reference code saves before it
                 # densifies; otherwise a reset landing on a checkpoint step (e.g. 3K in 3DGS) would be
                 # evaluated at opacity 0.01.
-                self._defer_refinement = step in at_steps
-                self.train_step(step)
+                self.train_step(step, defer_refinement=step in at_steps)
                 train_seconds += time.perf_counter() - t0
                 bar.update(1)
                 if step % 10 == 0 or step == total:
@@ -227,10 +226,11 @@ class Trainer:
                         self._deferred_refinement()
                         train_seconds += time.perf_counter() - t0
         finally:
-            self._defer_refinement = False
             bar.close()
 
-    def train_step(self, step: int) -> float:
+    def train_step(self, step: int, defer_refinement: bool = False) -> float:
+        """One optimisation step. With defer_refinement the strategy's post-backward work (densify,
+        reset) is kept in self._deferred_refinement for the caller to run after a checkpoint."""
         self.on_step_start(step)
         model, opt, strategy = self.model, self.optimizer, self.strategy
         # The rasterizer may cull a Gaussian with NaN parameters without a NaN loss: check the values too.
@@ -276,7 +276,7 @@ class Trainer:
             strategy.step_post_backward(model, opt, self.strategy_state, sstep, info)
             opt.zero_grad()
 
-        if getattr(self, "_defer_refinement", False):
+        if defer_refinement:
             self._deferred_refinement = refine
         else:
             refine()

@@ -252,8 +252,8 @@ def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
     losses = []
     orig = tr.train_step
 
-    def record(step):
-        losses.append(orig(step))
+    def record(step, **kw):
+        losses.append(orig(step, **kw))
         return losses[-1]
 
     tr.train_step = record
