@@ -11,6 +11,9 @@ in less training time.
     python benchmarks/strings_vs_3dgs.py --preset paper --scenes books   # full schedule, one scene
     python benchmarks/strings_vs_3dgs.py --steps-scale 0.2 --only-7k --scenes extinguisher   # own scale
     python benchmarks/strings_vs_3dgs.py --out runs/strings_vs_3dgs      # results folder (resumable)
+    python benchmarks/strings_vs_3dgs.py --preset paper --checkpoints 3000 --scenes extinguisher \
+        --methods strings,strings-pos-lr,3dgs                             # the paper's phase-1 ablation
+    python benchmarks/strings_vs_3dgs.py ... --set lr_means=1.6e-3 lr_means_final=1.6e-5 --out runs/lr10
 
 Timings are noisy on a shared machine; the run folder keeps every number (results.csv).
 """
@@ -30,6 +33,18 @@ def _f(x, fmt="{:.3f}"):
     return "-" if x is None or x == "" or (isinstance(x, float) and math.isnan(x)) else fmt.format(float(x))
 
 
+def _parse_setting(kv: str) -> tuple[str, object]:
+    import json
+
+    key, sep, value = kv.partition("=")
+    if not sep:
+        raise SystemExit(f"--set expects KEY=VALUE, got {kv!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="quick")
@@ -38,9 +53,15 @@ def main(argv=None) -> int:
     ap.add_argument("--ocr", default="rapidocr")
     ap.add_argument("--methods", default="strings,3dgs")
     ap.add_argument("--only-7k", action="store_true", help="train and evaluate the 7K checkpoint only (CPU budget)")
+    ap.add_argument("--checkpoints", default=None,
+                    help="paper iterations to evaluate, e.g. 3000 (end of STRinGS' phase 1, the paper's "
+                         "position-LR ablation) or 3000,7000; default: the preset's")
     ap.add_argument("--downscale", type=float, default=None)
     ap.add_argument("--steps-scale", type=float, default=None,
                     help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the preset's")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="setting for every method, e.g. lr_means=8e-4 (values parsed as JSON when possible); "
+                         "use a separate --out, the run folder's cells do not record them in their path")
     args = ap.parse_args(argv)
 
     from strings_bench import runner
@@ -56,15 +77,20 @@ def main(argv=None) -> int:
         runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, steps_scale=args.steps_scale)
         run_dir = run_dir.with_name(preset)
         args.preset = preset
-    if args.only_7k:
-        # A run preset with the same schedule and only the 7K checkpoint; methods scale like the run.
+    if args.only_7k and args.checkpoints is None:
+        args.checkpoints = "7000"
+    if args.checkpoints is not None:
+        # A run preset with the same schedule and only these checkpoints; methods scale like the run.
         from dataclasses import replace
 
-        preset = f"{args.preset}-7k"
-        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=(7000,))
+        paper_its = tuple(sorted({int(c) for c in args.checkpoints.split(",")}))
+        preset = f"{args.preset}-{'-'.join(f'{c // 1000}k' if c % 1000 == 0 else str(c) for c in paper_its)}"
+        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=paper_its)
         run_dir = run_dir.with_name(preset)
+    overrides = dict(_parse_setting(kv) for kv in args.set)
     runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,
-               with_lpips=False, write_report=False, downscale=args.downscale)
+               with_lpips=False, write_report=False, downscale=args.downscale,
+               method_overrides={m: dict(overrides) for m in methods} if overrides else None)
 
     rows = [runner.cell_row(r) for r in runner.iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
