@@ -61,7 +61,7 @@ def main(argv=None) -> int:
                     help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the preset's")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="setting for every method, e.g. lr_means=8e-4 (values parsed as JSON when possible); "
-                         "use a separate --out, the run folder's cells do not record them in their path")
+                         "a run folder holds one set of settings, so give these runs their own --out")
     args = ap.parse_args(argv)
 
     from strings_bench import runner

@@ -588,6 +588,7 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
                             tuple(checkpoints), labels, preset, ds, ocr, m_over))
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr,
+        "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
         "datasets": datasets,
     }
@@ -612,8 +613,18 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
         raise StringsBenchError(
             f"{run_dir} holds results of preset {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same preset to resume")
+    # A finished cell is skipped on resume, so cells trained with other --set values must not be
+    # taken for this run's (folders made before overrides were recorded carry no such entry).
+    old_over = old.get("method_overrides")
+    if old_over is not None:
+        for m, given in manifest.get("method_overrides", {}).items():
+            if m in old.get("methods", {}) and old_over.get(m, {}) != given:
+                raise StringsBenchError(
+                    f"{run_dir} holds {m} results made with settings {old_over.get(m, {})}; this run asks for {given}",
+                    hint="use another --out folder, or the same --set values to resume")
     merged = dict(manifest)
     merged["methods"] = {**old.get("methods", {}), **manifest["methods"]}
+    merged["method_overrides"] = {**(old_over or {}), **manifest.get("method_overrides", {})}
     merged["datasets"] = list(dict.fromkeys(list(old.get("datasets", [])) + list(manifest["datasets"])))
     return merged
 

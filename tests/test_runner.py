@@ -152,6 +152,19 @@ def test_manifest_mismatch_refused(tmp_path, scene_dir):
                    with_lpips=False, progress=False)
 
 
+def test_resume_with_other_settings_refused(tmp_path, scene_dir):
+    out = tmp_path / "run"
+    _run(out, scene_dir, methods=["fake-a"], write_report=False, method_overrides={"fake-a": {"floor": 0.01}})
+    n_train = len(rf.CALLS["train"])
+    _run(out, scene_dir, methods=["fake-a"], write_report=False, method_overrides={"fake-a": {"floor": 0.01}})
+    assert len(rf.CALLS["train"]) == n_train  # same settings: resumed, nothing retrained
+    with pytest.raises(StringsBenchError, match="floor"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, method_overrides={"fake-a": {"floor": 0.02}})
+    # Another method may join the folder with its own settings.
+    _run(out, scene_dir, methods=["fake-b"], write_report=False, method_overrides={"fake-b": {"floor": 0.02}})
+    assert {r["method"] for r in _rows(out)} == {"fake-a", "fake-b"}
+
+
 def test_executor_seam(tmp_path, scene_dir):
     submitted = []
 
