@@ -33,18 +33,6 @@ def _f(x, fmt="{:.3f}"):
     return "-" if x is None or x == "" or (isinstance(x, float) and math.isnan(x)) else fmt.format(float(x))
 
 
-def _parse_setting(kv: str) -> tuple[str, object]:
-    import json
-
-    key, sep, value = kv.partition("=")
-    if not sep:
-        raise SystemExit(f"--set expects KEY=VALUE, got {kv!r}")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="quick")
@@ -87,10 +75,11 @@ def main(argv=None) -> int:
         preset = f"{args.preset}-{'-'.join(f'{c // 1000}k' if c % 1000 == 0 else str(c) for c in paper_its)}"
         runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=paper_its)
         run_dir = run_dir.with_name(preset)
-    overrides = dict(_parse_setting(kv) for kv in args.set)
+    from strings_bench.run_cli import parse_settings
+
+    overrides = parse_settings([f"{m}.{kv}" for m in methods for kv in args.set])  # the CLI's --set parsing
     runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,
-               with_lpips=False, write_report=False, downscale=args.downscale,
-               method_overrides={m: dict(overrides) for m in methods} if overrides else None)
+               with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None)
 
     rows = [runner.cell_row(r) for r in runner.iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
