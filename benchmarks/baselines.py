@@ -3,7 +3,7 @@
     python benchmarks/baselines.py                         # synthetic/books, quick schedule
     python benchmarks/baselines.py --methods 3dgs mcmc --preset tiny --small --json out.json
 
-PSNR is the mean over the scene's test views of the checkpoint renders (strings_bench.metrics.psnr).
+PSNR is the mean over the scene's test views of the checkpoint renders (strings_bench.eval.metrics.psnr).
 Training time is the trainer's optimisation time (no checkpoint renders). `--small` uses the
 160x120, 24-view variant of the synthetic scene (the one the tests use).
 """
@@ -37,10 +37,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
 
-    from strings_bench.io_utils import atomic_write_json
+    from strings_bench.core.io import atomic_write_json
     from strings_bench.methods.registry import get_method
-    from strings_bench.metrics import psnr
-    from strings_bench.scene import Scene
+    from strings_bench.eval.metrics import psnr
+    from strings_bench.scene.scene import Scene
 
     if args.small and args.scene.startswith("synthetic/"):
         from strings_bench.datasets.synthetic import build_scene, settings_with

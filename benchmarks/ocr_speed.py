@@ -27,9 +27,9 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from strings_bench.cer import KNOWN_TEXT_MIN_HEIGHT_PX, known_scene_cer, scene_cer
-from strings_bench.ocr import available_backends, get_backend
-from strings_bench.ocr.sample import random_text_image
+from strings_bench.eval.cer import KNOWN_TEXT_MIN_HEIGHT_PX, known_scene_cer, scene_cer
+from strings_bench.eval.ocr import available_backends, get_backend
+from strings_bench.eval.ocr.sample import random_text_image
 
 
 def make_images(n: int, size: tuple[int, int], seed: int = 0):
@@ -48,8 +48,8 @@ SYNTHETIC_SCENES = ["books", "extinguisher", "globe", "chemicals", "shelf"]
 def synthetic_table(scenes: list[str], settings: dict, threads: int | None, min_h: float) -> list[dict]:
     """Known-text CER of RapidOCR on the GT test views of synthetic scenes (unmasked and masked)."""
     from strings_bench.datasets import resolve_scenes
-    from strings_bench.runner import eval_mask, eval_mask_settings
-    from strings_bench.scene import Scene
+    from strings_bench.bench.runner import eval_mask, eval_mask_settings
+    from strings_bench.scene.scene import Scene
 
     kwargs = dict(settings)
     if threads:
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         synthetic_rows = synthetic_table(args.synthetic or SYNTHETIC_SCENES, settings, args.threads, args.min_text_height)
     if args.synthetic_only:
         if args.json:
-            from strings_bench.io_utils import atomic_write_json
+            from strings_bench.core.io import atomic_write_json
 
             atomic_write_json(args.json, {"synthetic": synthetic_rows, "settings": settings,
                                           "min_text_height_px": args.min_text_height})
@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     meta = {"images": args.images, "size": [w, h], "machine": platform.processor() or platform.machine(), "python": platform.python_version()}
     if args.json:
-        from strings_bench.io_utils import atomic_write_json
+        from strings_bench.core.io import atomic_write_json
 
         atomic_write_json(args.json, {"meta": meta, "results": results, "synthetic": synthetic_rows})
     return 0

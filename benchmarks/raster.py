@@ -8,7 +8,7 @@ anisotropic log-normal scales chosen so that the 3-sigma discs cover each pixel 
 average (a trained scene's depth complexity) - fewer, larger Gaussians at 5k, tiny ones at 200k;
 opacities sigmoid(N(0, 2)). Target image: a fixed random image.
 
-Full training step = render (SH deg 3) + loss 0.8 L1 + 0.2 (1 - SSIM) (strings_bench.losses.gs_loss,
+Full training step = render (SH deg 3) + loss 0.8 L1 + 0.2 (1 - SSIM) (strings_bench.engine.losses.gs_loss,
 11x11 Gaussian window) + backward + reading means2d.grad (as densification does) + torch Adam step.
 Times are medians over --iters after 2 warm-up steps (kernels are compiled / loaded before that);
 step_cpu_ms is the process CPU time of a step (all threads), loss_ms the loss alone (fwd+bwd).
@@ -43,7 +43,7 @@ COVERAGE = 15.0  # mean number of 3-sigma discs over a pixel
 
 
 def make_scene(n: int, width: int, height: int, seed: int = 0, coverage: float = COVERAGE):
-    from strings_bench.camera import Camera
+    from strings_bench.scene.camera import Camera
 
     g = torch.Generator().manual_seed(seed)
     f = 0.5 * width / math.tan(math.radians(30))
@@ -72,7 +72,7 @@ def _peak_rss_mb() -> float:
 
 
 def run_one(width: int, height: int, n: int, iters: int, backend: str, reference: bool) -> dict:
-    from strings_bench.losses import gs_loss
+    from strings_bench.engine.losses import gs_loss
     from strings_bench.raster import rasterize
     from strings_bench.raster.reference import rasterize_reference
 

@@ -78,7 +78,7 @@ def main(argv=None) -> int:
     from strings_bench.datasets.synthetic import SyntheticSettings, build_scene
     from strings_bench.datasets.synthetic.generate import make_spec
     from strings_bench.methods.registry import get_method
-    from strings_bench.scene import Scene
+    from strings_bench.scene.scene import Scene
 
     settings = SyntheticSettings() if args.width == 320 else SyntheticSettings(
         width=args.width, height=args.width * 3 // 4, max_features=2048 * (args.width // 320) ** 2)

@@ -52,7 +52,7 @@ def main(argv=None) -> int:
                          "a run folder holds one set of settings, so give these runs their own --out")
     args = ap.parse_args(argv)
 
-    from strings_bench import runner
+    import strings_bench.bench.runner as runner
 
     methods = args.methods.split(",")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
         preset = f"{args.preset}-{'-'.join(f'{c // 1000}k' if c % 1000 == 0 else str(c) for c in paper_its)}"
         runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=paper_its)
         run_dir = run_dir.with_name(preset)
-    from strings_bench.run_cli import parse_settings
+    from strings_bench.cli.run import parse_settings
 
     overrides = parse_settings([f"{m}.{kv}" for m in methods for kv in args.set])  # the CLI's --set parsing
     runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,

@@ -130,10 +130,10 @@ def make_tiny_scene(root: Path, n_views: int = 9, width: int = 32, height: int =
                     seed: int = 0):
     """A plane of coloured Gaussian blobs seen by cameras on an arc; images rendered with the model's
     renderer; SfM points = blob centres + noise, observed in every view."""
-    from strings_bench.camera import Camera
-    from strings_bench.colmap_io import ColmapModel, write_model
-    from strings_bench.gaussians import GaussianModel
-    from strings_bench.scene import Scene
+    from strings_bench.scene.camera import Camera
+    from strings_bench.scene.colmap import ColmapModel, write_model
+    from strings_bench.engine.gaussians import GaussianModel
+    from strings_bench.scene.scene import Scene
 
     rng = np.random.default_rng(seed)
     xyz = np.stack([rng.uniform(-1, 1, n_points), rng.uniform(-0.75, 0.75, n_points), rng.uniform(-0.1, 0.1, n_points)], 1)

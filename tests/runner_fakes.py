@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from strings_bench.camera import Camera
-from strings_bench.colmap_io import ColmapModel, write_model
+from strings_bench.scene.camera import Camera
+from strings_bench.scene.colmap import ColmapModel, write_model
 from strings_bench.methods.base import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
-from strings_bench.ocr.base import Word
+from strings_bench.eval.ocr.base import Word
 
 W, H = 64, 48
 TEXT_BOX = (8, 12, 56, 30)  # x0, y0, x1, y1: where the "text" is in every view

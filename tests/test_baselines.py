@@ -13,14 +13,14 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parent))  # tests/_engine_helpers
 
-from strings_bench.camera import Camera
-from strings_bench.gaussians import GaussianModel
-from strings_bench.optim import GaussianAdam
-from strings_bench.strategies import ops
-from strings_bench.strategies.absgs import AbsGSStrategy
-from strings_bench.strategies.edc import EDCStrategy, long_axis_split, long_axis_split_params
-from strings_bench.strategies.mcmc import MCMCStrategy, position_noise, relocation_denominator, relocation_update
-from strings_bench.strategies.mip import (FILTER_KEY, filter_sigma, filtered_params, fold_3d_filter,
+from strings_bench.scene.camera import Camera
+from strings_bench.engine.gaussians import GaussianModel
+from strings_bench.engine.optim import GaussianAdam
+from strings_bench.engine.strategies import ops
+from strings_bench.engine.strategies.absgs import AbsGSStrategy
+from strings_bench.engine.strategies.edc import EDCStrategy, long_axis_split, long_axis_split_params
+from strings_bench.engine.strategies.mcmc import MCMCStrategy, position_noise, relocation_denominator, relocation_update
+from strings_bench.engine.strategies.mip import (FILTER_KEY, filter_sigma, filtered_params, fold_3d_filter,
                                           reset_filtered_opacity, update_filter)
 
 
@@ -432,7 +432,7 @@ def test_mip_trainer_renders_through_the_filter_and_keeps_it_current(tiny_scene)
 
 
 def test_mcmc_initialisation_and_short_run(tiny_scene):
-    from strings_bench.gaussians import GaussianModel as GM
+    from strings_bench.engine.gaussians import GaussianModel as GM
     from strings_bench.methods.registry import get_method
 
     adapter = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, progress=False, refine_every=1)
@@ -458,8 +458,8 @@ def test_mcmc_initialisation_and_short_run(tiny_scene):
 @pytest.mark.slow
 def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small):
     from strings_bench.methods.registry import get_method
-    from strings_bench.metrics import psnr
-    from strings_bench.scene import Scene
+    from strings_bench.eval.metrics import psnr
+    from strings_bench.scene.scene import Scene
 
     scene = Scene.load(synthetic_books_small, name="books")
     gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}

@@ -10,7 +10,7 @@ import unicodedata
 import numpy as np
 import pytest
 
-from strings_bench.cer import (
+from strings_bench.eval.cer import (
     PROFILES,
     NormalizationProfile,
     dataset_cer,
@@ -19,8 +19,8 @@ from strings_bench.cer import (
     polygon_geometry,
     scene_cer,
 )
-from strings_bench.errors import StringsBenchError
-from strings_bench.ocr import Word
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.eval.ocr import Word
 
 B = Word.from_box
 
@@ -261,7 +261,7 @@ def test_agrees_with_plain_pooled_cer_on_one_to_one_words(seed):
 
 # --------------------------------------------------------------------------- CLI
 def _run_cli(argv, capsys):
-    from strings_bench.ocr.cli import add_cli
+    from strings_bench.cli.cer import add_cli
 
     parser = argparse.ArgumentParser(prog="strings-bench")
     add_cli(parser.add_subparsers(dest="command"))
@@ -276,9 +276,9 @@ def _run_cli(argv, capsys):
 
 
 def test_cli_module_is_registered():
-    from strings_bench import cli
+    import strings_bench.cli as cli
 
-    assert "strings_bench.ocr.cli" in cli.COMMAND_MODULES
+    assert "strings_bench.cli.cer" in cli.COMMAND_MODULES
 
 
 def _words(*items):

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strings_bench.colmap_io import read_model, write_model
+from strings_bench.scene.colmap import read_model, write_model
 
 MOUSE = Path("/work/shared/data/mouse_colmap")
 pytestmark = pytest.mark.skipif(not (MOUSE / "sparse" / "0").is_dir(), reason="shared mouse_colmap data not present")

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from strings_bench.colmap_io import read_model, write_model
+from strings_bench.scene.colmap import read_model, write_model
 from strings_bench.datasets.check import check_path, check_scene, check_target, format_reports
-from strings_bench.errors import DatasetError
-from strings_bench.scene import Scene, default_split
+from strings_bench.core.errors import DatasetError
+from strings_bench.scene.scene import Scene, default_split
 
 MOUSE = Path("/work/shared/data/mouse_colmap")
 DOWN = 8  # 1440x1920 -> 180x240
@@ -77,7 +77,7 @@ def _messages(reports, level=None):
 
 # ---- a good copy registers and loads with no code changes --------------------------------------
 def test_strings360_style_copy_registers_and_loads(scene_copy):
-    from strings_bench.datasets.prepare_cli import add_local_copy
+    from strings_bench.cli.prepare import add_local_copy
     from strings_bench.datasets.registry import read_index, resolve_scenes
 
     root = scene_copy.parent
@@ -112,7 +112,7 @@ def test_strings360_style_copy_registers_and_loads(scene_copy):
 
 def test_own_scene_under_a_new_name(scene_copy):
     from strings_bench.datasets.check import SceneReport  # noqa: F401
-    from strings_bench.datasets.prepare_cli import add_local_copy
+    from strings_bench.cli.prepare import add_local_copy
     from strings_bench.datasets.registry import resolve_scenes
 
     add_local_copy("my_mouse", scene_copy, echo=lambda s: None)
@@ -124,7 +124,7 @@ def test_own_scene_under_a_new_name(scene_copy):
 
 
 def test_add_refuses_a_broken_copy_unless_forced(scene_copy):
-    from strings_bench.datasets.prepare_cli import add_local_copy
+    from strings_bench.cli.prepare import add_local_copy
     from strings_bench.datasets.registry import read_index
 
     shutil.rmtree(scene_copy / "sparse")
@@ -240,7 +240,7 @@ def test_check_empty_images_folder(scene_copy):
 def test_check_cli_exit_codes(scene_copy, capsys):
     import argparse
 
-    from strings_bench.datasets.prepare_cli import add_dataset_subcommands
+    from strings_bench.cli.prepare import add_dataset_subcommands
 
     parser = argparse.ArgumentParser()
     add_dataset_subcommands(parser.add_subparsers())
@@ -330,16 +330,16 @@ def few_photos(tmp_path_factory) -> Path:
 
 
 def test_prepare_small_real_capture(few_photos, tmp_path, monkeypatch):
-    from strings_bench.datasets import sfm
+    import strings_bench.datasets.sfm as sfm
     from strings_bench.datasets.registry import read_index, resolve_scenes
-    from strings_bench.ocr import Word
+    from strings_bench.eval.ocr import Word
 
     class FakeOCR:  # stands in for the detector: one word box per image
         def read(self, img, mask=None):
             h, w = img.shape[:2]
             return [Word.from_box("MOUSE", w * 0.25, h * 0.25, w * 0.5, h * 0.4)]
 
-    monkeypatch.setattr("strings_bench.ocr.get_backend", lambda name="rapidocr", **kw: FakeOCR())
+    monkeypatch.setattr("strings_bench.eval.ocr.get_backend", lambda name="rapidocr", **kw: FakeOCR())
     before = tree_hash(few_photos)
     out = tmp_path / "scenes" / "mouse12"
     said = []

@@ -12,11 +12,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene, raster_or_stand_in  # noqa: E402
 
-from strings_bench.errors import TrainingError  # noqa: E402
-from strings_bench.gaussians import SH_C0, GaussianModel  # noqa: E402
-from strings_bench.optim import GaussianAdam, LearningRates, exponential_lr  # noqa: E402
-from strings_bench.strategies import DefaultStrategy, Strategy, ops  # noqa: E402
-from strings_bench.trainer import TrainConfig, Trainer  # noqa: E402
+from strings_bench.core.errors import TrainingError  # noqa: E402
+from strings_bench.engine.gaussians import SH_C0, GaussianModel  # noqa: E402
+from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr  # noqa: E402
+from strings_bench.engine.strategies import DefaultStrategy, Strategy, ops  # noqa: E402
+from strings_bench.engine.trainer import TrainConfig, Trainer  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -345,7 +345,7 @@ def test_per_row_position_lr_scale(tiny_scene):
 
 
 def test_gs3d_method_registered_and_trains(tiny_scene):
-    from strings_bench.errors import StringsBenchError
+    from strings_bench.core.errors import StringsBenchError
     from strings_bench.methods.registry import get_method
 
     spec = get_method("3dgs")
@@ -365,8 +365,8 @@ def test_vanilla_3dgs_on_synthetic_books_reaches_25db():
     """Standard schedule (1 500 steps = 30K x 0.05) on synthetic/books at its default 320x240."""
     pytest.importorskip("strings_bench.raster.reference")  # the real rasterizer, not the test stand-in
     from strings_bench.datasets import resolve_scenes
-    from strings_bench.losses import psnr
-    from strings_bench.scene import Scene
+    from strings_bench.engine.losses import psnr
+    from strings_bench.scene.scene import Scene
 
     ref = resolve_scenes(["synthetic/books"])[0]
     scene = Scene.load(ref.path, settings=ref.settings)

@@ -13,9 +13,9 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 
-from strings_bench.errors import OCRError
-from strings_bench.ocr import OCRCache, get_backend
-from strings_bench.ocr.gcv import DEFAULT_ENDPOINT, GoogleVisionBackend, parse_gcv_response
+from strings_bench.core.errors import OCRError
+from strings_bench.eval.ocr import OCRCache, get_backend
+from strings_bench.eval.ocr.gcv import DEFAULT_ENDPOINT, GoogleVisionBackend, parse_gcv_response
 
 KEY = "AIzaFAKE-test-key-0123456789abcdef"
 
@@ -165,7 +165,7 @@ def test_retries_then_success(fake, status, caplog):
 
 
 def test_backoff_is_exponential(fake, monkeypatch):
-    import strings_bench.ocr.gcv as gcv
+    import strings_bench.eval.ocr.gcv as gcv
 
     sleeps = []
     monkeypatch.setattr(gcv.time, "sleep", lambda s: sleeps.append(s))

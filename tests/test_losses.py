@@ -6,7 +6,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from strings_bench.losses import gs_loss, l1_loss, masked_l1, ssim, ssim_map
+from strings_bench.engine.losses import gs_loss, l1_loss, masked_l1, ssim, ssim_map
 
 
 def _rand(shape, seed):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from strings_bench import lpips_net
+import strings_bench.eval.lpips_net as lpips_net
 
 pytestmark = pytest.mark.skipif(not lpips_net.available(), reason="LPIPS weights not installed: " + lpips_net.INSTALL_HINT)
 
@@ -103,7 +103,7 @@ def test_matches_float64_brute_force(net):
 
 
 def test_too_small_is_clear(net):
-    from strings_bench.errors import StringsBenchError
+    from strings_bench.core.errors import StringsBenchError
 
     with pytest.raises(StringsBenchError, match="16x16"):
         net(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))

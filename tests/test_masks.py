@@ -14,10 +14,10 @@ from skimage.morphology import disk
 def binary_dilation(mask, footprint):
     return _nd_dilation(mask, structure=footprint)
 
-from strings_bench import masks as M
-from strings_bench.camera import Camera
-from strings_bench.colmap_io import ColmapModel, write_model
-from strings_bench.scene import Scene
+import strings_bench.methods.strings.masks as M
+from strings_bench.scene.camera import Camera
+from strings_bench.scene.colmap import ColmapModel, write_model
+from strings_bench.scene.scene import Scene
 
 
 def look_at(center, target=(0.0, 0.0, 0.0)):
@@ -151,7 +151,7 @@ def test_mask_cache_written_and_reused(tmp_path):
     import os
     st = os.stat(p)
     os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns + 10_000_000))
-    from strings_bench.scene import _load_mask
+    from strings_bench.scene.scene import _load_mask
     _load_mask.cache_clear()
     m_new = M.dilated_text_mask(scene, 1, 1, s)
     assert not np.array_equal(m, m_new) and m_new[0, 0]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
-from strings_bench import metrics
-from strings_bench.errors import StringsBenchError
+import strings_bench.eval.metrics as metrics
+from strings_bench.core.errors import StringsBenchError
 
 
 def _img(seed, h=40, w=48):
@@ -65,7 +65,7 @@ def test_ssim_matches_brute_force_with_zero_padding():
 
 
 def test_ssim_matches_engine_loss_when_present():
-    losses = pytest.importorskip("strings_bench.losses")
+    losses = pytest.importorskip("strings_bench.engine.losses")
     torch = pytest.importorskip("torch")
     if not hasattr(losses, "ssim"):
         pytest.skip("engine has no losses.ssim")
@@ -84,7 +84,7 @@ def test_shape_mismatch_is_clear():
 
 
 def test_lpips_nan_without_weights(monkeypatch, tmp_path):
-    from strings_bench import lpips_net
+    import strings_bench.eval.lpips_net as lpips_net
 
     monkeypatch.setattr(lpips_net, "_shared", None)
     monkeypatch.setenv("STRINGS_BENCH_LPIPS_VGG", str(tmp_path / "missing.ckpt"))

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strings_bench.cer import known_text_cer, scene_cer
-from strings_bench.errors import OCRError, StringsBenchError
-from strings_bench.ocr import (
+from strings_bench.eval.cer import known_text_cer, scene_cer
+from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.eval.ocr import (
     BACKENDS,
     OCRBackend,
     OCRCache,
@@ -25,10 +25,10 @@ from strings_bench.ocr import (
     get_backend,
     load_image,
 )
-from strings_bench.ocr.base import BackendStatus
-from strings_bench.ocr.rapid import RapidOCRBackend, split_line_into_words
-from strings_bench.ocr.sample import random_text_image, render_lines, sample_image
-from strings_bench.ocr.tesseract import TesseractBackend, parse_tesseract_tsv
+from strings_bench.eval.ocr.base import BackendStatus
+from strings_bench.eval.ocr.rapid import RapidOCRBackend, split_line_into_words
+from strings_bench.eval.ocr.sample import random_text_image, render_lines, sample_image
+from strings_bench.eval.ocr.tesseract import TesseractBackend, parse_tesseract_tsv
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -130,7 +130,7 @@ def test_cache_hits_misses_and_failures(tmp_path):
     assert entry["backend"]["name"] == "counting" and "words" in entry
     assert not list((tmp_path / "ocr").rglob("*.tmp"))  # atomic writes leave no temporaries
     # A damaged entry is a miss and is rewritten.
-    key = cache.key(b.describe(), __import__("strings_bench.ocr.base", fromlist=["x"]).array_sha256(rgb), None)
+    key = cache.key(b.describe(), __import__("strings_bench.eval.ocr.base", fromlist=["x"]).array_sha256(rgb), None)
     cache.path(key).write_text("{truncated")
     assert b.read(rgb) == first and b.calls == 3
     assert b.read(rgb) == first and b.calls == 3
@@ -247,8 +247,8 @@ def test_rapidocr_writes_only_into_the_cache_folder(tmp_path):
     cache = tmp_path / "cache"
     code = (
         "import numpy as np\n"
-        "from strings_bench.ocr import get_backend\n"
-        "from strings_bench.ocr.sample import sample_image\n"
+        "from strings_bench.eval.ocr import get_backend\n"
+        "from strings_bench.eval.ocr.sample import sample_image\n"
         "img, known = sample_image()\n"
         "print(len(get_backend('rapidocr').read(img)))\n"
     )
@@ -302,7 +302,7 @@ def test_tesseract_reads_sample():
 
 # --------------------------------------------------------------------------- ocr check / read CLI
 def _run_cli(argv, capsys):
-    from strings_bench.ocr.cli import add_cli
+    from strings_bench.cli.cer import add_cli
 
     parser = argparse.ArgumentParser(prog="strings-bench")
     add_cli(parser.add_subparsers(dest="command"))

@@ -8,16 +8,16 @@ import math
 import numpy as np
 import pytest
 
-from strings_bench.cer import (
+from strings_bench.eval.cer import (
     KNOWN_TEXT_MIN_HEIGHT_PX,
     known_scene_cer,
     known_text_cer,
     split_legible,
     text_height_px,
 )
-from strings_bench.errors import OCRError, StringsBenchError
-from strings_bench.ocr import Word
-from strings_bench.ocr.rapid import (
+from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.eval.ocr import Word
+from strings_bench.eval.ocr.rapid import (
     DEFAULTS,
     RapidOCRBackend,
     merge_rotated_reads,
@@ -151,7 +151,7 @@ def test_rapidocr_settings_are_checked_and_recorded():
     assert s["upscale"] == DEFAULTS["upscale"] and s["rotations"] == DEFAULTS["rotations"]
     assert s["merge_overlap"] == DEFAULTS["merge_overlap"]
     assert b.threads == 2
-    from strings_bench.ocr.cache import OCRCache
+    from strings_bench.eval.ocr.cache import OCRCache
 
     d1 = RapidOCRBackend(cache=None, rotations=[0]).describe()
     assert OCRCache.key(d1, "img", None) != OCRCache.key(b.describe(), "img", None)
@@ -271,9 +271,9 @@ def test_default_backend_reads_synthetic_books_ground_truth():
     """Full-size synthetic books (320x240; built on first use, ~30 s): known-text CER of the GT test
     views with the default backend and legibility filter <= 0.10, unmasked and masked as the runner does."""
     from strings_bench.datasets import resolve_scenes
-    from strings_bench.ocr import get_backend
-    from strings_bench.runner import eval_mask, eval_mask_settings
-    from strings_bench.scene import Scene
+    from strings_bench.eval.ocr import get_backend
+    from strings_bench.bench.runner import eval_mask, eval_mask_settings
+    from strings_bench.scene.scene import Scene
 
     scene = Scene.load(resolve_scenes(["synthetic/books"])[0].path)
     ocr = get_backend("rapidocr", cache=False)

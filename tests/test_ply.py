@@ -12,9 +12,9 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene, raster_or_stand_in  # noqa: E402
 
-from strings_bench.errors import StringsBenchError  # noqa: E402
-from strings_bench.gaussians import GaussianModel  # noqa: E402
-from strings_bench.ply import read_ply, write_ply  # noqa: E402
+from strings_bench.core.errors import StringsBenchError  # noqa: E402
+from strings_bench.engine.gaussians import GaussianModel  # noqa: E402
+from strings_bench.scene.ply import read_ply, write_ply  # noqa: E402
 
 
 def _model(n=25, degree=3, seed=0):
@@ -108,7 +108,7 @@ def tiny_scene(tmp_path_factory):
 
 def test_trainer_ply_reads_back_and_renders_via_cli(tiny_scene, tmp_path):
     from strings_bench.cli import main
-    from strings_bench.trainer import TrainConfig, Trainer
+    from strings_bench.engine.trainer import TrainConfig, Trainer
 
     n_threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from strings_bench.camera import Camera
+from strings_bench.scene.camera import Camera
 from strings_bench.raster import RasterInputError, _rasterize_cpu, rasterize
 from strings_bench.raster.reference import rasterize_reference
 from strings_bench.raster.sh import sh_basis

@@ -59,7 +59,7 @@ def prepared(work):
 def test_prepare_watch_clock(prepared):
     from strings_bench.datasets.check import check_scene
     from strings_bench.datasets.registry import resolve_scenes
-    from strings_bench.scene import Scene
+    from strings_bench.scene.scene import Scene
 
     r = prepared
     assert r.num_photos == 44
@@ -91,7 +91,7 @@ def test_train_and_cer_table(prepared, work):
         pytest.skip(f"STEP 2 NOT RUN: the rasterizer is not available yet ({exc})")
     import pandas as pd
 
-    from strings_bench.runner import run
+    from strings_bench.bench.runner import run
 
     downscale = float(os.environ.get("STRINGS_BENCH_REALDATA_DOWNSCALE", "4"))
     t0 = time.perf_counter()

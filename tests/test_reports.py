@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 import runner_fakes as rf
-from strings_bench import runner
-from strings_bench.reports import tables, write_report
+import strings_bench.bench.runner as runner
+from strings_bench.bench.reports import tables, write_report
 
 
 def test_rank_classes_ties_and_nan():

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import runner_fakes as rf
-from strings_bench import runner
-from strings_bench.errors import StringsBenchError
+import strings_bench.bench.runner as runner
+from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import MethodSpec, register_method
 
 
@@ -56,7 +56,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     final = by[("fake-a", 150)]
     assert final["psnr"] == "inf" or float(final["psnr"]) > 50
     assert float(final["ssim"]) == pytest.approx(1.0, abs=1e-6)
-    from strings_bench import lpips_net
+    import strings_bench.eval.lpips_net as lpips_net
 
     if lpips_net.available():
         assert float(final["lpips"]) == pytest.approx(0.0, abs=1e-6)
@@ -82,7 +82,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     from PIL import Image
 
     r = np.asarray(Image.open(cell / "renders" / "view_08.png"), dtype=np.float64) / 255
-    from strings_bench.scene import Scene
+    from strings_bench.scene.scene import Scene
 
     g = Scene.load(scene_dir).load_image(8).astype(np.float64)
     mse = np.mean((r - g) ** 2)
@@ -130,7 +130,7 @@ def test_interrupted_subprocess_keeps_finished_cells(tmp_path, scene_dir):
     code = f"""
 import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
 import runner_fakes as rf
-from strings_bench import runner
+import strings_bench.bench.runner as runner
 from strings_bench.methods.registry import MethodSpec, register_method
 rf.register_fakes()
 register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
@@ -224,7 +224,7 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-splat-plugin\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text("[strings_bench.methods]\nplugin-splat = my_splat_plugin:SPEC\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    from strings_bench.methods import registry
+    import strings_bench.methods.registry as registry
 
     monkeypatch.setattr(registry, "_loaded", False)
     names = {s.name: s for s in registry.list_methods()}
@@ -233,7 +233,7 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
 
 
 def test_methods_list_cli(capsys):
-    from strings_bench import run_cli
+    import strings_bench.cli.run as run_cli
 
     rf.register_fakes()
     run_cli._methods_list(None)
@@ -286,7 +286,7 @@ def test_external_adapter_errors(tmp_path, scene_dir, mode, match):
 
 def test_external_adapter_unknown_placeholder(tmp_path, scene_dir):
     from strings_bench.methods.external import ExternalCommandAdapter
-    from strings_bench.scene import Scene
+    from strings_bench.scene.scene import Scene
 
     a = ExternalCommandAdapter(command="train {scene} {nope}")
     with pytest.raises(StringsBenchError, match="unknown placeholder"):
@@ -294,7 +294,7 @@ def test_external_adapter_unknown_placeholder(tmp_path, scene_dir):
 
 
 def test_parse_settings():
-    from strings_bench.run_cli import parse_settings
+    from strings_bench.cli.run import parse_settings
 
     assert parse_settings(["ply.ply_path=/m/{scene}.ply", "strings.n_max=25", "x.flag=true"]) == {
         "ply": {"ply_path": "/m/{scene}.ply"}, "strings": {"n_max": 25}, "x": {"flag": True}}
@@ -305,9 +305,9 @@ def test_parse_settings():
 # ---- the PLY adapter ---------------------------------------------------------------------------------
 def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
     pytest.importorskip("strings_bench.raster")
-    from strings_bench.gaussians import GaussianModel
-    from strings_bench.ply import write_ply
-    from strings_bench.scene import Scene
+    from strings_bench.engine.gaussians import GaussianModel
+    from strings_bench.scene.ply import write_ply
+    from strings_bench.scene.scene import Scene
 
     scene = Scene.load(scene_dir)
     model = GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=1)
@@ -352,7 +352,7 @@ def test_end_to_end_cli_3dgs_on_synthetic_books(tmp_path):
 
 
 def test_lpips_at_all_checkpoints(tmp_path, scene_dir):
-    from strings_bench import lpips_net
+    import strings_bench.eval.lpips_net as lpips_net
 
     if not lpips_net.available():
         pytest.skip("LPIPS weights not installed")

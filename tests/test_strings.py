@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from strings_bench.errors import StringsBenchError, TrainingError
-from strings_bench.gaussians import GaussianModel, quat_to_rotmat
-from strings_bench.text_densify import densification_factors, densify_text_model
+from strings_bench.core.errors import StringsBenchError, TrainingError
+from strings_bench.engine.gaussians import GaussianModel, quat_to_rotmat
+from strings_bench.methods.strings.densify import densification_factors, densify_text_model
 
 
 def eq1_reference(counts, n_max):
@@ -138,11 +138,11 @@ import math  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from _engine_helpers import install_stand_in_raster, make_tiny_scene  # noqa: E402
-from strings_bench.masks import MissingMasksError  # noqa: E402
+from strings_bench.methods.strings.masks import MissingMasksError  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
-from strings_bench.methods.strings import StringsMethod, text_lr_factor  # noqa: E402
-from strings_bench.optim import exponential_lr  # noqa: E402
-from strings_bench.scene import Scene  # noqa: E402
+from strings_bench.methods.strings.method import StringsMethod, text_lr_factor  # noqa: E402
+from strings_bench.engine.optim import exponential_lr  # noqa: E402
+from strings_bench.scene.scene import Scene  # noqa: E402
 
 install_stand_in_raster()
 
@@ -228,7 +228,7 @@ def test_restart_schedules(tiny_text_scene):
 def _spy(trainer):
     """Record, per step: phase, view, means LR, model size, and the per-row scale given to Adam."""
     log = []
-    from strings_bench.optim import GaussianAdam
+    from strings_bench.engine.optim import GaussianAdam
 
     orig_step = GaussianAdam.step
 
@@ -275,7 +275,7 @@ def test_phases_with_densification(tiny_text_scene, monkeypatch):
     scene = tiny_text_scene
     m = StringsMethod(**FAST)
     trainer = m.build_trainer(scene, [6, 14], 1)
-    from strings_bench.optim import GaussianAdam
+    from strings_bench.engine.optim import GaussianAdam
 
     log, step = _spy(trainer)
     monkeypatch.setattr(GaussianAdam, "step", step)
@@ -299,7 +299,7 @@ def test_phases_with_densification(tiny_text_scene, monkeypatch):
 
 
 def test_is_text_follows_clone_split_prune():
-    from strings_bench.strategies import ops
+    from strings_bench.engine.strategies import ops
 
     model = random_model(6)
     model.extras["is_text"] = torch.tensor([True, False, True, False, True, False])

@@ -13,10 +13,10 @@ from PIL import Image
 from strings_bench.cli import main as cli_main
 from strings_bench.datasets.registry import get_dataset, resolve_scenes
 from strings_bench.datasets.synthetic import SCENE_NAMES, build_scene, read_meta, scene_dir, settings_with
-from strings_bench.datasets.synthetic import generate
+import strings_bench.datasets.synthetic.generate as generate
 from strings_bench.datasets.synthetic.raycast import Cylinder, Disc, Quad, Sphere
-from strings_bench.errors import DatasetError
-from strings_bench.scene import Scene
+from strings_bench.core.errors import DatasetError
+from strings_bench.scene.scene import Scene
 
 
 # ---- an independent parametrisation of the surfaces (not the generator's .point()) ------------
@@ -242,7 +242,7 @@ def test_cli_list_and_prepare(synthetic_books_small, capsys):
 def test_cli_extension_hook():
     import argparse
 
-    from strings_bench.datasets import cli as dcli
+    import strings_bench.cli.datasets as dcli
 
     seen = []
     dcli.register_subcommand("demo-check", "a test subcommand",

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from strings_bench.camera import Camera
-from strings_bench.text_segmentation import (count_mask_hits, segment_text_points, segment_text_points_arrays,
+from strings_bench.scene.camera import Camera
+from strings_bench.methods.strings.segmentation import (count_mask_hits, segment_text_points, segment_text_points_arrays,
                                              segment_text_points_loop)
 from test_masks import look_at, make_scene
 
@@ -68,7 +68,7 @@ def test_pixel_lookup_is_floor_of_projection():
 
 def test_scene_segmentation_with_downscaled_masks(tmp_path):
     scene = make_scene(tmp_path, n_points=200)
-    from strings_bench import masks as M
+    import strings_bench.methods.strings.masks as M
 
     s = M.MaskSettings(dilation_fraction=0)
     full = {i: M.tight_text_mask(scene, i, 1, s) for i in scene.train_idx}

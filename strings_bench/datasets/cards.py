@@ -19,8 +19,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import DatasetError
-from .registry import DatasetCard, SceneCard, _REGISTRY, local_root, read_index, register_dataset
+from strings_bench.core.errors import DatasetError
+from strings_bench.datasets.registry import DatasetCard, SceneCard, _REGISTRY, local_root, read_index, register_dataset
 
 SCENE_MAP_FILE = "scenes.json"
 STRINGS_PROJECT_PAGE = "https://strings-official.github.io/"

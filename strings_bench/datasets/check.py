@@ -15,14 +15,13 @@ Everything here only reads: files are opened read-only, nothing is created next 
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from PIL import Image
 
-from ..colmap_io import MODEL_FILES, PINHOLE_MODELS
-from ..errors import DatasetError, StringsBenchError
+from strings_bench.scene.colmap import MODEL_FILES, PINHOLE_MODELS, diagnose_binary_model
+from strings_bench.core.errors import DatasetError, StringsBenchError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg"}
 MASK_SUFFIXES = (".png", ".jpg", ".PNG")
@@ -71,87 +70,6 @@ class SceneReport:
 
 def _list(names: list[str], n: int = 5) -> str:
     return ", ".join(names[:n]) + (f" ... ({len(names)} in all)" if len(names) > n else "")
-
-
-# ---- binary model diagnosis -------------------------------------------------------------------
-def _camera_param_counts() -> dict[int, int]:
-    import pycolmap
-
-    counts = {}
-    for model_id in pycolmap.CameraModelId.__members__.values():
-        if int(model_id) < 0:
-            continue
-        try:
-            counts[int(model_id)] = len(pycolmap.Camera.create_from_model_id(0, model_id, 1.0, 1, 1).params)
-        except Exception:  # noqa: BLE001 - a model pycolmap cannot instantiate simply is not counted
-            pass
-    return counts
-
-
-class _Reader:
-    def __init__(self, path: Path):
-        self.path = path
-        self.data = path.read_bytes()
-        self.pos = 0
-
-    def take(self, fmt: str):
-        size = struct.calcsize(fmt)
-        if self.pos + size > len(self.data):
-            raise EOFError
-        out = struct.unpack_from(fmt, self.data, self.pos)
-        self.pos += size
-        return out
-
-    def skip(self, n: int) -> None:
-        if self.pos + n > len(self.data):
-            raise EOFError
-        self.pos += n
-
-    def cstring(self) -> None:
-        end = self.data.find(b"\0", self.pos)
-        if end < 0:
-            raise EOFError
-        self.pos = end + 1
-
-
-def diagnose_binary_model(model_dir: Path) -> list[str]:
-    """Walk cameras.bin, images.bin and points3D.bin record by record (COLMAP's binary layout) and
-    say which file is truncated or malformed, and where. Returns one message per bad file."""
-    found = []
-    param_counts = None
-    for stem in MODEL_FILES:
-        path = model_dir / f"{stem}.bin"
-        if not path.exists():
-            continue
-        r = _Reader(path)
-        k = total = 0
-        try:
-            (total,) = r.take("<Q")
-            for k in range(total):
-                if stem == "cameras":
-                    _, model_id, _, _ = r.take("<iiQQ")
-                    if param_counts is None:
-                        param_counts = _camera_param_counts()
-                    if model_id not in param_counts:
-                        found.append(f"{path}: camera record {k + 1} of {total} has an unknown camera model id "
-                                     f"{model_id} (corrupt file)")
-                        break
-                    r.skip(8 * param_counts[model_id])
-                elif stem == "images":
-                    r.skip(4 + 8 * 7 + 4)
-                    r.cstring()
-                    (n2d,) = r.take("<Q")
-                    r.skip(24 * n2d)
-                else:
-                    r.skip(8 + 24 + 3 + 8)
-                    (n_track,) = r.take("<Q")
-                    r.skip(8 * n_track)
-            else:
-                if r.pos != len(r.data):
-                    found.append(f"{path}: {len(r.data) - r.pos} unexpected bytes after the last of {total} records")
-        except EOFError:
-            found.append(f"{path} is truncated: it ends ({len(r.data)} bytes) inside record {k + 1} of {total}")
-    return found
 
 
 # ---- the scene check --------------------------------------------------------------------------
@@ -291,7 +209,7 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
     _check_masks(root, rep, registered, on_disk, rec)
 
     if try_load and rep.ok:
-        from ..scene import Scene
+        from strings_bench.scene.scene import Scene
 
         try:
             Scene.load(root)
@@ -379,8 +297,8 @@ def check_path(path: str | Path) -> list[SceneReport]:
 
 def check_card_copy(dataset_id: str, root: str | Path) -> list[SceneReport]:
     """Check a copy of a built-in real dataset at ROOT: every scene of its card."""
-    from .cards import find_scene_folder
-    from .registry import get_dataset
+    from strings_bench.datasets.cards import find_scene_folder
+    from strings_bench.datasets.registry import get_dataset
 
     card = get_dataset(dataset_id)
     reports = []
@@ -399,8 +317,8 @@ def check_card_copy(dataset_id: str, root: str | Path) -> list[SceneReport]:
 
 def check_target(target: str) -> list[SceneReport]:
     """`datasets check` argument: a path, or the name of a registered dataset."""
-    from .cards import BUILTIN_REAL_CARDS
-    from .registry import get_dataset, locate_scene, read_index
+    from strings_bench.datasets.cards import BUILTIN_REAL_CARDS
+    from strings_bench.datasets.registry import get_dataset, locate_scene, read_index
 
     if Path(target).exists():
         return check_path(target)

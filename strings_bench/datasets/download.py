@@ -26,8 +26,8 @@ from typing import Callable
 
 from tqdm import tqdm
 
-from ..errors import DatasetError, StringsBenchError
-from ..io_utils import cache_root, sha256_file
+from strings_bench.core.errors import DatasetError, StringsBenchError
+from strings_bench.core.io import cache_root, sha256_file
 
 CHUNK = 1 << 20
 USER_AGENT = "strings-bench-downloader"
@@ -205,7 +205,7 @@ def download_dataset(dataset_id: str, dest: str | Path | None = None, progress: 
 
     Returns the registered root, or None when the data needs manual steps.
     """
-    from .registry import get_dataset, read_index, write_index
+    from strings_bench.datasets.registry import get_dataset, read_index, write_index
 
     card = get_dataset(dataset_id)
     info = card.download or {}
@@ -236,7 +236,7 @@ def download_dataset(dataset_id: str, dest: str | Path | None = None, progress: 
                                hint="the upstream archive changed; report it")
         root = sub
     if register:
-        from .check import check_card_copy, format_reports
+        from strings_bench.datasets.check import check_card_copy, format_reports
 
         reports = check_card_copy(card.id, root)
         echo(format_reports(reports))

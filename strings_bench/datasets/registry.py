@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..errors import DatasetError
-from ..io_utils import atomic_write_json, cache_root
+from strings_bench.core.errors import DatasetError
+from strings_bench.core.io import atomic_write_json, cache_root
 
 
 @dataclass(frozen=True)
@@ -69,9 +69,9 @@ def register_dataset(card: DatasetCard) -> DatasetCard:
 
 def _load_builtin_cards() -> None:
     # Importing the card modules registers them.
-    from . import synthetic  # noqa: F401
+    import strings_bench.datasets.synthetic as synthetic
     try:
-        from . import cards  # noqa: F401
+        import strings_bench.datasets.cards as cards
     except ImportError:  # real-dataset cards are optional at this stage
         pass
 

@@ -29,8 +29,8 @@ import numpy as np
 from PIL import Image, ImageOps
 from tqdm import tqdm
 
-from ..errors import DatasetError
-from ..io_utils import atomic_write_json, cache_root
+from strings_bench.core.errors import DatasetError
+from strings_bench.core.io import atomic_write_json, cache_root
 
 log = logging.getLogger(__name__)
 
@@ -269,12 +269,12 @@ def prepare_scene(
         pycolmap.logging.minloglevel = old_log_level
 
     if register:
-        from .registry import read_index, write_index
+        from strings_bench.datasets.registry import read_index, write_index
 
         index = read_index()
         index[name] = str(scene_dir)
         write_index(index)
-        from .cards import register_local_copies
+        from strings_bench.datasets.cards import register_local_copies
 
         register_local_copies()
     return result
@@ -305,12 +305,12 @@ def _write_upright_resized(src: Path, dest: Path, max_size: int) -> None:
 def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr", progress: bool = True) -> tuple[int, int]:
     """One PNG per image, white inside the word polygons the OCR detector finds.
 
-    The masks are tight (filled polygons, not dilated): strings_bench.masks dilates them at use
+    The masks are tight (filled polygons, not dilated): strings_bench.methods.strings.masks dilates them at use
     time with the chosen kernel (paper 5 % of the width), exactly as it does for Hi-SAM masks.
     Returns (masks written, masks with any text).
     """
-    from ..masks import fill_polygons
-    from ..ocr import get_backend
+    from strings_bench.methods.strings.masks import fill_polygons
+    from strings_bench.eval.ocr import get_backend
 
     ocr = get_backend(backend)
     masks_dir.mkdir(parents=True, exist_ok=True)

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import copy
 
-from ..strategies.absgs import AbsGSStrategy
-from .gs3d import SPEC as GS3D_SPEC
-from .gs3d import GS3DAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.engine.strategies.absgs import AbsGSStrategy
+from strings_bench.methods.gs3d import SPEC as GS3D_SPEC
+from strings_bench.methods.gs3d import GS3DAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER = "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)"
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Iterator
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from strings_bench.scene.scene import Scene
 
 
 @dataclass

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import copy
 
-from ..strategies.edc import EDCStrategy
-from .gs3d import SPEC as GS3D_SPEC
-from .gs3d import GS3DAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.engine.strategies.edc import EDCStrategy
+from strings_bench.methods.gs3d import SPEC as GS3D_SPEC
+from strings_bench.methods.gs3d import GS3DAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER = ("Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), "
          "on AbsGS; code github.com/XiaoBin2001/EDC")

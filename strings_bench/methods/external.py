@@ -39,9 +39,9 @@ from typing import Iterator
 import numpy as np
 from PIL import Image
 
-from ..errors import StringsBenchError
-from .base import CheckpointResult, MethodAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PLACEHOLDERS = ("scene", "out", "iteration", "downscale", "test_views", "name")
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Iterator
 
-from ..schedules import schedule_presets
-from ..strategies.default import DefaultStrategy
-from .base import CheckpointResult, MethodAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.core.schedules import schedule_presets
+from strings_bench.engine.strategies.default import DefaultStrategy
+from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER_CHECKPOINTS = (7000, 30000)
 PAPER = "Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field Rendering (SIGGRAPH 2023)"
@@ -25,7 +25,7 @@ class GS3DAdapter(MethodAdapter):
     strategy_cls = DefaultStrategy
 
     def make_trainer(self, scene, checkpoints, downscale):
-        from ..trainer import Trainer, config_from_settings
+        from strings_bench.engine.trainer import Trainer, config_from_settings
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls)
         return Trainer(scene, config, strategy)

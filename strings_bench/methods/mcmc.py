@@ -16,11 +16,11 @@ import math
 
 import torch
 
-from ..errors import StringsBenchError
-from ..strategies.mcmc import MCMCStrategy
-from .gs3d import SPEC as GS3D_SPEC
-from .gs3d import GS3DAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.engine.strategies.mcmc import MCMCStrategy
+from strings_bench.methods.gs3d import SPEC as GS3D_SPEC
+from strings_bench.methods.gs3d import GS3DAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER = ("Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
          "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)")
@@ -28,7 +28,7 @@ METHOD_KEYS = ("init_scale_factor",)
 
 
 def _trainer_cls():
-    from ..trainer import Trainer
+    from strings_bench.engine.trainer import Trainer
 
     class MCMCTrainer(Trainer):
         """3DGS init with the MCMC release's opacity (config.init_opacity) and scales x init_scale_factor."""
@@ -50,7 +50,7 @@ class MCMCAdapter(GS3DAdapter):
     strategy_cls = MCMCStrategy
 
     def make_trainer(self, scene, checkpoints, downscale):
-        from ..trainer import config_from_settings
+        from strings_bench.engine.trainer import config_from_settings
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls,
                                                 ignore=METHOD_KEYS)

@@ -15,16 +15,16 @@ from __future__ import annotations
 
 import copy
 
-from ..strategies.mip import FILTER_KEY, MipStrategy, fold_3d_filter, render_filtered
-from .gs3d import SPEC as GS3D_SPEC
-from .gs3d import GS3DAdapter
-from .registry import MethodSpec, register_method
+from strings_bench.engine.strategies.mip import FILTER_KEY, MipStrategy, fold_3d_filter, render_filtered
+from strings_bench.methods.gs3d import SPEC as GS3D_SPEC
+from strings_bench.methods.gs3d import GS3DAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER = "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)"
 
 
 def _trainer_cls():
-    from ..trainer import Trainer
+    from strings_bench.engine.trainer import Trainer
 
     class MipTrainer(Trainer):
         def set_model(self, model) -> None:
@@ -59,7 +59,7 @@ class MipSplattingAdapter(GS3DAdapter):
     strategy_cls = MipStrategy
 
     def make_trainer(self, scene, checkpoints, downscale):
-        from ..trainer import config_from_settings
+        from strings_bench.engine.trainer import config_from_settings
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls)
         return _trainer_cls()(scene, config, strategy)

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Callable
 
-from ..errors import StringsBenchError
-from .base import MethodAdapter
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.methods.base import MethodAdapter
 
 log = logging.getLogger(__name__)
 
@@ -23,7 +23,7 @@ ENTRY_POINT_GROUP = "strings_bench.methods"
 # One module per method; each calls register_method() at import.
 BUILTIN_MODULES: list[str] = [
     "strings_bench.methods.gs3d",
-    "strings_bench.methods.strings",
+    "strings_bench.methods.strings.method",
     "strings_bench.methods.absgs",
     "strings_bench.methods.edc_absgs",
     "strings_bench.methods.mip_splatting",

@@ -16,17 +16,13 @@ See docs/raster.md for the rules and the behaviour at extremes.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
 import torch
 
-from ..errors import StringsBenchError
-from ..io_utils import cache_root
-from .sh import sh_to_color
-
-
-class RasterInputError(StringsBenchError):
-    """Bad tensors or settings given to rasterize()."""
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.io import cache_root
+from strings_bench.raster.sh import sh_to_color
+from strings_bench.raster.types import RasterInputError, RasterOutput
 
 
 def _ensure_numba_cache_dir() -> None:
@@ -59,22 +55,6 @@ def _prefer_workqueue_threads() -> None:
 
 _ensure_numba_cache_dir()
 _prefer_workqueue_threads()
-
-
-@dataclass
-class RasterOutput:
-    color: torch.Tensor  # (H, W, 3), background composited
-    alpha: torch.Tensor  # (H, W) = 1 - final transmittance
-    depth: torch.Tensor  # (H, W) expected camera depth sum(w z) / alpha, 0 where alpha == 0
-    radii: torch.Tensor  # (N,) int32 pixel radius, 0 = culled
-    means2d: torch.Tensor  # (N, 2) pixels, in the autograd graph (retain_grad() to read .grad)
-    absgrad: torch.Tensor | None  # (N, 2), filled by backward when compute_absgrad=True
-    visible: torch.Tensor  # (N,) bool, radii > 0
-    backend: str
-
-    @property
-    def n_visible(self) -> int:
-        return int(self.visible.sum())
 
 
 def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree):
@@ -118,7 +98,7 @@ def pick_backend(backend: str, device: torch.device) -> str:
         raise RasterInputError(f"rasterize: unknown backend {backend!r}", hint="use 'auto', 'cpu' or 'gsplat'")
     if backend == "auto":
         if device.type == "cuda":
-            from .gsplat_backend import gsplat_available
+            from strings_bench.raster.gsplat_backend import gsplat_available
 
             if gsplat_available():
                 return "gsplat"
@@ -137,7 +117,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
     chosen = pick_backend(backend, means.device)
     opacity_logits = opacity_logits.reshape(-1)
     if chosen == "gsplat":
-        from .gsplat_backend import rasterize_gsplat
+        from strings_bench.raster.gsplat_backend import rasterize_gsplat
 
         colors = sh_to_color(sh, means, _cam_center(camera, means), deg)
         return rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background,
@@ -154,7 +134,7 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
                    compute_absgrad, near, far, preprocess="numba") -> RasterOutput:
     """preprocess="numba" (default, fast) or "torch" (projection.py + sh.py through autograd; the
     tests use it as an independent check of the hand-written preprocessing backward)."""
-    from .cpu import Preprocess, RasterizeTiles
+    from strings_bench.raster.cpu import Preprocess, RasterizeTiles
 
     if means.device.type != "cpu":
         raise RasterInputError(f"rasterize: the cpu backend got tensors on {means.device}",
@@ -164,7 +144,7 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
         means2d, conics, opacities, feats, radii, bbox = Preprocess.apply(
             means, quats, log_scales, opacity_logits, sh, deg, camera, mip_filter, near, far)
     else:
-        from .projection import project
+        from strings_bench.raster.projection import project
 
         proj = project(means, quats, log_scales, opacity_logits, camera, mip_filter=mip_filter, near=near, far=far)
         colors = sh_to_color(sh, means, _cam_center(camera, means), deg)

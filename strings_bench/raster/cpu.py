@@ -6,7 +6,7 @@ import numba
 import numpy as np
 import torch
 
-from . import cpu_kernels as K
+import strings_bench.raster.cpu_kernels as K
 
 
 CHUNK = 2  # tiles per work item: tiles differ a lot in cost, so hand them out in small chunks
@@ -93,8 +93,8 @@ class Preprocess(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far):
-        from .cpu_preprocess import preprocess_forward
-        from .projection import DILATION, MIP_FILTER
+        from strings_bench.raster.cpu_preprocess import preprocess_forward
+        from strings_bench.raster.projection import DILATION, MIP_FILTER
 
         N = means.shape[0]
         cam = camera_array(camera)
@@ -119,7 +119,7 @@ class Preprocess(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
-        from .cpu_preprocess import preprocess_backward
+        from strings_bench.raster.cpu_preprocess import preprocess_backward
 
         means, quats, log_scales, logits, sh = ctx.arrs
         deg, cam, eps, mip, radii = ctx.setup

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .sh import SH_C0, SH_C1, SH_C2, SH_C3
+from strings_bench.raster.sh import SH_C0, SH_C1, SH_C2, SH_C3
 
 CHUNK = 256
 MAX_RADIUS = float(1 << 24)

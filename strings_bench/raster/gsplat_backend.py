@@ -34,7 +34,7 @@ def gsplat_available() -> bool:
 
 def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background, mip_filter,
                      compute_absgrad, near, far):
-    from . import RasterInputError, RasterOutput
+    from strings_bench.raster.types import RasterInputError, RasterOutput
 
     try:
         from gsplat import rasterization

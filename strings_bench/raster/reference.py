@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from .sh import sh_to_color
+from strings_bench.raster.sh import sh_to_color
 
 
 def _rotmat(q):

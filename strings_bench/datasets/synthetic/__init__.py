@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..registry import DatasetCard, SceneCard, register_dataset
-from .generate import (GENERATOR_VERSION, SCENE_NAMES, SyntheticSettings, build_scene, is_built, read_meta,
+from strings_bench.datasets.registry import DatasetCard, SceneCard, register_dataset
+from strings_bench.datasets.synthetic.generate import (GENERATOR_VERSION, SCENE_NAMES, SyntheticSettings, build_scene, is_built, read_meta,
                        scene_dir, settings_with)
 
 __all__ = ["GENERATOR_VERSION", "SCENE_NAMES", "SyntheticSettings", "build_scene", "is_built", "read_meta",

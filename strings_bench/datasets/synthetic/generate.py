@@ -32,12 +32,12 @@ import numpy as np
 from PIL import Image
 from tqdm.auto import tqdm
 
-from ...camera import Camera
-from ...colmap_io import ColmapModel, read_model, write_model
-from ...errors import DatasetError
-from ...io_utils import atomic_write_json, cache_root
-from ...scene import KnownWord, write_annotations
-from .scenes import BUILDERS, SceneSpec
+from strings_bench.scene.camera import Camera
+from strings_bench.scene.colmap import ColmapModel, read_model, write_model
+from strings_bench.core.errors import DatasetError
+from strings_bench.core.io import atomic_write_json, cache_root
+from strings_bench.scene.scene import KnownWord, write_annotations
+from strings_bench.datasets.synthetic.scenes import BUILDERS, SceneSpec
 
 log = logging.getLogger(__name__)
 

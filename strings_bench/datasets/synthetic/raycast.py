@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...camera import Camera
+from strings_bench.scene.camera import Camera
 
 EPS_T = 1e-6
 

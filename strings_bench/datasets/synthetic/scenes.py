@@ -16,8 +16,8 @@ from typing import Callable
 import numpy as np
 from PIL import Image
 
-from .raycast import Cylinder, Disc, Material, Primitive, Quad, Sphere, World
-from .textures import Canvas, blobs, load_font, noise_field, tiles, tinted_noise, wood
+from strings_bench.datasets.synthetic.raycast import Cylinder, Disc, Material, Primitive, Quad, Sphere, World
+from strings_bench.datasets.synthetic.textures import Canvas, blobs, load_font, noise_field, tiles, tinted_noise, wood
 
 TEXEL = 1000  # texture pixels per world unit on text-bearing surfaces
 

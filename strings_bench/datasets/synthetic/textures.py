@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ...errors import DatasetError
+from strings_bench.core.errors import DatasetError
 
 FONT_FILES = {
     "sans": "DejaVuSans.ttf",

@@ -1,0 +1,64 @@
+"""The report of a run: tables (LaTeX/Markdown/CSV), figures, and a report.md index.
+
+    from strings_bench.bench.reports import write_report
+    write_report("runs/default")      # -> runs/default/report/report.md
+
+Everything is rebuilt from RUN_DIR/results.csv and the cell result files, so a report can be
+regenerated at any time (`strings-bench report RUN_DIR`), also for a partly finished run.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.io import atomic_write_text
+
+__all__ = ["write_report"]
+
+
+def write_report(run_dir: str | Path) -> Path:
+    from strings_bench.bench.runner import RESULTS_CSV, RUN_FILE, write_results_csv
+    from strings_bench.bench.reports.figures import write_figures
+    from strings_bench.bench.reports.tables import load_results, write_tables
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise StringsBenchError(f"run folder {run_dir} does not exist", hint="give the --out folder of a `strings-bench run`")
+    if (run_dir / "cells").is_dir():
+        write_results_csv(run_dir)  # always from the cell files: they are the truth
+    if not (run_dir / RESULTS_CSV).exists():
+        raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
+    manifest = {}
+    if (run_dir / RUN_FILE).exists():
+        manifest = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
+    df = load_results(run_dir)
+    out = run_dir / "report"
+    tables = write_tables(df, out / "tables", manifest)
+    figures = write_figures(df, run_dir, out / "figures")
+    lines = [f"# strings-bench report: {run_dir.name}", ""]
+    preset = manifest.get("preset") or {}
+    if preset:
+        lines.append(f"Preset **{preset.get('name')}** (steps scale {preset.get('steps_scale')}), downscale "
+                     f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
+    lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
+                 "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")
+    if not df.empty and df["ocr_failed"].fillna(0).astype(int).sum():
+        lines.append(f"\n**OCR failed on {int(df['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s)**; "
+                     "those views are left out of CER (see `ocr_failed` in results.csv).")
+    if not df.empty and df["lpips"].isna().all():
+        from strings_bench.eval.lpips_net import INSTALL_HINT, available
+
+        why = "it was skipped (--no-lpips)" if available() else f"its weights are not installed (`{INSTALL_HINT}`)"
+        lines.append(f"\nLPIPS is n/a: {why}.")
+    lines.append("")
+    for name, files in tables.items():
+        lines += [f"## {name.replace('_', ' ')}", "", files["md"].read_text(encoding="utf-8"),
+                  f"LaTeX: `{files['tex'].relative_to(out)}` (preamble `tables/preamble.tex`, all tables `tables/tables.tex`); "
+                  f"CSV: `{files['csv'].relative_to(out)}`", ""]
+    if figures:
+        lines += ["## figures", ""]
+        for name, p in figures.items():
+            lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({p.relative_to(out)})", ""]
+    return atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

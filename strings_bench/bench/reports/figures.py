@@ -1,0 +1,266 @@
+"""Figures of a run (matplotlib, Agg): the teaser's CER-vs-time scatter, CER over iterations, and a
+qualitative grid of text crops with the OCR strings under each crop."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from strings_bench.core.io import atomic_write
+from strings_bench.bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title
+
+CROP_PAD = 0.25  # fraction of the text box added on every side of a crop
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    # OCR of blurred renders sometimes returns CJK glyphs the default font lacks; they show as boxes.
+    warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    def write(tmp: Path) -> None:
+        fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
+
+    atomic_write(path, write)
+    _plt().close(fig)
+    return path
+
+
+def _colors(methods: list[str]) -> dict[str, tuple]:
+    plt = _plt()
+    cmap = plt.get_cmap("tab10")
+    return {m: cmap(i % 10) for i, m in enumerate(methods)}
+
+
+def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path | None:
+    """Teaser scatter: mean OCR-CER (over all scenes) against mean training minutes at one checkpoint."""
+    if df.empty:
+        return None
+    label = label or main_labels(df)[0]
+    sub = df[df["label"] == label]
+    if sub.empty:
+        return None
+    g = sub.groupby("method").agg(cer=("cer", "mean"), minutes=("train_seconds", lambda s: s.mean() / 60)).reset_index()
+    g = g.dropna(subset=["minutes"])
+    if g.empty:
+        return None
+    plt = _plt()
+    methods = method_order(g["method"])
+    colors = _colors(methods)
+    fig, ax = plt.subplots(figsize=(4.8, 3.6))
+    for r in g.itertuples():
+        y = r.cer if not math.isnan(r.cer) else np.nan
+        ax.scatter([r.minutes], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
+                   marker="*" if r.method == "strings" else "o", zorder=3, label=method_title(r.method))
+        if not math.isnan(y):
+            ax.annotate(method_title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+    ax.set_xlabel(f"training time at {label} (minutes)")
+    ax.set_ylabel(f"OCR-CER at {label} (lower is better)")
+    _cer_axis(ax, g["cer"])
+    ax.grid(True, alpha=0.3)
+    ax.set_title(f"Readability vs training time ({label})", fontsize=10)
+    return _save(fig, out)
+
+
+def _cer_axis(ax, values) -> None:
+    """CER axes start at 0 and show at least up to 1, so that 0.996 vs 1.0 does not look like a gap."""
+    top = np.nanmax(np.asarray(values, dtype=float)) if len(values) else np.nan
+    ax.set_ylim(0.0, max(1.02, float(top) * 1.02) if np.isfinite(top) else 1.02)
+
+
+def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
+    """OCR-CER against the trained iteration: one panel per scene plus the mean over scenes."""
+    if df.empty:
+        return None
+    plt = _plt()
+    scenes = list(dict.fromkeys(zip(df["dataset"], df["scene"])))
+    methods = method_order(df["method"])
+    colors = _colors(methods)
+    n = len(scenes) + (1 if len(scenes) > 1 else 0)
+    cols = min(3, n)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3 * rows), squeeze=False)
+    panels = [(f"{d}/{s}", df[(df["dataset"] == d) & (df["scene"] == s)]) for d, s in scenes]
+    if len(scenes) > 1:
+        mean = df.groupby(["method", "iteration"], as_index=False)["cer"].mean()
+        panels.append(("mean over scenes", mean))
+    for ax, (title, sub) in zip(axes.flat, panels):
+        for m in methods:
+            s = sub[sub["method"] == m].sort_values("iteration")
+            if s.empty:
+                continue
+            ax.plot(s["iteration"], s["cer"], marker="o", color=colors[m], label=method_title(m),
+                    linestyle="--" if m in ABLATION_METHODS else "-")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("OCR-CER")
+        _cer_axis(ax, sub["cer"])
+        ax.grid(True, alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, bbox_to_anchor=(0.5, -0.02))
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return _save(fig, out)
+
+
+# ---- qualitative ---------------------------------------------------------------------------------
+def _read_cell(run_dir: Path, method: str, dataset: str, scene: str, iteration: int) -> dict | None:
+    from strings_bench.bench.runner import CellKey, RESULT_FILE
+
+    p = CellKey(method, dataset, scene, int(iteration)).path(run_dir) / RESULT_FILE
+    return json.loads(p.read_text(encoding="utf-8")) if p.exists() else None
+
+
+def _words_text(words: list | None) -> str:
+    if words is None:
+        return "(OCR failed)"
+    if not words:
+        return "(nothing read)"
+    ordered = sorted(words, key=lambda w: (np.mean([p[1] for p in w["polygon"]]) // 20, np.mean([p[0] for p in w["polygon"]])))
+    return " ".join(w["text"] for w in ordered)
+
+
+def _in_box(words: list | None, box) -> list | None:
+    if words is None:
+        return None
+    x0, y0, x1, y1 = box
+    out = []
+    for w in words:
+        c = np.mean(np.asarray(w["polygon"], dtype=float), axis=0)
+        if x0 <= c[0] <= x1 and y0 <= c[1] <= y1:
+            out.append(w)
+    return out
+
+
+def _pick_view(rec: dict) -> tuple[str, list] | None:
+    """The test view with the most text, and the word polygons to crop around (known words first)."""
+    best = None
+    for name, v in (rec.get("ocr") or {}).get("views", {}).items():
+        words = v.get("known_words") or v.get("gt_words") or []
+        chars = sum(len(w["text"]) for w in words)
+        if words and (best is None or chars > best[0]):
+            best = (chars, name, words)
+    return None if best is None else (best[1], best[2])
+
+
+def _crop_box(words: list, shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Box around the first line of text (words whose centre is near the top-most word's), padded."""
+    h, w = shape
+    polys = [np.asarray(wd["polygon"], dtype=float) for wd in words]
+    # Biggest word decides the line to show; crops stay readable on a page.
+    areas = [np.ptp(p[:, 0]) * np.ptp(p[:, 1]) for p in polys]
+    ref = polys[int(np.argmax(areas))]
+    rc, rh = ref[:, 1].mean(), max(np.ptp(ref[:, 1]), 1.0)
+    line = [p for p in polys if abs(p[:, 1].mean() - rc) < rh]
+    pts = np.concatenate(line)
+    x0, y0 = pts.min(0)
+    x1, y1 = pts.max(0)
+    pw, ph = (x1 - x0) * CROP_PAD + 4, (y1 - y0) * CROP_PAD * 2 + 4
+    return (int(max(0, x0 - pw)), int(max(0, y0 - ph)), int(min(w, x1 + pw)), int(min(h, y1 + ph)))
+
+
+def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scenes: int = 6) -> Path | None:
+    """Rows = scenes, columns = methods then ground truth (as the paper's comparison figures); under
+    every crop, what OCR read in it and the view's OCR-CER."""
+    from PIL import Image
+
+    sub = df[df["label"] == label]
+    if sub.empty:
+        return None
+    methods = method_order(m for m in sub["method"] if m not in ABLATION_METHODS) or method_order(sub["method"])
+    scenes = list(dict.fromkeys(zip(sub["dataset"], sub["scene"])))[:max_scenes]
+    rows = []
+    for d, s in scenes:
+        recs = {}
+        for m in methods:
+            r = sub[(sub["method"] == m) & (sub["dataset"] == d) & (sub["scene"] == s)]
+            if len(r):
+                recs[m] = _read_cell(run_dir, m, d, s, int(r["iteration"].iloc[0]))
+        recs = {m: r for m, r in recs.items() if r is not None}
+        if not recs:
+            continue
+        pick = _pick_view(next(iter(recs.values())))
+        if pick is None:
+            continue
+        rows.append((d, s, pick, recs))
+    if not rows:
+        return None
+    plt = _plt()
+    ncols = len(methods) + 1
+    fig, axes = plt.subplots(len(rows), ncols, figsize=(2.6 * ncols, 2.2 * len(rows)), squeeze=False)
+    from strings_bench.bench.runner import _safe
+
+    for ri, (d, s, (view, words), recs) in enumerate(rows):
+        stem = Path(view).stem
+        gt_path = run_dir / "gt" / _safe(d) / _safe(s) / f"{stem}.png"
+        gt = np.asarray(Image.open(gt_path).convert("RGB")) if gt_path.exists() else None
+        shape = gt.shape[:2] if gt is not None else (10**6, 10**6)
+        box = _crop_box(words, shape)
+        x0, y0, x1, y1 = box
+        any_rec = next(iter(recs.values()))
+        for ci, m in enumerate(methods + ["__gt__"]):
+            ax = axes[ri, ci]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if m == "__gt__":
+                img = gt
+                v = any_rec["ocr"]["views"].get(view, {})
+                caption = _words_text(_in_box(v.get("gt_words"), box))
+                title = "Ground Truth"
+            else:
+                rec = recs.get(m)
+                img, caption, title = None, "(not run)", method_title(m)
+                if rec is not None:
+                    from strings_bench.bench.runner import CellKey
+
+                    p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / f"{stem}.png"
+                    img = np.asarray(Image.open(p).convert("RGB")) if p.exists() else None
+                    v = rec["ocr"]["views"].get(view, {})
+                    caption = _words_text(_in_box(v.get("render_words"), box))
+                    ic = (rec.get("cer") or {}).get("images", {}).get(view)
+                    if ic and ic.get("cer") is not None:
+                        caption += f"\nCER {ic['cer']:.2f}"
+            if img is not None:
+                ax.imshow(img[y0:y1, x0:x1])
+            else:
+                ax.axis("off")
+            if ri == 0:
+                ax.set_title(title, fontsize=9, fontweight="bold" if m == "strings" else "normal")
+            if ci == 0:
+                ax.set_ylabel(f"{s}\n{view}", fontsize=7)
+            ax.set_xlabel(caption[:60], fontsize=7)
+    fig.suptitle(f"Text crops at {label}; under each crop: what OCR read there", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path) -> dict[str, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    if df.empty:
+        return written
+    for label in main_labels(df):
+        p = cer_vs_time(df, out_dir / f"cer_vs_time_{label}.png", label)
+        if p:
+            written[f"cer_vs_time_{label}"] = p
+        p = qualitative(df, run_dir, out_dir / f"qualitative_{label}.png", label)
+        if p:
+            written[f"qualitative_{label}"] = p
+    p = cer_over_iterations(df, out_dir / "cer_over_iterations.png")
+    if p:
+        written["cer_over_iterations"] = p
+    return written

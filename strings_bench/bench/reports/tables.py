@@ -1,0 +1,413 @@
+"""Tables of a run, laid out like the paper's: LaTeX (booktabs, best three shaded), Markdown, CSV.
+
+Every dataset figure is the mean over its scenes (OCR-CER: over the scenes where anything could be
+scored, as the authors do). Checkpoint columns are labelled by the paper iteration they stand for
+("7K", "30K"); the iterations actually trained are given in the caption. Missing values print as
+"n/a" (never 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from strings_bench.core.io import atomic_write_text
+
+# Paper colours (preamble of the paper).
+PREAMBLE = r"""\usepackage{booktabs, multirow, xcolor, colortbl, array, makecell}
+\definecolor{first}{RGB}{242, 182, 181}
+\definecolor{second}{RGB}{249, 218, 184}
+\definecolor{third}{RGB}{254, 250, 199}
+\definecolor{gray}{RGB}{225, 225, 225}
+\definecolor{confgray}{RGB}{128, 128, 128}
+\providecommand{\papertable}[1]{{\tiny \color{confgray} {#1}}}
+\newcolumntype{C}[1]{>{\centering\arraybackslash}m{#1}}
+"""
+
+DATASET_TITLES = {"tandt": "TandT", "dl3dv": "DL3DV-10K", "strings360": "STRinGS-360", "synthetic": "Synthetic"}
+METHOD_TITLES = {
+    "3dgs": "3DGS", "mip-splatting": "Mip-Splatting", "mip": "Mip-Splatting", "mcmc": "3DGS-MCMC",
+    "3dgs-mcmc": "3DGS-MCMC", "absgs": "AbsGS", "edc": "EDC-AbsGS", "edc-absgs": "EDC-AbsGS",
+    "strings": "STRinGS", "strings-no-densify": "STRinGS w/o text densification",
+    "strings-pos-lr": "STRinGS with phase-1 position LR",
+}
+# Row order of the paper; other methods follow alphabetically.
+METHOD_ORDER = ["3dgs", "mip-splatting", "mip", "mcmc", "3dgs-mcmc", "absgs", "edc", "edc-absgs", "strings"]
+ABLATION_METHODS = ("strings-no-densify", "strings-pos-lr")
+RANKS = ("first", "second", "third")
+
+
+def latex_escape(s: str) -> str:
+    rep = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+           "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+    return "".join(rep.get(c, c) for c in str(s))
+
+
+def label_value(label: str) -> float:
+    """'7K' -> 7000, '350' -> 350 (for ordering columns)."""
+    s = str(label)
+    try:
+        return float(s[:-1]) * 1000 if s.endswith("K") else float(s)
+    except ValueError:
+        return math.inf
+
+
+def method_order(methods) -> list[str]:
+    ms = list(dict.fromkeys(methods))
+    known = [m for m in METHOD_ORDER if m in ms]
+    return known + sorted(m for m in ms if m not in known)
+
+
+def short_venue(paper: str) -> str:
+    """'... Rendering (SIGGRAPH 2023)' -> "SIGGRAPH'23"; "CVPR'24" stays; '' when no venue/year is found."""
+    import re
+
+    paper = str(paper or "").strip()
+    if re.fullmatch(r"[\w .-]+'\d\d", paper):
+        return paper
+    found = re.findall(r"\(([A-Za-z][\w .-]*?)\s+((?:19|20)\d\d)\)", paper)
+    if not found:
+        return ""
+    venue, year = found[-1]
+    return f"{venue.strip()}'{year[2:]}"
+
+
+def method_title(method: str, papers: dict | None = None, latex: bool = False) -> str:
+    title = METHOD_TITLES.get(method, method)
+    if not latex:
+        return title
+    t = latex_escape(title)
+    if method == "strings":
+        t = r"\textbf{" + t + "}"
+    paper = short_venue((papers or {}).get(method, ""))
+    if paper and method not in ABLATION_METHODS:
+        t += r"~\papertable{" + latex_escape(paper) + "}"
+    return t
+
+
+def dataset_title(dataset: str) -> str:
+    return DATASET_TITLES.get(dataset, dataset)
+
+
+# ---- aggregation -------------------------------------------------------------------------------
+def load_results(run_dir: str | Path) -> pd.DataFrame:
+    p = Path(run_dir) / "results.csv"
+    if not p.exists():
+        return pd.DataFrame()
+    df = pd.read_csv(p, keep_default_na=True)
+    for c in ("cer", "cer_known", "psnr", "ssim", "lpips", "train_seconds", "gaussians"):
+        if c in df:
+            df[c] = pd.to_numeric(df[c], errors="coerce")
+    df["label"] = df["label"].astype(str)
+    return df
+
+
+def dataset_means(df: pd.DataFrame, value: str) -> pd.DataFrame:
+    """Mean of `value` over scenes, per (method, dataset, label); NaN scenes are skipped, all-NaN stays NaN."""
+    if df.empty:
+        return pd.DataFrame(columns=["method", "dataset", "label", value, "n_scenes"])
+    g = df.groupby(["method", "dataset", "label"], sort=False)[value]
+    out = g.mean().rename(value).to_frame()  # pandas mean skips NaN
+    out["n_scenes"] = g.count()
+    return out.reset_index()
+
+
+def rank_classes(values: list[float], lower_is_better: bool, decimals: int | None = None) -> list[str | None]:
+    """'first'/'second'/'third' for the best three *distinct* values (ties share a place, as in the
+    paper's tables); NaN never ranks. Values are compared as printed when `decimals` is given."""
+    v = [x if x is not None and not (isinstance(x, float) and math.isnan(x)) else None for x in values]
+    cmp = [None if x is None else (round(x, decimals) if decimals is not None else x) for x in v]
+    distinct = sorted({x for x in cmp if x is not None}, reverse=not lower_is_better)
+    place = {x: RANKS[i] for i, x in enumerate(distinct[:3])}
+    return [None if x is None else place.get(x) for x in cmp]
+
+
+# ---- generic table model ----------------------------------------------------------------------------
+@dataclass
+class Column:
+    group: str  # dataset title (multicolumn header)
+    sub: str  # e.g. "7K", "PSNR$\uparrow$"
+    sub_plain: str
+    lower_is_better: bool
+    fmt: str  # format spec, e.g. ".3f"; "K" = thousands with a K suffix
+    values: dict = field(default_factory=dict)  # method -> float
+
+
+@dataclass
+class Table:
+    name: str
+    corner: str  # LaTeX of the top-left cell
+    corner_plain: str
+    columns: list[Column]
+    methods: list[str]
+    caption: str
+    shade: bool = True
+    bold_best_pairs: bool = False
+
+    def fmt(self, col: Column, x) -> str:
+        if x is None or (isinstance(x, float) and math.isnan(x)):
+            return "n/a"
+        if col.fmt == "K":
+            return f"{x / 1000:.0f}K" if x >= 1000 else f"{x:.0f}"
+        return format(x, col.fmt)
+
+    def decimals(self, col: Column) -> int | None:
+        if col.fmt == "K":
+            return -3
+        try:
+            return int(col.fmt.strip(".f"))
+        except ValueError:
+            return None
+
+    def shading(self, col: Column) -> dict[str, str | None]:
+        vals = [col.values.get(m, math.nan) for m in self.methods]
+        if not self.shade:
+            return {m: None for m in self.methods}
+        return dict(zip(self.methods, rank_classes(vals, col.lower_is_better, self.decimals(col))))
+
+
+def _groups(columns: list[Column]) -> list[tuple[str, int]]:
+    out: list[tuple[str, int]] = []
+    for c in columns:
+        if out and out[-1][0] == c.group:
+            out[-1] = (c.group, out[-1][1] + 1)
+        else:
+            out.append((c.group, 1))
+    return out
+
+
+def to_latex(t: Table, papers: dict | None = None) -> str:
+    n = len(t.columns)
+    lines = [r"\begin{table}[t]", r"\centering", r"\footnotesize", r"\tabcolsep=0.8mm",
+             r"\begin{tabular}{l *{%d}{C{0.9cm}}}" % n, r"\toprule"]
+    groups = _groups(t.columns)
+    head = [r"\multirow{2}{*}{" + t.corner + "}"]
+    rules = []
+    col = 2
+    for g, span in groups:
+        head.append(r"\multicolumn{%d}{c}{\makecell{%s}}" % (span, latex_escape(g)))
+        rules.append(r"\cmidrule(lr){%d-%d}" % (col, col + span - 1))
+        col += span
+    lines.append(" & ".join(head) + r" \\")
+    lines.append(" ".join(rules))
+    lines.append(" & " + " & ".join(c.sub for c in t.columns) + r" \\")
+    lines.append(r"\midrule")
+    shades = [t.shading(c) for c in t.columns]
+    for m in t.methods:
+        cells = [method_title(m, papers, latex=True)]
+        for c, sh in zip(t.columns, shades):
+            s = t.fmt(c, c.values.get(m, math.nan))
+            cls = sh.get(m)
+            cells.append((r"\cellcolor{%s}" % cls if cls else "") + s)
+        lines.append(" & ".join(cells) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}", r"\caption{" + t.caption + "}", r"\label{tab:%s}" % t.name, r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def to_markdown(t: Table) -> str:
+    marks = {"first": " **(1)**", "second": " (2)", "third": " (3)"}
+    header = [t.corner_plain] + [f"{c.group} {c.sub_plain}".strip() for c in t.columns]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    shades = [t.shading(c) for c in t.columns]
+    for m in t.methods:
+        cells = [method_title(m)]
+        for c, sh in zip(t.columns, shades):
+            cells.append(t.fmt(c, c.values.get(m, math.nan)) + marks.get(sh.get(m) or "", ""))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(t: Table) -> str:
+    rows = []
+    for m in t.methods:
+        row = {"method": m}
+        for c in t.columns:
+            v = c.values.get(m, math.nan)
+            row[f"{c.group} {c.sub_plain}".strip()] = "" if v is None or (isinstance(v, float) and math.isnan(v)) else v
+        rows.append(row)
+    return pd.DataFrame(rows).to_csv(index=False)
+
+
+# ---- the paper's tables ------------------------------------------------------------------------------
+def main_labels(df: pd.DataFrame) -> list[str]:
+    """Checkpoint labels for the main tables: 7K and 30K when present, else every label."""
+    labels = sorted(set(df["label"]), key=label_value) if not df.empty else []
+    main = [l for l in ("7K", "30K") if l in labels]
+    return main or labels
+
+
+def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None) -> Table:
+    means = dataset_means(df, value)
+    labels = main_labels(df)
+    datasets = list(dict.fromkeys(df["dataset"]))
+    methods = methods or method_order(m for m in df["method"] if m not in ABLATION_METHODS)
+    cols = []
+    for d in datasets:
+        for l in labels:
+            sel = means[(means["dataset"] == d) & (means["label"] == l)]
+            vals = {r.method: (getattr(r, value) * scale) for r in sel.itertuples()}
+            cols.append(Column(dataset_title(d), l, l, lower, fmt, vals))
+    return Table(name, corner, corner_plain, cols, methods, caption)
+
+
+def schedule_note(df: pd.DataFrame, manifest: dict | None) -> str:
+    if df.empty:
+        return ""
+    pairs = sorted({(l, int(i)) for l, i in zip(df["label"], df["iteration"])}, key=lambda p: label_value(p[0]))
+    shown = [f"{l} = {i} iterations" for l, i in pairs if str(i) != l and label_value(l) != i]
+    preset = (manifest or {}).get("preset", {})
+    if not shown:
+        return ""
+    return (f" Checkpoints are labelled by the paper iteration they stand for; this run (preset "
+            f"{latex_escape(preset.get('name', '?'))}, steps scale {preset.get('steps_scale', '?')}) trained "
+            + "; ".join(shown) + ".")
+
+
+RANK_NOTE = r" Red, orange and yellow mark the first, second and third best (ties share a place)."
+
+
+def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
+    if df.empty:
+        return []
+    note = schedule_note(df, manifest)
+    tables = [
+        _checkpoint_table(df, "ocr_cer", "cer", r"OCR-CER $\downarrow$", "OCR-CER (lower is better)",
+                          "OCR-based character error rate (CER, lower is better) of rendered test views, mean over the "
+                          "scenes of each dataset." + RANK_NOTE + note, True, ".3f"),
+        _checkpoint_table(df, "training_time", "train_seconds", r"\makecell[l]{Training time\\(minutes) $\downarrow$}",
+                          "Training time, minutes (lower is better)",
+                          "Training time in minutes (optimisation only), mean over the scenes of each dataset."
+                          + RANK_NOTE + note, True, ".2f" if (df["train_seconds"].max() / 60) < 10 else ".1f", 1 / 60),
+    ]
+    if df["cer_known"].notna().any():
+        tables.append(_checkpoint_table(
+            df, "known_text_cer", "cer_known", r"\makecell[l]{Known-text\\CER $\downarrow$}", "Known-text CER (lower is better)",
+            "CER of the OCR of rendered views against the known strings of the scene (synthetic scenes only)."
+            + RANK_NOTE + note, True, ".3f"))
+    tables.append(metrics_table(df, note))
+    abl = ablation_table(df, note)
+    if abl is not None:
+        tables.append(abl)
+    return tables
+
+
+def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
+    labels = main_labels(df)
+    final = labels[-1]
+    sub = df[(df["label"] == final) & ~df["method"].isin(ABLATION_METHODS)]
+    datasets = list(dict.fromkeys(df["dataset"]))
+    methods = method_order(sub["method"])
+    specs = [("psnr", r"PSNR$\uparrow$", "PSNR", False, ".2f"), ("ssim", r"SSIM$\uparrow$", "SSIM", False, ".4f"),
+             ("lpips", r"LPIPS$\downarrow$", "LPIPS", True, ".4f"), ("gaussians", r"Points$\downarrow$", "Points", True, "K")]
+    cols = []
+    for d in datasets:
+        for value, sub_l, sub_p, lower, fmt in specs:
+            means = dataset_means(sub[sub["dataset"] == d], value)
+            cols.append(Column(dataset_title(d), sub_l, sub_p, lower, fmt, {r.method: getattr(r, value) for r in means.itertuples()}))
+    return Table("metrics", "Method", "Method", cols, methods,
+                 f"Reconstruction quality and number of Gaussians (Points) at {final} iterations, mean over the scenes "
+                 "of each dataset. LPIPS is LPIPS-VGG v0.1; n/a where its weights are not installed." + RANK_NOTE + note)
+
+
+def ablation_table(df: pd.DataFrame, note: str = "") -> Table | None:
+    """The paper's ablations: w/o text densification (7K) and with a phase-1 position LR (3K)."""
+    present = set(df["method"])
+    if "strings" not in present or not (present & set(ABLATION_METHODS)):
+        return None
+    blocks = []
+    labels = set(df["label"])
+    if "strings-no-densify" in present:
+        blocks.append(("Effect of text densification", "strings-no-densify", "7K" if "7K" in labels else main_labels(df)[0]))
+    if "strings-pos-lr" in present:
+        blocks.append(("Effect of zero position LR of Gaussians", "strings-pos-lr",
+                       "3K" if "3K" in labels else main_labels(df)[0]))
+    means = dataset_means(df, "cer")
+    datasets = list(dict.fromkeys(df["dataset"]))
+    rows = []
+    for title, abl, label in blocks:
+        vals = []
+        for d in datasets:
+            def get(m):
+                s = means[(means["method"] == m) & (means["dataset"] == d) & (means["label"] == label)]["cer"]
+                return float(s.iloc[0]) if len(s) else math.nan
+            vals.append((get(abl), get("strings")))
+        rows.append((title, abl, label, vals))
+    t = Table("ablations", "Dataset", "Dataset", [], ["strings", *[r[1] for r in rows]],
+              "Ablations: OCR-CER of STRinGS without text densification, and with a non-zero position learning rate "
+              "in phase 1, against full STRinGS (the better one in bold), mean over the scenes of each dataset." + note,
+              shade=False)
+    t.ablation_rows = rows  # type: ignore[attr-defined]
+    t.ablation_datasets = datasets  # type: ignore[attr-defined]
+    return t
+
+
+def _fmt3(x: float) -> str:
+    return "n/a" if x is None or math.isnan(x) else f"{x:.3f}"
+
+
+def ablation_latex(t: Table) -> str:
+    datasets = t.ablation_datasets  # type: ignore[attr-defined]
+    n = 1 + 2 * len(datasets)
+    lines = [r"\begin{table}[b]", r"\centering", r"\footnotesize", r"\tabcolsep=1mm",
+             r"\begin{tabular}{C{2.4cm} *{%d}{C{0.7cm}}}" % (n - 1), r"\toprule",
+             "Dataset & " + " & ".join(r"\multicolumn{2}{c}{%s}" % latex_escape(dataset_title(d)) for d in datasets) + r" \\"]
+    for title, _abl, label, vals in t.ablation_rows:  # type: ignore[attr-defined]
+        lines.append(r"\cmidrule(lr){1-%d}" % n)
+        lines.append(r"& \multicolumn{%d}{c}{\cellcolor{gray}{%s}} \\" % (n - 1, title))
+        lines.append(r"\multirow{2}{*}{\shortstack{OCR-CER $\downarrow$\\(%s iterations)}} & " % latex_escape(label)
+                     + " & ".join("w/o & Ours" for _ in datasets) + r" \\")
+        cells = []
+        for wo, ours in vals:
+            a, b = _fmt3(wo), _fmt3(ours)
+            if not (math.isnan(wo) or math.isnan(ours)):
+                if round(ours, 3) < round(wo, 3):
+                    b = r"\textbf{" + b + "}"
+                elif round(wo, 3) < round(ours, 3):
+                    a = r"\textbf{" + a + "}"
+            cells += [a, b]
+        lines.append("& " + " & ".join(cells) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}", r"\caption{" + t.caption + "}", r"\label{tab:ablations}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def ablation_markdown(t: Table) -> str:
+    datasets = t.ablation_datasets  # type: ignore[attr-defined]
+    header = ["ablation", "checkpoint"] + [f"{dataset_title(d)} {s}" for d in datasets for s in ("w/o", "Ours")]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for title, _abl, label, vals in t.ablation_rows:  # type: ignore[attr-defined]
+        lines.append("| " + " | ".join([title, label] + [_fmt3(x) for pair in vals for x in pair]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def ablation_csv(t: Table) -> str:
+    rows = []
+    for title, abl, label, vals in t.ablation_rows:  # type: ignore[attr-defined]
+        for d, (wo, ours) in zip(t.ablation_datasets, vals):  # type: ignore[attr-defined]
+            rows.append({"ablation": title, "method": abl, "label": label, "dataset": d, "cer_without": wo, "cer_strings": ours})
+    return pd.DataFrame(rows).to_csv(index=False)
+
+
+def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None) -> dict[str, dict[str, Path]]:
+    """Write every table as .tex, .md and .csv, plus preamble.tex and a compilable tables.tex."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    papers = {m: v.get("paper", "") for m, v in ((manifest or {}).get("methods") or {}).items()}
+    written: dict[str, dict[str, Path]] = {}
+    for t in build_tables(df, manifest):
+        if t.name == "ablations":
+            tex, md, csv_text = ablation_latex(t), ablation_markdown(t), ablation_csv(t)
+        else:
+            tex, md, csv_text = to_latex(t, papers), to_markdown(t), to_csv(t)
+        written[t.name] = {
+            "tex": atomic_write_text(out_dir / f"{t.name}.tex", tex),
+            "md": atomic_write_text(out_dir / f"{t.name}.md", md),
+            "csv": atomic_write_text(out_dir / f"{t.name}.csv", csv_text),
+        }
+    atomic_write_text(out_dir / "preamble.tex", PREAMBLE)
+    doc = [r"\documentclass{article}", r"\usepackage[margin=1.5cm]{geometry}", r"\input{preamble}", r"\begin{document}"]
+    doc += [r"\input{%s}" % name for name in written]
+    doc.append(r"\end{document}")
+    atomic_write_text(out_dir / "tables.tex", "\n".join(doc) + "\n")
+    return written

@@ -1,0 +1,688 @@
+"""Run methods x scenes x checkpoints, evaluate every checkpoint, and keep the results resumable.
+
+One *cell* is (method, dataset, scene, checkpoint iteration). A cell is finished when its
+`result.json` exists; that file is written last and atomically, so a killed run loses at most the
+cell in progress. Re-running the same command skips finished cells. Because training yields its
+checkpoints in order, a (method, scene) with some but not all checkpoints finished is trained
+again from the start; checkpoints already evaluated are passed over (never rewritten).
+
+Run folder (see docs/running.md):
+
+    RUN_DIR/
+      run.json                          the run's settings (preset, downscale, OCR, masks); a re-run must match
+      results.csv                       one row per cell, rebuilt after every cell
+      cells/<method>/<dataset>/<scene>/<iteration>/
+          result.json                   everything about the cell (config, timings, metrics, OCR words, CER)
+          renders/<view stem>.png       the method's test-view renders
+      gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
+      report/                           tables and figures (strings_bench.bench.reports.write_report)
+
+Execution goes through an `Executor` (`submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one
+after another in this process. A distributed executor only has to run `run_job(job)` somewhere that
+sees RUN_DIR (jobs are plain data) — cells are independent files, and results.csv is rebuilt from
+them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import platform
+import time
+from concurrent.futures import Future
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Protocol
+
+import numpy as np
+from PIL import Image
+
+from strings_bench import __version__
+from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.core.io import atomic_write, atomic_write_json, atomic_write_text
+from strings_bench.core.schedules import SCHEDULE_SCALES
+
+log = logging.getLogger(__name__)
+
+RESULT_FILE = "result.json"
+LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
+RUN_FILE = "run.json"
+RESULTS_CSV = "results.csv"
+DEFAULT_RUN_DIR = Path("runs") / "default"
+
+# Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
+# trained is round(paper_iteration * steps_scale). "quick" is the default of `strings-bench run`.
+# 3K is the end of STRinGS' phase 1 (the position-LR ablation of the paper is read there).
+PAPER_CHECKPOINTS = (3000, 7000, 30000)
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    steps_scale: float
+    paper_checkpoints: tuple[int, ...] = PAPER_CHECKPOINTS
+    downscale: float = 1
+    description: str = ""
+
+    def checkpoints(self, steps_scale: float | None = None) -> list[int]:
+        s = self.steps_scale if steps_scale is None else steps_scale
+        return sorted({max(1, int(round(c * s))) for c in self.paper_checkpoints})
+
+    def label_of(self, iteration: int, steps_scale: float | None = None) -> str:
+        s = self.steps_scale if steps_scale is None else steps_scale
+        for c in self.paper_checkpoints:
+            if max(1, int(round(c * s))) == iteration:
+                return iteration_label(c)
+        return iteration_label(iteration)
+
+
+PRESETS: dict[str, Preset] = {
+    "paper": Preset("paper", SCHEDULE_SCALES["paper"],
+                    description="the paper's schedule: 30K iterations, checkpoints 3K/7K/30K"),
+    # standard and quick leave out 3K: OCR of every test view costs ~1 s per view and cell on a CPU.
+    "standard": Preset("standard", SCHEDULE_SCALES["standard"], paper_checkpoints=(7000, 30000),
+                       description="the paper's schedule scaled by 0.05 (350/1500 iterations for 7K/30K)"),
+    "quick": Preset("quick", SCHEDULE_SCALES["quick"], paper_checkpoints=(7000, 30000),
+                    description="the paper's schedule scaled by 0.01 (70/300 iterations for 7K/30K); "
+                                "the default, sized for ~10 minutes on 2 CPU cores"),
+    "tiny": Preset("tiny", SCHEDULE_SCALES["tiny"], description="smoke test: scaled by 0.005 (35/150 iterations for 7K/30K)"),
+}
+
+
+def iteration_label(iteration: int) -> str:
+    """7000 -> '7K', 30000 -> '30K', 350 -> '350'."""
+    return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)
+
+
+def get_preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise StringsBenchError(f"unknown preset {name!r}", hint=f"presets: {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+# ---- jobs and executors ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class CellKey:
+    method: str
+    dataset: str
+    scene: str
+    iteration: int
+
+    def path(self, run_dir: Path) -> Path:
+        return Path(run_dir) / "cells" / _safe(self.method) / _safe(self.dataset) / _safe(self.scene) / str(self.iteration)
+
+
+@dataclass(frozen=True)
+class Job:
+    """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel."""
+
+    run_dir: str
+    method: str
+    dataset: str
+    scene: str
+    scene_path: str
+    scene_settings: dict
+    checkpoints: tuple[int, ...]
+    labels: dict  # iteration -> paper label
+    preset: str
+    downscale: float
+    ocr: str
+    method_overrides: dict = field(default_factory=dict)
+
+    def cells(self) -> list[CellKey]:
+        return [CellKey(self.method, self.dataset, self.scene, it) for it in self.checkpoints]
+
+
+class Executor(Protocol):
+    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value."""
+
+    def submit(self, job: Job) -> Future: ...
+
+    def map(self, jobs: Iterable[Job]) -> list[Any]: ...
+
+
+class LocalExecutor:
+    """Runs each job in this process, one after another (the default)."""
+
+    def __init__(self, runner: Callable[[Job], Any]):
+        self.runner = runner
+
+    def submit(self, job: Job) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(self.runner(job))
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def map(self, jobs: Iterable[Job]) -> list[Any]:
+        return [self.submit(j).result() for j in jobs]
+
+
+EXECUTORS: dict[str, Callable[[Callable[[Job], Any]], Executor]] = {"local": LocalExecutor}
+
+
+def get_executor(name: str, runner: Callable[[Job], Any]) -> Executor:
+    if name not in EXECUTORS:
+        raise StringsBenchError(f"unknown executor {name!r}", hint=f"executors: {', '.join(EXECUTORS)}")
+    return EXECUTORS[name](runner)
+
+
+# ---- helpers ----------------------------------------------------------------------------------
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_.+" else "_" for c in str(name)) or "_"
+
+
+def _to_uint8(img: np.ndarray) -> np.ndarray:
+    return (np.clip(np.asarray(img, dtype=np.float32), 0, 1) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    def write(tmp: Path) -> None:
+        Image.fromarray(_to_uint8(img)).save(tmp, format="PNG")
+
+    atomic_write(path, write)
+
+
+def _nan_to_none(x):
+    if isinstance(x, float) and (math.isnan(x) or math.isinf(x)):
+        return None if math.isnan(x) else ("inf" if x > 0 else "-inf")
+    return x
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating,)):
+        return _nan_to_none(float(obj))
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, float):
+        return _nan_to_none(obj)
+    return obj
+
+
+def versions() -> dict:
+    import torch
+
+    out = {"strings_bench": __version__, "python": platform.python_version(), "numpy": np.__version__,
+           "torch": torch.__version__, "platform": platform.platform()}
+    try:
+        from importlib.metadata import version
+
+        out["rapidocr"] = version("rapidocr")
+    except Exception:  # noqa: BLE001 - optional
+        pass
+    return out
+
+
+def is_finished(run_dir: Path, key: CellKey) -> bool:
+    return (key.path(run_dir) / RESULT_FILE).is_file()
+
+
+# ---- masks used for OCR ------------------------------------------------------------------------
+def eval_mask_settings(scene) -> dict | None:
+    """Mask settings for OCR-CER: the scene's `eval_masks` setting, else its masks/ folder, else
+    (synthetic scenes without masks/) the known-word polygons; None = whole image."""
+    given = scene.settings.get("eval_masks") if isinstance(scene.settings, dict) else None
+    if given is not None:
+        return dict(given)
+    if scene.masks_dir is not None:
+        return {"source": "dataset"}
+    if scene.known_text is not None:
+        return {"source": "gt"}
+    return None
+
+
+def eval_mask(scene, i: int, downscale: float, settings: dict | None) -> np.ndarray | None:
+    if settings is None:
+        return None
+    import strings_bench.methods.strings.masks as masks
+
+    try:
+        return masks.dilated_text_mask(scene, i, downscale, settings)
+    except masks.MissingMasksError:
+        return None  # this view has no mask: OCR the whole image (recorded per view)
+
+
+# ---- evaluation of one checkpoint ------------------------------------------------------------
+class Evaluator:
+    """Computes everything about one checkpoint of one scene. GT-side work is done once per scene."""
+
+    def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True):
+        self.scene = scene
+        self.ocr = ocr_backend
+        self.downscale = downscale
+        self.run_dir = Path(run_dir)
+        self.dataset = dataset
+        self.with_lpips = with_lpips
+        self.views = list(scene.test_idx)
+        self.names = [scene.names[i] for i in self.views]
+        self.mask_settings = eval_mask_settings(scene)
+        self._gt: dict[str, np.ndarray] = {}
+        self._masks: dict[str, np.ndarray | None] = {}
+        self._gt_ocr: dict[str, list | None] = {}
+        self._gt_ocr_error: dict[str, str] = {}
+        self._lpips_ref: dict[str, object] = {}
+
+    def gt(self, name: str) -> np.ndarray:
+        if name not in self._gt:
+            i = self.views[self.names.index(name)]
+            self._gt[name] = self.scene.load_image(i, self.downscale)
+            self._masks[name] = eval_mask(self.scene, i, self.downscale, self.mask_settings)
+            gt_png = self.run_dir / "gt" / _safe(self.dataset) / _safe(self.scene.name) / f"{Path(name).stem}.png"
+            if not gt_png.exists():
+                _write_png(gt_png, self._gt[name])
+        return self._gt[name]
+
+    def mask(self, name: str) -> np.ndarray | None:
+        self.gt(name)
+        return self._masks[name]
+
+    def _read(self, img: np.ndarray, mask: np.ndarray | None):
+        try:
+            return self.ocr.read(_to_uint8(img), mask=mask), None
+        except OCRError as exc:
+            return None, str(exc)
+
+    def gt_words(self, name: str):
+        if name not in self._gt_ocr:
+            words, err = self._read(self.gt(name), self.mask(name))
+            self._gt_ocr[name] = words
+            if err:
+                self._gt_ocr_error[name] = err
+        return self._gt_ocr[name]
+
+    def check_renders(self, method: str, renders: dict) -> None:
+        missing = [n for n in self.names if n not in renders]
+        if missing:
+            raise StringsBenchError(
+                f"method {method} returned no render for test view(s) {', '.join(missing[:5])} of scene {self.scene.name}",
+                hint="an adapter must render every view in scene.test_idx, keyed by image name")
+        for n in self.names:
+            r = np.asarray(renders[n])
+            g = self.gt(n)
+            if r.shape != g.shape:
+                raise StringsBenchError(
+                    f"method {method}: render of {n} ({self.scene.name}) is {r.shape}, the ground truth is {g.shape}",
+                    hint="render at scene.camera(i, downscale) size")
+            if not np.all(np.isfinite(r)):
+                raise StringsBenchError(f"method {method}: render of {n} ({self.scene.name}) has NaN/Inf pixels",
+                                        hint="training diverged; run with -v for details")
+
+    def lpips_ref(self, name: str):
+        import strings_bench.eval.metrics as metrics
+
+        if name not in self._lpips_ref:
+            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name))
+        return self._lpips_ref[name]
+
+    def evaluate(self, method: str, renders: dict, with_lpips: bool | None = None) -> dict:
+        import strings_bench.eval.cer as cer
+        import strings_bench.eval.metrics as metrics
+
+        with_lpips = self.with_lpips if with_lpips is None else with_lpips
+
+        self.check_renders(method, renders)
+        per_view: dict[str, dict] = {}
+        ocr_views: dict[str, dict] = {}
+        pairs: dict[str, tuple] = {}
+        known_pairs: dict[str, tuple] = {}
+        for i, name in zip(self.views, self.names):
+            gt = self.gt(name)
+            r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
+            per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
+                                                   gt_reference=self.lpips_ref(name) if with_lpips else None)
+            gt_words = self.gt_words(name)
+            render_words, render_err = self._read(r, self.mask(name))
+            pairs[name] = (gt_words, render_words)
+            ocr_views[name] = {
+                "mask": "whole image" if self.mask(name) is None else "dilated text mask",
+                "gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
+                "render_words": None if render_words is None else [w.to_dict() for w in render_words],
+                "gt_error": self._gt_ocr_error.get(name),
+                "render_error": render_err,
+            }
+            known = self.scene.known_words(i, self.downscale)
+            if known:
+                known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
+                ocr_views[name]["known_words"] = [{"text": k.text, "polygon": np.asarray(k.polygon).tolist()} for k in known]
+        scene_cer = cer.scene_cer(pairs)
+        # Known-text CER leaves out words too small for any OCR (cer.KNOWN_TEXT_MIN_HEIGHT_PX); the result's
+        # `legibility` records the threshold and the excluded counts. The paper-protocol CER above is untouched.
+        known_cer = cer.known_scene_cer(known_pairs) if known_pairs else None
+
+        def mean(key):
+            vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
+            return float(np.mean(vals)) if vals else math.nan
+
+        return {
+            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": mean("lpips"), "per_view": per_view},
+            "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
+            "cer": scene_cer.to_dict(),
+            "cer_known": None if known_cer is None else known_cer.to_dict(),
+        }
+
+
+# ---- running ------------------------------------------------------------------------------------
+def _build_method(job: Job):
+    from strings_bench.methods.registry import get_method
+
+    spec = get_method(job.method)
+    preset = job.preset if job.preset in spec.presets else None
+    return spec.build(preset=preset, **job.method_overrides)
+
+
+def _load_scene(job: Job):
+    from strings_bench.scene.scene import Scene
+
+    return Scene.load(job.scene_path, name=job.scene, settings=job.scene_settings)
+
+
+def _get_ocr(name_or_backend):
+    if not isinstance(name_or_backend, str):
+        return name_or_backend
+    from strings_bench.eval.ocr import get_backend
+
+    return get_backend(name_or_backend)
+
+
+class Runner:
+    """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests)."""
+
+    def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress=None,
+                 on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last"):
+        self.run_dir = Path(run_dir)
+        self.ocr = ocr
+        self.with_lpips = with_lpips
+        if lpips_at not in LPIPS_AT:
+            raise StringsBenchError(f"unknown LPIPS policy {lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
+        self.lpips_at = lpips_at
+        self.progress = progress
+        self.on_cell = on_cell
+
+    def __call__(self, job: Job) -> list[CellKey]:
+        return self.run_job(job)
+
+    def run_job(self, job: Job) -> list[CellKey]:
+        run_dir = Path(job.run_dir)
+        todo = [k for k in job.cells() if not is_finished(run_dir, k)]
+        if not todo:
+            return []
+        scene = _load_scene(job)
+        adapter = _build_method(job)
+        ocr = _get_ocr(self.ocr)
+        evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips)
+        wanted = set(job.checkpoints)
+        written: list[CellKey] = []
+        seen: set[int] = set()
+        describe = _jsonable(adapter.describe())
+        for result in adapter.train(scene, list(job.checkpoints), job.downscale):
+            if result.iteration not in wanted:
+                log.debug("%s yielded unrequested checkpoint %d; ignored", job.method, result.iteration)
+                continue
+            seen.add(result.iteration)
+            key = CellKey(job.method, job.dataset, job.scene, result.iteration)
+            if is_finished(run_dir, key):
+                continue  # evaluated in an earlier run; training had to pass through it again
+            self._write_cell(job, key, result, evaluator, describe, scene)
+            written.append(key)
+            if self.on_cell:
+                self.on_cell(key)
+            if seen >= wanted:
+                break
+        missing = sorted(wanted - seen)
+        if missing:
+            raise StringsBenchError(f"method {job.method} stopped without checkpoint(s) {missing} on {job.dataset}/{job.scene}",
+                                    hint="the adapter's train() must yield one CheckpointResult per requested iteration")
+        return written
+
+    def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene) -> None:
+        t0 = time.perf_counter()
+        # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
+        # the paper reports it at 30K.
+        lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
+        ev = evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here)
+        cell_dir = key.path(self.run_dir)
+        for name, img in result.renders.items():
+            if name in evaluator.names:
+                _write_png(cell_dir / "renders" / f"{Path(name).stem}.png", img)
+        record = {
+            "method": job.method,
+            "dataset": job.dataset,
+            "scene": job.scene,
+            "iteration": key.iteration,
+            "label": job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration))),
+            "config": {
+                "method": describe,
+                "scene": {"path": job.scene_path, "settings": job.scene_settings, "test_views": evaluator.names},
+                "preset": job.preset,
+                "downscale": job.downscale,
+                "checkpoints": list(job.checkpoints),
+                "versions": versions(),
+                "metrics": _metrics_describe(),
+            },
+            "timings": {"train_seconds": result.train_seconds, "eval_seconds": time.perf_counter() - t0},
+            "gaussians": int(result.gaussians),
+            "peak_memory_mb": result.peak_memory_mb,
+            "extra": result.extra,
+            **ev,
+        }
+        atomic_write_json(cell_dir / RESULT_FILE, _jsonable(record))
+        write_results_csv(self.run_dir)
+
+
+def _metrics_describe() -> dict:
+    import strings_bench.eval.metrics as metrics
+
+    return metrics.describe()
+
+
+# ---- results.csv ---------------------------------------------------------------------------------
+CSV_COLUMNS = [
+    "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
+    "train_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
+]
+
+
+def iter_cells(run_dir: str | Path) -> Iterable[dict]:
+    root = Path(run_dir) / "cells"
+    if not root.is_dir():
+        return
+    for p in sorted(root.glob(f"*/*/*/*/{RESULT_FILE}")):
+        try:
+            yield json.loads(p.read_text(encoding="utf-8"))
+        except ValueError as exc:
+            raise StringsBenchError(f"cell result {p} is unreadable: {exc}",
+                                    hint="delete that cell's folder and re-run to recompute it") from exc
+
+
+def cell_row(rec: dict) -> dict:
+    c = rec.get("cer") or {}
+    k = rec.get("cer_known")
+    ignored = c.get("ignored") or {}
+
+    def num(x):
+        return "" if x is None else x
+
+    return {
+        "method": rec["method"], "dataset": rec["dataset"], "scene": rec["scene"], "iteration": rec["iteration"],
+        "label": rec.get("label", iteration_label(rec["iteration"])),
+        "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
+        "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
+        "lpips": num(rec["metrics"].get("lpips")),
+        "train_seconds": num(rec["timings"].get("train_seconds")),
+        "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
+        "peak_memory_mb": num(rec.get("peak_memory_mb")),
+        "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
+        "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
+        "known_views": "" if not k else len(k.get("images") or {}),
+        "eval_seconds": num(rec["timings"].get("eval_seconds")),
+        "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
+        "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+    }
+
+
+def write_results_csv(run_dir: str | Path) -> Path:
+    rows = [cell_row(r) for r in iter_cells(run_dir)]
+    rows.sort(key=lambda r: (r["dataset"], r["scene"], r["method"], int(r["iteration"])))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return atomic_write_text(Path(run_dir) / RESULTS_CSV, buf.getvalue())
+
+
+# ---- the whole run ---------------------------------------------------------------------------------
+@dataclass
+class RunPlan:
+    run_dir: Path
+    jobs: list[Job]
+    manifest: dict
+
+    @property
+    def cells(self) -> list[CellKey]:
+        return [k for j in self.jobs for k in j.cells()]
+
+
+def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
+             ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None) -> RunPlan:
+    from strings_bench.datasets.registry import resolve_scenes
+    from strings_bench.methods.registry import get_method
+
+    if not methods:
+        raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
+    p = get_preset(preset)
+    specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
+    refs = resolve_scenes(datasets)
+    if not refs:
+        raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
+    ds = float(downscale if downscale is not None else p.downscale)
+    run_dir = Path(run_dir)
+    overrides = dict(method_overrides or {})
+    jobs = []
+    for m in methods:
+        spec = specs[m]
+        m_over = dict(overrides.get(m, {}))
+        if preset not in spec.presets and "steps_scale" in spec.defaults and "steps_scale" not in m_over:
+            m_over["steps_scale"] = p.steps_scale  # the method has no such preset: scale it like the run
+        adapter = spec.build(preset=preset if preset in spec.presets else None, **m_over)
+        # A method may carry its own schedule scale (its preset), else the run preset's applies.
+        steps_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
+        checkpoints = p.checkpoints(steps_scale)
+        fixed = getattr(adapter, "fixed_checkpoints", None)
+        if callable(fixed) and fixed():
+            checkpoints = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
+        labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
+        for ref in refs:
+            jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
+                            tuple(checkpoints), labels, preset, ds, ocr, m_over))
+    manifest = {
+        "preset": asdict(p), "downscale": ds, "ocr": ocr,
+        "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
+        "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
+        "datasets": datasets,
+    }
+    return RunPlan(run_dir, jobs, manifest)
+
+
+def check_manifest(run_dir: Path, manifest: dict) -> dict:
+    """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
+    path = run_dir / RUN_FILE
+    if not path.exists():
+        return manifest
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise StringsBenchError(f"{path} is unreadable: {exc}", hint="delete it, or use another --out folder") from exc
+    for k in ("downscale", "ocr"):
+        if old.get(k) != manifest.get(k):
+            raise StringsBenchError(
+                f"{run_dir} holds results made with {k}={old.get(k)!r}; this run asks for {manifest.get(k)!r}",
+                hint="use another --out folder, or the same settings to resume")
+    if (old.get("preset") or {}).get("name") != manifest["preset"]["name"]:
+        raise StringsBenchError(
+            f"{run_dir} holds results of preset {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
+            hint="use another --out folder (e.g. --out runs/paper), or the same preset to resume")
+    # A finished cell is skipped on resume, so cells trained with other --set values must not be
+    # taken for this run's (folders made before overrides were recorded carry no such entry).
+    old_over = old.get("method_overrides")
+    if old_over is not None:
+        for m, given in manifest.get("method_overrides", {}).items():
+            if m in old.get("methods", {}) and old_over.get(m, {}) != given:
+                raise StringsBenchError(
+                    f"{run_dir} holds {m} results made with settings {old_over.get(m, {})}; this run asks for {given}",
+                    hint="use another --out folder, or the same --set values to resume")
+    merged = dict(manifest)
+    merged["methods"] = {**old.get("methods", {}), **manifest["methods"]}
+    merged["method_overrides"] = {**(old_over or {}), **manifest.get("method_overrides", {})}
+    merged["datasets"] = list(dict.fromkeys(list(old.get("datasets", [])) + list(manifest["datasets"])))
+    return merged
+
+
+def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lpips: bool = True,
+            progress: bool = True, write_report: bool = True, lpips_at: str = "last") -> Path:
+    """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
+    run_dir = plan.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(run_dir / RUN_FILE, _jsonable({**check_manifest(run_dir, plan.manifest), "versions": versions()}))
+    cells = plan.cells
+    done = sum(is_finished(run_dir, k) for k in cells)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(cells), initial=done, desc="cells", unit="cell")
+
+    def on_cell(key: CellKey) -> None:
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"{key.method} {key.dataset}/{key.scene} @{key.iteration}")
+
+    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips, on_cell=on_cell,
+                    lpips_at=lpips_at)
+    ex = get_executor(executor, runner) if isinstance(executor, str) else executor
+    errors: list[tuple[Job, BaseException]] = []
+    try:
+        futures = [(job, ex.submit(job)) for job in plan.jobs if not all(is_finished(run_dir, k) for k in job.cells())]
+        for job, fut in futures:
+            exc = fut.exception()
+            if exc is not None:
+                errors.append((job, exc))
+                log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
+    finally:
+        if bar is not None:
+            bar.close()
+        write_results_csv(run_dir)
+    if write_report:
+        from strings_bench.bench.reports import write_report as _write_report
+
+        _write_report(run_dir)
+    if errors:
+        job, exc = errors[0]
+        if len(errors) == 1 and isinstance(exc, StringsBenchError):
+            raise exc
+        names = "; ".join(f"{j.method} on {j.dataset}/{j.scene}: {e}" for j, e in errors[:5])
+        raise StringsBenchError(f"{len(errors)} job(s) failed ({names})",
+                                hint="finished cells are kept; fix the cause and re-run the same command") from exc
+    return run_dir
+
+
+def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
+        ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
+        progress: bool = True, write_report: bool = True, ocr_backend=None,
+        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last") -> Path:
+    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
+    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides)
+    return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
+                   write_report=write_report, lpips_at=lpips_at)

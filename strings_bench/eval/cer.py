@@ -1,0 +1,417 @@
+"""OCR character error rate (OCR-CER) as the STRinGS authors compute it (REFERENCE.md section 3).
+
+Per image, with GT words = OCR of the masked ground-truth view and predicted words = OCR of the
+masked rendered view:
+
+1. A bipartite graph joins a GT word and a predicted word when their polygons have IoU >= 0.1.
+   Invalid polygons are repaired (shapely make_valid, then buffer(0)); polygons of zero area, fewer
+   than 3 points or non-finite coordinates never match.
+2. For every connected component holding a GT word, the GT texts and the predicted texts are each
+   normalised (profile "paper": NFC, lower case, all whitespace removed) and concatenated, each side
+   ordered by the mean x or the mean y of its polygons' vertices; the smallest Levenshtein distance
+   of the 4 combinations is the component's error. A GT word in no edge is its own component and
+   costs its length; components with only predicted words cost nothing (recall-based).
+3. Image CER = errors / GT characters (may exceed 1). Scene CER = total errors / total GT
+   characters over the images with GT text; images whose GT OCR found no text are left out, and
+   images where either OCR failed are left out; both are counted and named.
+
+`known_text_cer` scores OCR of a view against the known strings (synthetic scenes) with the same
+machinery, the known words taking the place of the GT OCR. Known words whose box is less than
+`min_text_height_px` tall (across the reading direction, at evaluation resolution; see
+`text_height_px`) are left out of it and counted separately: no OCR reads 4 px text, and the
+paper's CER is filtered the same way by construction (only what the GT OCR reads is scored).
+`known_scene_cer` is the per-scene figure with that filter.
+"""
+
+from __future__ import annotations
+
+import math
+import unicodedata
+from dataclasses import dataclass, field, replace
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import shapely
+from rapidfuzz.distance import Levenshtein
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.eval.ocr.base import Word
+
+IOU_THRESHOLD = 0.1
+# Legibility filter of the known-text CER (not of the paper's CER): known words lower than this many
+# pixels (across the reading direction, at evaluation resolution) are excluded and counted.
+# Chosen by measurement on the synthetic scenes' ground-truth views (docs/ocr.md).
+KNOWN_TEXT_MIN_HEIGHT_PX = 6.5
+
+
+# --------------------------------------------------------------------------- normalisation profiles
+@dataclass(frozen=True)
+class NormalizationProfile:
+    """How texts are made comparable before edit distances; recorded with every result."""
+
+    name: str
+    unicode_form: str | None = "NFC"  # NFC, NFKC, NFD, NFKD or None
+    case: str = "lower"  # "lower", "casefold" or "keep"
+    whitespace: str = "remove"  # "remove" (all Unicode whitespace) or "keep"
+
+    def __post_init__(self) -> None:
+        if self.unicode_form not in (None, "NFC", "NFKC", "NFD", "NFKD"):
+            raise StringsBenchError(f"profile {self.name!r}: unknown Unicode form {self.unicode_form!r}", hint="use NFC, NFKC, NFD, NFKD or None")
+        if self.case not in ("lower", "casefold", "keep"):
+            raise StringsBenchError(f"profile {self.name!r}: unknown case rule {self.case!r}", hint="use lower, casefold or keep")
+        if self.whitespace not in ("remove", "keep"):
+            raise StringsBenchError(f"profile {self.name!r}: unknown whitespace rule {self.whitespace!r}", hint="use remove or keep")
+
+    def normalize(self, text: str) -> str:
+        if self.unicode_form:
+            text = unicodedata.normalize(self.unicode_form, text)
+        if self.case == "lower":
+            text = text.lower()
+        elif self.case == "casefold":
+            text = text.casefold()
+        if self.unicode_form and self.case != "keep":
+            text = unicodedata.normalize(self.unicode_form, text)  # case mapping can decompose (e.g. "İ")
+        if self.whitespace == "remove":
+            text = "".join(text.split())
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "unicode_form": self.unicode_form, "case": self.case, "whitespace": self.whitespace}
+
+
+PROFILES: dict[str, NormalizationProfile] = {
+    # The authors: lower-case, spaces removed. NFC makes composed and decomposed accents equal.
+    "paper": NormalizationProfile("paper", "NFC", "lower", "remove"),
+    "case-sensitive": NormalizationProfile("case-sensitive", "NFC", "keep", "remove"),
+    "nfkc-casefold": NormalizationProfile("nfkc-casefold", "NFKC", "casefold", "remove"),
+}
+
+
+def get_profile(profile: str | NormalizationProfile) -> NormalizationProfile:
+    if isinstance(profile, NormalizationProfile):
+        return profile
+    if profile not in PROFILES:
+        raise StringsBenchError(f"unknown normalisation profile {profile!r}", hint=f"choose one of: {', '.join(PROFILES)}")
+    return PROFILES[profile]
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class ComponentMatch:
+    """One connected component with GT words: which words, the texts compared and the edit count."""
+
+    gt: tuple[int, ...]
+    pred: tuple[int, ...]
+    gt_text: str
+    pred_text: str
+    errors: int
+
+
+@dataclass(frozen=True)
+class ImageCER:
+    errors: int
+    chars: int
+    components: tuple[ComponentMatch, ...] = ()
+
+    @property
+    def cer(self) -> float:
+        return self.errors / self.chars if self.chars else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"errors": self.errors, "chars": self.chars, "cer": _json_float(self.cer)}
+
+
+@dataclass(frozen=True)
+class SceneCER:
+    """Character-weighted CER of a set of images; `images` holds only the scored ones.
+
+    `ignored_empty_gt` and `ignored_failed` name the images left out (GT OCR found no text; an OCR
+    failed on the GT or the rendered view). `cer` is NaN when nothing could be scored.
+    """
+
+    errors: int
+    chars: int
+    cer: float
+    images: dict[str, ImageCER] = field(default_factory=dict)
+    ignored_empty_gt: tuple[str, ...] = ()
+    ignored_failed: tuple[str, ...] = ()
+    profile: dict[str, Any] = field(default_factory=dict)
+    iou_threshold: float = IOU_THRESHOLD
+    # Known-text CER only: the legibility filter and what it left out (None: no filter applied).
+    legibility: dict[str, Any] | None = None
+
+    @property
+    def n_ignored_empty_gt(self) -> int:
+        return len(self.ignored_empty_gt)
+
+    @property
+    def n_ignored_failed(self) -> int:
+        return len(self.ignored_failed)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "errors": self.errors,
+            "chars": self.chars,
+            "cer": _json_float(self.cer),
+            "images": {name: r.to_dict() for name, r in self.images.items()},
+            "ignored": {"empty_gt": list(self.ignored_empty_gt), "failed": list(self.ignored_failed)},
+            "profile": dict(self.profile),
+            "iou_threshold": self.iou_threshold,
+            **({} if self.legibility is None else {"legibility": dict(self.legibility)}),
+        }
+
+
+def _json_float(x: float) -> float | None:
+    return None if math.isnan(x) else float(x)
+
+
+# --------------------------------------------------------------------------- geometry
+def _polygonal_part(geom: Any) -> Any:
+    if geom is None or geom.is_empty:
+        return None
+    if isinstance(geom, (shapely.Polygon, shapely.MultiPolygon)):
+        return geom
+    if isinstance(geom, shapely.GeometryCollection):
+        parts = [g for g in geom.geoms if isinstance(g, (shapely.Polygon, shapely.MultiPolygon))]
+        return shapely.union_all(parts) if parts else None
+    return None  # a line or point: no area
+
+
+def polygon_geometry(polygon: Any) -> Any:
+    """A valid shapely area for a word polygon, or None when it has no area (it then never matches)."""
+    pts = np.asarray(polygon, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3 or not np.all(np.isfinite(pts)):
+        return None
+    geom = shapely.Polygon(pts)
+    if not geom.is_valid:
+        geom = _polygonal_part(shapely.make_valid(geom))
+        if geom is not None and not geom.is_valid:
+            geom = _polygonal_part(geom.buffer(0))
+    if geom is None or geom.is_empty or not geom.area > 0:
+        return None
+    return geom
+
+
+def iou_edges(gt_geoms: Sequence[Any], pred_geoms: Sequence[Any], threshold: float = IOU_THRESHOLD) -> list[tuple[int, int]]:
+    """(gt index, pred index) pairs with IoU >= threshold; None geometries never match."""
+    gi = [i for i, g in enumerate(gt_geoms) if g is not None]
+    pi = [j for j, g in enumerate(pred_geoms) if g is not None]
+    if not gi or not pi:
+        return []
+    g_arr = np.array([gt_geoms[i] for i in gi], dtype=object)
+    p_arr = np.array([pred_geoms[j] for j in pi], dtype=object)
+    # Candidate pairs from an R-tree; IoU > 0 needs intersecting boxes at least.
+    qa, qb = shapely.STRtree(p_arr).query(g_arr, predicate="intersects")
+    if len(qa) == 0:
+        return []
+    inter = shapely.area(shapely.intersection(g_arr[qa], p_arr[qb]))
+    union = shapely.area(g_arr[qa]) + shapely.area(p_arr[qb]) - inter
+    iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+    keep = iou >= threshold
+    return sorted((gi[a], pi[b]) for a, b in zip(qa[keep], qb[keep]))
+
+
+# --------------------------------------------------------------------------- scoring
+def _as_word(w: Any) -> Word:
+    if isinstance(w, Word):
+        return w
+    if isinstance(w, Mapping):
+        return Word.from_dict(w)
+    if isinstance(w, (tuple, list)) and len(w) >= 2:
+        return Word(w[0], w[1], w[2] if len(w) > 2 else 1.0)
+    raise StringsBenchError(f"cannot read {w!r:.100} as an OCR word", hint="give Word objects, dicts with text/polygon, or (text, polygon) pairs")
+
+
+def _mean_xy(w: Word) -> tuple[float, float]:
+    if w.polygon.size == 0:
+        return 0.0, 0.0
+    m = w.polygon.mean(axis=0)
+    return float(m[0]), float(m[1])
+
+
+def image_cer(
+    gt_words: Iterable[Any],
+    pred_words: Iterable[Any],
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+) -> ImageCER:
+    """Errors and GT characters of one image (recall-based, component-wise; see the module doc)."""
+    prof = get_profile(profile)
+    gt = [_as_word(w) for w in gt_words]
+    pred = [_as_word(w) for w in pred_words]
+    gt_text = [prof.normalize(w.text) for w in gt]
+    pred_text = [prof.normalize(w.text) for w in pred]
+    chars = sum(len(t) for t in gt_text)
+    n, m = len(gt), len(pred)
+    if n == 0:
+        return ImageCER(0, 0, ())
+    edges = iou_edges([polygon_geometry(w.polygon) for w in gt], [polygon_geometry(w.polygon) for w in pred], iou_threshold)
+    rows = [a for a, _ in edges]
+    cols = [n + b for _, b in edges]
+    graph = coo_matrix((np.ones(len(edges)), (rows, cols)), shape=(n + m, n + m))
+    _, labels = connected_components(graph, directed=False)
+    gt_centres = [_mean_xy(w) for w in gt]
+    pred_centres = [_mean_xy(w) for w in pred]
+    total = 0
+    comps: list[ComponentMatch] = []
+    members: dict[int, tuple[list[int], list[int]]] = {}
+    for i in range(n):
+        members.setdefault(int(labels[i]), ([], []))[0].append(i)
+    for j in range(m):
+        if int(labels[n + j]) in members:  # predicted words outside GT components cost nothing
+            members[int(labels[n + j])][1].append(j)
+    for g_idx, p_idx in members.values():  # components holding at least one GT word
+        best: tuple[int, str, str] | None = None
+        for g_axis in (0, 1):
+            g_sorted = sorted(g_idx, key=lambda i: (gt_centres[i][g_axis], i))
+            g_str = "".join(gt_text[i] for i in g_sorted)
+            for p_axis in (0, 1):
+                p_sorted = sorted(p_idx, key=lambda j: (pred_centres[j][p_axis], j))
+                p_str = "".join(pred_text[j] for j in p_sorted)
+                d = Levenshtein.distance(g_str, p_str)
+                if best is None or d < best[0]:
+                    best = (d, g_str, p_str)
+        assert best is not None
+        total += best[0]
+        comps.append(ComponentMatch(tuple(g_idx), tuple(p_idx), best[1], best[2], best[0]))
+    return ImageCER(total, chars, tuple(comps))
+
+
+def text_height_px(polygon: Any) -> float:
+    """Height of a word's box across its reading direction, in pixels (NaN without a usable box).
+
+    4-point boxes are taken in reading order (top-left, top-right, bottom-right, bottom-left as
+    read): height = area / mean length of the top and bottom edges, i.e. the perpendicular
+    distance between them, so a box sheared or foreshortened by perspective is as tall as its
+    glyphs really are on screen. Other polygons: the short side of their minimum rotated rectangle.
+    """
+    geom = polygon_geometry(polygon)
+    if geom is None:
+        return math.nan
+    pts = np.asarray(polygon, dtype=np.float64)
+    if pts.shape == (4, 2):
+        base = 0.5 * (np.linalg.norm(pts[1] - pts[0]) + np.linalg.norm(pts[2] - pts[3]))
+        return float(geom.area / base) if base > 0 else math.nan
+    rect = np.asarray(shapely.minimum_rotated_rectangle(geom).exterior.coords)[:4]
+    sides = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
+    return float(sides.min())
+
+
+def split_legible(
+    known_words: Iterable[Any], min_text_height_px: float
+) -> tuple[list[Word], list[Word]]:
+    """(legible, excluded) known words: excluded = box lower than min_text_height_px (or no usable box)."""
+    legible: list[Word] = []
+    excluded: list[Word] = []
+    for w in (_as_word(k) for k in known_words):
+        h = text_height_px(w.polygon)
+        (legible if min_text_height_px <= 0 or (not math.isnan(h) and h >= min_text_height_px) else excluded).append(w)
+    return legible, excluded
+
+
+def known_text_cer(
+    known_words: Iterable[Any],
+    predicted_words: Iterable[Any],
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+    min_text_height_px: float = 0.0,
+) -> ImageCER:
+    """CER of OCR output against the known strings of a view (synthetic scenes), same matching.
+
+    Known words lower than `min_text_height_px` (see `text_height_px`) are left out; 0 keeps all.
+    `known_scene_cer` also counts what was left out.
+    """
+    legible, _ = split_legible(known_words, min_text_height_px)
+    return image_cer(legible, predicted_words, profile=profile, iou_threshold=iou_threshold)
+
+
+def known_scene_cer(
+    per_image: Mapping[str, tuple[Iterable[Any] | None, Iterable[Any] | None]],
+    min_text_height_px: float = KNOWN_TEXT_MIN_HEIGHT_PX,
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+) -> SceneCER:
+    """Known-text CER of a scene: `scene_cer` over {name: (known words, OCR words or None)} after the
+    legibility filter. The result's `legibility` records the threshold and the words and characters
+    excluded (those of images whose OCR failed included); views left with no legible word are
+    named in `ignored_empty_gt`.
+    """
+    if not (math.isfinite(min_text_height_px) and min_text_height_px >= 0):
+        raise StringsBenchError(f"min_text_height_px must be a number >= 0, got {min_text_height_px!r}",
+                                hint=f"0 keeps every known word; the default is {KNOWN_TEXT_MIN_HEIGHT_PX}")
+    prof = get_profile(profile)
+    filtered: dict[str, tuple[Any, Any]] = {}
+    excl_words = excl_chars = 0
+    for name, pair in per_image.items():
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise StringsBenchError(f"known_scene_cer: entry {name!r} is not a (known_words, pred_words) pair",
+                                    hint="pass None for a failed OCR")
+        known, pred = pair
+        if known is None:
+            filtered[name] = (None, pred)
+            continue
+        legible, excluded = split_legible(known, min_text_height_px)
+        excl_words += len(excluded)
+        excl_chars += sum(len(prof.normalize(w.text)) for w in excluded)
+        filtered[name] = (legible, pred)
+    res = scene_cer(filtered, profile=prof, iou_threshold=iou_threshold)
+    legibility = {
+        "min_text_height_px": float(min_text_height_px),
+        "height": "box height across the reading direction at evaluation resolution (cer.text_height_px)",
+        "excluded_words": excl_words,
+        "excluded_chars": excl_chars,
+    }
+    return replace(res, legibility=legibility)
+
+
+def scene_cer(
+    per_image: Mapping[str, tuple[Iterable[Any] | None, Iterable[Any] | None]],
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+) -> SceneCER:
+    """Character-weighted CER over images: {name: (gt words or None on OCR failure, pred words or None)}.
+
+    An image with a failed GT OCR, or with GT words but a failed rendered-view OCR, is left out and
+    named in `ignored_failed`; an image whose GT has no characters is left out and named in
+    `ignored_empty_gt`. Never is a failure scored as 0.
+    """
+    prof = get_profile(profile)
+    images: dict[str, ImageCER] = {}
+    empty: list[str] = []
+    failed: list[str] = []
+    for name in sorted(per_image):
+        pair = per_image[name]
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise StringsBenchError(f"scene_cer: entry {name!r} is not a (gt_words, pred_words) pair", hint="pass None for a failed OCR")
+        gt, pred = pair
+        if gt is None:
+            failed.append(name)
+            continue
+        gt = [_as_word(w) for w in gt]
+        if sum(len(prof.normalize(w.text)) for w in gt) == 0:
+            empty.append(name)
+            continue
+        if pred is None:
+            failed.append(name)
+            continue
+        images[name] = image_cer(gt, pred, prof, iou_threshold)
+    errors = sum(r.errors for r in images.values())
+    chars = sum(r.chars for r in images.values())
+    return SceneCER(
+        errors=errors,
+        chars=chars,
+        cer=errors / chars if chars else math.nan,
+        images=images,
+        ignored_empty_gt=tuple(empty),
+        ignored_failed=tuple(failed),
+        profile=prof.to_dict(),
+        iou_threshold=iou_threshold,
+    )
+
+
+def dataset_cer(scenes: Mapping[str, SceneCER]) -> float:
+    """A dataset's figure: the plain mean of its scenes' CERs (scenes with nothing scored are skipped)."""
+    values = [s.cer for s in scenes.values() if not math.isnan(s.cer)]
+    return float(np.mean(values)) if values else math.nan

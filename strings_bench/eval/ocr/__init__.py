@@ -1,0 +1,93 @@
+"""OCR backends behind one interface, with an on-disk result cache.
+
+    from strings_bench.eval.ocr import get_backend
+    ocr = get_backend("rapidocr")            # local default; also "tesseract", "gcv"
+    words = ocr.read(image, mask=text_mask)  # list[Word]; raises OCRError on failure
+    ocr.describe()                           # name, version, settings: store with results
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from typing import Any
+
+# First: ONNX Runtime writes a telemetry id under ~/.cache/Microsoft when imported unless told not to.
+from strings_bench.eval.ocr import _ort_guard  # noqa: F401  isort: skip
+
+from strings_bench.core.errors import OCRError  # noqa: E402
+from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, apply_mask, load_image, load_mask  # noqa: E402
+from strings_bench.eval.ocr.cache import OCRCache  # noqa: E402
+
+__all__ = [
+    "BackendStatus",
+    "OCRBackend",
+    "OCRCache",
+    "OCRError",
+    "Word",
+    "apply_mask",
+    "available_backends",
+    "backend_class",
+    "get_backend",
+    "load_image",
+    "load_mask",
+    "BACKENDS",
+]
+
+# name -> "module:Class"; modules are imported on first use so that listing backends stays cheap.
+BACKENDS: dict[str, str] = {
+    "rapidocr": "strings_bench.eval.ocr.rapid:RapidOCRBackend",
+    "tesseract": "strings_bench.eval.ocr.tesseract:TesseractBackend",
+    "gcv": "strings_bench.eval.ocr.gcv:GoogleVisionBackend",
+}
+ALIASES = {"rapid": "rapidocr", "google": "gcv", "google-vision": "gcv", "tess": "tesseract"}
+
+_instances: dict[str, OCRBackend] = {}
+_lock = threading.Lock()
+
+
+def backend_class(name: str) -> type[OCRBackend]:
+    import importlib
+
+    key = ALIASES.get(name.lower(), name.lower())
+    if key not in BACKENDS:
+        raise OCRError(f"unknown OCR backend {name!r}", hint=f"choose one of: {', '.join(BACKENDS)}")
+    module, cls = BACKENDS[key].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def get_backend(name: str = "rapidocr", cache: bool | OCRCache = True, **settings: Any) -> OCRBackend:
+    """A backend by name, reused within the process for the same arguments.
+
+    cache=True stores results under cache_root()/ocr; pass an OCRCache to use another folder, or
+    False for none. Other keyword arguments are the backend's settings or runtime options (e.g.
+    threads, timeout, api_key); unknown names raise OCRError.
+    """
+    cls = backend_class(name)
+    cache_obj = OCRCache() if cache is True else (cache or None)
+    # The memo key holds no secret in clear: api_key is hashed.
+    memo_settings = dict(settings)
+    if "api_key" in memo_settings and memo_settings["api_key"]:
+        import hashlib
+
+        memo_settings["api_key"] = hashlib.sha256(str(memo_settings["api_key"]).encode()).hexdigest()
+    memo = json.dumps(
+        [cls.name, str(cache_obj.root) if cache_obj is not None else None, memo_settings], sort_keys=True, default=str
+    )
+    with _lock:
+        backend = _instances.get(memo)
+        if backend is None:
+            backend = cls(cache=cache_obj, **settings)
+            _instances[memo] = backend
+        return backend
+
+
+def available_backends() -> dict[str, BackendStatus]:
+    """name -> BackendStatus(available, detail): the version when usable, otherwise why not."""
+    out = {}
+    for name in BACKENDS:
+        try:
+            out[name] = backend_class(name).status()
+        except Exception as exc:  # a broken install is "not available", not a crash
+            out[name] = BackendStatus(name, False, f"{type(exc).__name__}: {exc}")
+    return out

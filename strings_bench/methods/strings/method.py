@@ -1,0 +1,310 @@
+"""STRinGS (WACV 2026): two-phase, text-first training of 3D Gaussian Splatting.
+
+Phase 1 (steps 1..T1): text Gaussians only (SfM points that Algorithm 1 marks as text, densified
+once by visibility, Eq. 1), trained on the views whose text mask is non-empty with a masked L1
+loss and the position learning rate locked at 0; the standard 3DGS densification keeps running.
+Phase 2 (T1+1..end): the non-text SfM points are initialised as in 3DGS and joined to the refined
+text Gaussians; standard 3DGS loss and densification; position LR = eta_r(t) * eta_opt(t) with
+eta_opt the 3DGS schedule shifted by T1 and eta_r = alpha (non-text) or
+alpha / (1 + exp(-beta (t - gamma))) (text). See docs/strings.md for settings and choices.
+
+Registered method names: "strings", and the paper's ablations "strings-no-densify" (no text
+densification) and "strings-pos-lr" (3DGS position LR in phase 1 instead of 0).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Iterator
+
+import numpy as np
+import torch
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.methods.registry import MethodSpec, register_method
+
+if TYPE_CHECKING:
+    from strings_bench.scene.scene import Scene
+    from strings_bench.methods.strings.segmentation import TextSegmentation
+
+log = logging.getLogger(__name__)
+
+PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
+
+
+@dataclass(frozen=True)
+class StringsSettings:
+    """STRinGS-specific settings (iteration numbers nominal, for the 30 000-step schedule)."""
+
+    t1: int = 3000  # length of phase 1
+    alpha: float = 0.5
+    beta: float = 0.0005
+    gamma: float = 15000  # paper; the release uses 12000
+    tau: int = 1  # text point: mask hits >= tau
+    n_max: int | None = None  # None: scene.settings["n_max"], else 15
+    equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
+    text_densify: bool = True  # False = ablation "without text densification"
+    max_text_gaussians: int = 10_000_000
+    phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
+    # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
+    # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
+    # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
+    # Gaussians at the first refinement of phase 2 (measured on synthetic/books), see docs/strings.md.
+    phase2_schedules: str = "restart"
+    mask_source: str = "dataset"
+    mask_dilation_fraction: float = 0.05
+    mask_dilation_px: float | None = None
+    mask_ocr_backend: str = "rapidocr"
+    segmentation_downscale: float | None = None  # None: the training downscale
+
+    def __post_init__(self):
+        if self.phase2_schedules not in ("global", "restart"):
+            raise StringsBenchError(f"phase2_schedules must be 'global' or 'restart', got {self.phase2_schedules!r}")
+        if self.t1 < 0:
+            raise StringsBenchError(f"t1 must be >= 0, got {self.t1}")
+        if self.phase1_position_lr < 0:
+            raise StringsBenchError(f"phase1_position_lr must be >= 0, got {self.phase1_position_lr}")
+
+    def mask_settings(self):
+        from strings_bench.methods.strings.masks import MaskSettings
+
+        return MaskSettings(source=self.mask_source, dilation_fraction=self.mask_dilation_fraction,
+                            dilation_px=self.mask_dilation_px, ocr_backend=self.mask_ocr_backend)
+
+
+def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> float:
+    """eta_r(t) for text Gaussians: alpha / (1 + exp(-beta (t - gamma))), overflow-safe."""
+    x = -beta * (step - gamma)
+    if x > 700:
+        return 0.0
+    return alpha / (1.0 + math.exp(x))
+
+
+def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
+    from strings_bench.methods.strings.densify import DEFAULT_N_MAX
+
+    if st.n_max is not None:
+        return int(st.n_max)
+    return int((scene.settings or {}).get("n_max", DEFAULT_N_MAX))
+
+
+# ---- the trainer ---------------------------------------------------------------------------------
+def _trainer_base():
+    from strings_bench.engine.trainer import Trainer
+
+    return Trainer
+
+
+class StringsTrainer(_trainer_base()):
+    """Trainer with STRinGS' two phases, built on the engine's hooks."""
+
+    def __init__(self, scene: "Scene", config, strategy, st: StringsSettings, masks: dict[int, np.ndarray],
+                 segmentation: "TextSegmentation", preprocess_seconds: float = 0.0):
+        super().__init__(scene, config, strategy)
+        self.st = st
+        self.masks = masks
+        self.segmentation = segmentation
+        self.preprocess_seconds = float(preprocess_seconds)
+        self.t1 = self.at(st.t1)
+        self.n_max = resolve_n_max(st, scene)
+        self.text_views = [i for i in scene.train_idx if i in masks and masks[i].any()]
+        self.fallback = None
+        if segmentation.num_text == 0:
+            self.fallback = "no_text_points"
+            log.warning("STRinGS: no SfM point of scene %s lands in a text mask (%d points, %d views with text); "
+                        "training plain 3DGS instead (result extra['fallback'] = 'no_text_points')",
+                        scene.name, scene.model.num_points, len(self.text_views))
+        elif not self.text_views:  # masks too coarse at the training resolution to keep any text pixel
+            log.warning("STRinGS: scene %s has text points but no training mask is non-empty at downscale %s; "
+                        "phase 1 uses every training view", scene.name, config.downscale)
+            self.text_views = list(scene.train_idx)
+        self.phase = 2 if self.fallback else 1
+        self.densify_stats: dict = {}
+        self._mask_tensors: dict[int, torch.Tensor] = {}
+
+    # ---- phases --------------------------------------------------------------------------------
+    def in_phase1(self, step: int) -> bool:
+        return self.fallback is None and step <= self.t1
+
+    def initial_model(self, scene: "Scene"):
+        from strings_bench.engine.gaussians import GaussianModel
+        from strings_bench.methods.strings.densify import densification_factors, densify_text_model
+
+        if self.fallback:
+            model = super().initial_model(scene)
+            model.extras["is_text"] = torch.zeros(len(model), dtype=torch.bool, device=model.device)
+            return model
+        is_text = self.segmentation.is_text
+        sfm = scene.model
+        model = GaussianModel.from_points(sfm.xyz[is_text], sfm.rgb[is_text], sh_degree=self.config.sh_degree,
+                                          init_opacity=self.config.init_opacity, device=self.device,
+                                          extras={"is_text": torch.ones(int(is_text.sum()), dtype=torch.bool)})
+        n0 = len(model)
+        if self.st.text_densify:
+            factors = densification_factors(sfm.visibility_counts()[is_text], self.n_max, self.st.equal_counts)
+            gen = torch.Generator(device="cpu").manual_seed(self.config.seed)
+            densify_text_model(model, factors, gen, max_gaussians=self.st.max_text_gaussians)
+        self.densify_stats = {"text_points": n0, "text_gaussians_after_densify": len(model), "n_max": self.n_max}
+        return model
+
+    def _start_phase2(self) -> None:
+        from strings_bench.engine.gaussians import GaussianModel
+
+        self.phase = 2
+        sfm = self.scene.model
+        non_text = ~self.segmentation.is_text
+        if not non_text.any():
+            return
+        extra = GaussianModel.from_points(sfm.xyz[non_text], sfm.rgb[non_text], sh_degree=self.config.sh_degree,
+                                          init_opacity=self.config.init_opacity, device=self.device,
+                                          extras={"is_text": torch.zeros(int(non_text.sum()), dtype=torch.bool)})
+        # A fresh optimizer and strategy state for the joined model, as a new training setup would.
+        self.set_model(GaussianModel.concat([self.model, extra]))
+
+    def on_step_start(self, step: int) -> None:
+        if self.phase == 1 and step > self.t1:
+            self._start_phase2()
+
+    def train_views(self) -> list[int]:
+        if self.phase == 1:
+            return self.text_views
+        return super().train_views()
+
+    def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
+        if self.in_phase1(step):
+            m = self._mask_tensor(view_idx)
+            return (gt * m - out.color * m).abs().mean()  # mean over the whole image, no SSIM
+        return super().loss(out, gt, view_idx, step)
+
+    def _mask_tensor(self, view_idx: int) -> torch.Tensor:
+        if view_idx not in self._mask_tensors:
+            self._mask_tensors[view_idx] = torch.from_numpy(
+                np.asarray(self.masks[view_idx], dtype=np.float32))[:, :, None].to(self.device)
+        return self._mask_tensors[view_idx]
+
+    # ---- learning rates ---------------------------------------------------------------------------
+    def base_position_lr(self, step: float) -> float:
+        from strings_bench.engine.optim import exponential_lr
+
+        lrs = self.config.lrs
+        return exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
+                              self.at(self.config.position_lr_steps))
+
+    def position_lr(self, step: int) -> float:
+        if self.fallback:
+            return super().position_lr(step)
+        if self.in_phase1(step):
+            return self.st.phase1_position_lr * self.base_position_lr(step)
+        return self.base_position_lr(step - self.t1)  # eta_opt: the 3DGS schedule shifted by T1
+
+    def lr_factors(self, step: int) -> tuple[float, float]:
+        """(eta_r for text, eta_r for non-text) at actual step `step` (phase 2)."""
+        s = self.config.steps_scale
+        text = text_lr_factor(step, self.st.alpha, self.st.beta / s, self.st.gamma * s)
+        return text, float(self.st.alpha)
+
+    def position_lr_scale(self, step: int):
+        if self.fallback or self.in_phase1(step):
+            return None
+        text, non_text = self.lr_factors(step)
+        is_text = self.model.extras["is_text"]
+        return torch.where(is_text, torch.tensor(text, device=self.device), torch.tensor(non_text, device=self.device))
+
+    # ---- schedules ------------------------------------------------------------------------------
+    def _schedule_step(self, step: int) -> int:
+        if self.st.phase2_schedules == "restart" and not self.fallback and step > self.t1:
+            return step - self.t1
+        return step
+
+    def strategy_step(self, step: int) -> int:
+        return self._schedule_step(step)
+
+    def sh_degree_for_step(self, step: int) -> int:
+        return super().sh_degree_for_step(self._schedule_step(step))
+
+    def checkpoint_extra(self, step: int) -> dict:
+        extra = {
+            "phase": self.phase,
+            "t1_steps": self.t1,
+            "text_gaussians": int(self.model.extras["is_text"].sum()),
+            "sfm_points": int(self.scene.model.num_points),
+            "text_points": int(self.segmentation.num_text),
+            "text_views": len(self.text_views),
+            "preprocess_seconds": self.preprocess_seconds,
+            **self.densify_stats,
+        }
+        if self.fallback:
+            extra["fallback"] = self.fallback
+        return extra
+
+
+# ---- the adapter ---------------------------------------------------------------------------------
+class StringsMethod(MethodAdapter):
+    """Settings: StringsSettings fields, plus everything `trainer.config_from_settings` takes
+    (TrainConfig fields, lr_<group>, DefaultStrategy fields), flat, as for 3dgs."""
+
+    name = "strings"
+    paper = PAPER
+
+    def _split(self, checkpoints, downscale):
+        from strings_bench.engine.trainer import config_from_settings
+
+        known_st = {f.name for f in fields(StringsSettings)}
+        st = StringsSettings(**{k: v for k, v in self.settings.items() if k in known_st})
+        rest = {k: v for k, v in self.settings.items() if k not in known_st and k != "checkpoints"}
+        # Checkpoints are the steps actually run (runner and trainer convention).
+        config, strategy = config_from_settings(rest, checkpoints, downscale)
+        return st, config, strategy
+
+    def build_trainer(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> StringsTrainer:
+        from strings_bench.methods.strings.masks import text_masks
+        from strings_bench.methods.strings.segmentation import segment_text_points
+
+        st, config, strategy = self._split(checkpoints, downscale)
+        t0 = time.perf_counter()
+        mask_settings = st.mask_settings()
+        masks = text_masks(scene, scene.train_idx, downscale, mask_settings)
+        seg_ds = st.segmentation_downscale or downscale
+        seg_masks = masks if seg_ds == downscale else text_masks(scene, scene.train_idx, seg_ds, mask_settings)
+        seg = segment_text_points(scene, seg_masks, seg_ds, st.tau)
+        return StringsTrainer(scene, config, strategy, st, masks, seg, preprocess_seconds=time.perf_counter() - t0)
+
+    def train(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> Iterator[CheckpointResult]:
+        yield from self.build_trainer(scene, checkpoints, downscale).train()
+
+
+# ---- registration ----------------------------------------------------------------------------------
+def _presets() -> dict[str, dict]:
+    from strings_bench.core.schedules import schedule_presets
+
+    presets = schedule_presets()
+    presets["release"] = {"steps_scale": 1.0, "gamma": 12000, "mask_dilation_px": 225.0,
+                          "phase2_schedules": "restart"}
+    return presets
+
+
+DEFAULTS = {"steps_scale": 1.0}
+
+register_method(MethodSpec(
+    name="strings", factory=StringsMethod, paper=PAPER, defaults=dict(DEFAULTS), presets=_presets(),
+    description="STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
+                "masked phase-1 loss, region-dependent position LR)"))
+
+
+def _ablation(name: str, desc: str, **settings) -> None:
+    def make(**given):
+        m = StringsMethod(**{**given, **settings})
+        m.name = name
+        return m
+    register_method(MethodSpec(name=name, factory=make, paper=PAPER, defaults=dict(DEFAULTS), presets=_presets(),
+                               description=desc))
+
+
+_ablation("strings-no-densify", "STRinGS ablation: without the one-time text densification (Eq. 1)",
+          text_densify=False)
+_ablation("strings-pos-lr", "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1",
+          phase1_position_lr=1.0)

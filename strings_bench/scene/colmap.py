@@ -1,0 +1,306 @@
+"""COLMAP models in and out, through pycolmap.
+
+Reading gives plain arrays (cameras per image, points, tracks) so that the rest of the suite never
+touches pycolmap objects. PINHOLE and SIMPLE_PINHOLE cameras are used directly; distorted models
+are refused with the command that undistorts them (`strings-bench prepare` or COLMAP's
+image_undistorter).
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from strings_bench.scene.camera import Camera
+from strings_bench.core.errors import DatasetError
+
+log = logging.getLogger(__name__)
+
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
+MODEL_FILES = ("cameras", "images", "points3D")
+
+
+@dataclass
+class ColmapModel:
+    """A COLMAP reconstruction as arrays.
+
+    Views are sorted by image name. Tracks are stored compressed: the observations of point i are
+    `track_view[track_ptr[i]:track_ptr[i+1]]` (indices into `cameras`) with pixel positions
+    `track_xy[...]` at full resolution.
+    """
+
+    cameras: list[Camera]  # one per registered image, sorted by name; Camera.name = image name
+    xyz: np.ndarray  # (M, 3) float64
+    rgb: np.ndarray  # (M, 3) uint8
+    track_ptr: np.ndarray  # (M + 1,) int64
+    track_view: np.ndarray  # (T,) int32
+    track_xy: np.ndarray  # (T, 2) float64
+    point_ids: np.ndarray  # (M,) int64, COLMAP point3D ids
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    @property
+    def num_points(self) -> int:
+        return int(self.xyz.shape[0])
+
+    def visibility_counts(self) -> np.ndarray:
+        return np.diff(self.track_ptr)
+
+
+def find_model_dir(path: str | Path) -> Path:
+    """Accept a scene folder (with sparse/0 or sparse/) or the model folder itself."""
+    path = Path(path)
+    for cand in (path, path / "sparse" / "0", path / "sparse"):
+        if cand.is_dir() and any((cand / f"{n}{ext}").exists() for n in MODEL_FILES for ext in (".bin", ".txt")):
+            return cand
+    raise DatasetError(
+        f"no COLMAP model found in {path} (looked for cameras/images/points3D .bin or .txt in "
+        f"{path}, {path / 'sparse' / '0'} and {path / 'sparse'})",
+        hint="a scene folder needs images/ and sparse/0/; run `strings-bench prepare PHOTOS_DIR --name NAME` "
+        "to make one from photos",
+    )
+
+
+def _check_model_files(model_dir: Path) -> None:
+    for ext in (".bin", ".txt"):
+        present = [n for n in MODEL_FILES if (model_dir / f"{n}{ext}").exists()]
+        if len(present) == len(MODEL_FILES):
+            return
+        if present:
+            missing = [f"{n}{ext}" for n in MODEL_FILES if n not in present]
+            raise DatasetError(
+                f"COLMAP model in {model_dir} is incomplete: missing {', '.join(missing)}",
+                hint="copy the complete sparse/0 folder written by COLMAP",
+            )
+    raise DatasetError(f"no COLMAP model files in {model_dir}", hint="expected cameras, images and points3D (.bin or .txt)")
+
+
+def _camera_intrinsics(cam, model_dir: Path) -> tuple[float, float, float, float]:
+    model = cam.model.name
+    p = np.asarray(cam.params, dtype=np.float64)
+    if model == "PINHOLE":
+        return float(p[0]), float(p[1]), float(p[2]), float(p[3])
+    if model == "SIMPLE_PINHOLE":
+        return float(p[0]), float(p[0]), float(p[1]), float(p[2])
+    raise DatasetError(
+        f"camera {cam.camera_id} in {model_dir} uses the distorted model {model}; the suite needs "
+        f"undistorted PINHOLE or SIMPLE_PINHOLE cameras",
+        hint="undistort first: `strings-bench prepare` does it, or run `colmap image_undistorter "
+        "--image_path images --input_path sparse/0 --output_path undistorted --output_type COLMAP`",
+    )
+
+
+def read_model(path: str | Path) -> ColmapModel:
+    """Read a binary or text COLMAP model (scene folder or model folder)."""
+    import pycolmap
+
+    model_dir = find_model_dir(path)
+    _check_model_files(model_dir)
+    # pycolmap can spend minutes on a truncated .bin before failing without naming the file;
+    # a record-by-record walk of the binary layout names the file and the record at once.
+    problems = diagnose_binary_model(model_dir)
+    if problems:
+        raise DatasetError("corrupt COLMAP model: " + "; ".join(problems),
+                           hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified")
+    try:
+        rec = pycolmap.Reconstruction(str(model_dir))
+    except Exception as exc:  # pycolmap raises ValueError/IndexError/MemoryError on corrupt files
+        raise DatasetError(
+            f"cannot read the COLMAP model in {model_dir}: {type(exc).__name__}: {exc} "
+            f"(a file is truncated or corrupt)",
+            hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified",
+        ) from exc
+
+    reg = [im for im in rec.images.values() if im.has_pose]
+    if not reg:
+        raise DatasetError(f"the COLMAP model in {model_dir} has no registered images", hint="SfM failed; check the photos")
+    reg.sort(key=lambda im: im.name)
+    view_of_image = {}
+    cameras = []
+    for idx, im in enumerate(reg):
+        cam = rec.cameras[im.camera_id]
+        fx, fy, cx, cy = _camera_intrinsics(cam, model_dir)
+        pose = im.cam_from_world()
+        R = np.asarray(pose.rotation.matrix(), dtype=np.float64)
+        t = np.asarray(pose.translation, dtype=np.float64)
+        cameras.append(Camera(fx, fy, cx, cy, int(cam.width), int(cam.height), R, t, name=im.name))
+        view_of_image[im.image_id] = idx
+
+    point_ids = np.array(sorted(rec.points3D.keys()), dtype=np.int64)
+    m = len(point_ids)
+    xyz = np.zeros((m, 3))
+    rgb = np.zeros((m, 3), dtype=np.uint8)
+    ptr = np.zeros(m + 1, dtype=np.int64)
+    views: list[int] = []
+    xys: list[np.ndarray] = []
+    for i, pid in enumerate(point_ids):
+        p = rec.points3D[int(pid)]
+        xyz[i] = p.xyz
+        rgb[i] = p.color
+        n = 0
+        for el in p.track.elements:
+            v = view_of_image.get(el.image_id)
+            if v is None:
+                continue
+            views.append(v)
+            xys.append(np.asarray(rec.images[el.image_id].points2D[el.point2D_idx].xy, dtype=np.float64))
+            n += 1
+        ptr[i + 1] = ptr[i] + n
+    return ColmapModel(
+        cameras=cameras,
+        xyz=xyz,
+        rgb=rgb,
+        track_ptr=ptr,
+        track_view=np.asarray(views, dtype=np.int32),
+        track_xy=np.asarray(xys, dtype=np.float64).reshape(-1, 2),
+        point_ids=point_ids,
+    )
+
+
+def write_model(model: ColmapModel, out_dir: str | Path, binary: bool = True) -> Path:
+    """Write cameras, images and points3D (with 2D observations) as a COLMAP model.
+
+    One PINHOLE camera per image, so that per-image intrinsics survive. The folder is written to
+    a temporary sibling and renamed, so a crash never leaves half a model.
+    """
+    import pycolmap
+
+    out_dir = Path(out_dir)
+    tmp = out_dir.with_name(out_dir.name + ".tmp-write")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+
+    rec = pycolmap.Reconstruction()
+    counts = model.visibility_counts()
+    # Observations per view, in point order, give each image its points2D list.
+    # Keyed by track element k: COLMAP tracks may observe a point twice in one image.
+    obs_of_view: list[list[tuple[int, np.ndarray]]] = [[] for _ in model.cameras]
+    for k in range(len(model.track_view)):
+        obs_of_view[model.track_view[k]].append((k, model.track_xy[k]))
+
+    point2d_index: dict[int, int] = {}
+    for v, cam in enumerate(model.cameras):
+        cam_id = image_id = v + 1
+        rec.add_camera_with_trivial_rig(
+            pycolmap.Camera(
+                camera_id=cam_id,
+                model="PINHOLE",
+                width=cam.width,
+                height=cam.height,
+                params=[cam.fx, cam.fy, cam.cx, cam.cy],
+            )
+        )
+        kps = np.array([xy for _, xy in obs_of_view[v]], dtype=np.float64).reshape(-1, 2)
+        image = pycolmap.Image(name=cam.name, keypoints=kps, camera_id=cam_id, image_id=image_id)
+        pose = pycolmap.Rigid3d(np.hstack([cam.R, cam.t[:, None]]))
+        rec.add_image_with_trivial_frame(image, pose)
+        for j, (k, _) in enumerate(obs_of_view[v]):
+            point2d_index[k] = j
+
+    for i in range(model.num_points):
+        if counts[i] == 0:
+            continue
+        track = pycolmap.Track(
+            [
+                pycolmap.TrackElement(int(model.track_view[k]) + 1, point2d_index[k])
+                for k in range(model.track_ptr[i], model.track_ptr[i + 1])
+            ]
+        )
+        rec.add_point3D(model.xyz[i], track, model.rgb[i])
+
+    if binary:
+        rec.write_binary(str(tmp))
+    else:
+        rec.write_text(str(tmp))
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+# ---- binary model diagnosis -------------------------------------------------------------------
+def _camera_param_counts() -> dict[int, int]:
+    import pycolmap
+
+    counts = {}
+    for model_id in pycolmap.CameraModelId.__members__.values():
+        if int(model_id) < 0:
+            continue
+        try:
+            counts[int(model_id)] = len(pycolmap.Camera.create_from_model_id(0, model_id, 1.0, 1, 1).params)
+        except Exception:  # noqa: BLE001 - a model pycolmap cannot instantiate simply is not counted
+            pass
+    return counts
+
+
+class _Reader:
+    def __init__(self, path: Path):
+        self.path = path
+        self.data = path.read_bytes()
+        self.pos = 0
+
+    def take(self, fmt: str):
+        size = struct.calcsize(fmt)
+        if self.pos + size > len(self.data):
+            raise EOFError
+        out = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def skip(self, n: int) -> None:
+        if self.pos + n > len(self.data):
+            raise EOFError
+        self.pos += n
+
+    def cstring(self) -> None:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise EOFError
+        self.pos = end + 1
+
+
+def diagnose_binary_model(model_dir: Path) -> list[str]:
+    """Walk cameras.bin, images.bin and points3D.bin record by record (COLMAP's binary layout) and
+    say which file is truncated or malformed, and where. Returns one message per bad file."""
+    found = []
+    param_counts = None
+    for stem in MODEL_FILES:
+        path = model_dir / f"{stem}.bin"
+        if not path.exists():
+            continue
+        r = _Reader(path)
+        k = total = 0
+        try:
+            (total,) = r.take("<Q")
+            for k in range(total):
+                if stem == "cameras":
+                    _, model_id, _, _ = r.take("<iiQQ")
+                    if param_counts is None:
+                        param_counts = _camera_param_counts()
+                    if model_id not in param_counts:
+                        found.append(f"{path}: camera record {k + 1} of {total} has an unknown camera model id "
+                                     f"{model_id} (corrupt file)")
+                        break
+                    r.skip(8 * param_counts[model_id])
+                elif stem == "images":
+                    r.skip(4 + 8 * 7 + 4)
+                    r.cstring()
+                    (n2d,) = r.take("<Q")
+                    r.skip(24 * n2d)
+                else:
+                    r.skip(8 + 24 + 3 + 8)
+                    (n_track,) = r.take("<Q")
+                    r.skip(8 * n_track)
+            else:
+                if r.pos != len(r.data):
+                    found.append(f"{path}: {len(r.data) - r.pos} unexpected bytes after the last of {total} records")
+        except EOFError:
+            found.append(f"{path} is truncated: it ends ({len(r.data)} bytes) inside record {k + 1} of {total}")
+    return found

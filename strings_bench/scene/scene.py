@@ -1,0 +1,247 @@
+"""The scene model every stage reads: cameras, lazily loaded images and masks, sparse points with
+tracks, the train/test split, the scene extent, and (for synthetic scenes) the known text.
+
+Folder layout (COLMAP style):
+
+    SCENE/
+      images/               photos (undistorted, pinhole)
+      images_2/, images_4/  optional pre-downscaled copies (used when present)
+      sparse/0/             COLMAP model (.bin or .txt)
+      masks/                optional text masks, one PNG per image named <image stem>.png
+      text_annotations.json optional known text: {"views": {image_name: [{"text", "polygon"}]}}
+      split.json            optional split override: {"test": [names], "train": [names]}
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from strings_bench.scene.camera import Camera
+from strings_bench.scene.colmap import ColmapModel, read_model
+from strings_bench.core.errors import DatasetError
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".JPG", ".JPEG", ".PNG")
+ANNOTATION_FILE = "text_annotations.json"
+SPLIT_FILE = "split.json"
+TEST_EVERY = 8  # 3DGS protocol: every 8th image (sorted by name) is a test view
+
+
+@dataclass(frozen=True)
+class KnownWord:
+    """A word whose text is known (synthetic scenes), with its polygon in full-resolution pixels."""
+
+    text: str
+    polygon: np.ndarray  # (K, 2)
+
+
+def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int], list[int]]:
+    """Indices (train, test) into `names` after sorting: index % every == 0 is a test view."""
+    order = sorted(range(len(names)), key=lambda i: names[i])
+    test = sorted(order[k] for k in range(0, len(order), every))
+    test_set = set(test)
+    train = [i for i in range(len(names)) if i not in test_set]
+    return train, test
+
+
+def compute_extent(centers: np.ndarray) -> float:
+    """3DGS scene extent: 1.1 x the largest distance of a camera centre from their mean."""
+    centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    if len(centers) == 0:
+        return 1.0
+    radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max())
+    # A single camera (or coincident ones) has radius 0: fall back to 1 so LRs stay non-zero.
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+@dataclass
+class Scene:
+    root: Path
+    name: str
+    model: ColmapModel
+    images_dir: Path
+    masks_dir: Path | None = None
+    known_text: dict[str, list[KnownWord]] | None = None
+    train_idx: list[int] = field(default_factory=list)
+    test_idx: list[int] = field(default_factory=list)
+    settings: dict = field(default_factory=dict)  # per-scene settings from a dataset card (e.g. n_max)
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def load(cls, root: str | Path, name: str | None = None, images: str = "images", masks: str = "masks",
+             settings: dict | None = None) -> "Scene":
+        root = Path(root)
+        if not root.is_dir():
+            raise DatasetError(f"scene folder {root} does not exist", hint="check the path, or `strings-bench datasets list`")
+        images_dir = root / images
+        if not images_dir.is_dir():
+            raise DatasetError(f"scene {root} has no {images}/ folder", hint="a scene folder needs images/ and sparse/0/")
+        if not any(p.suffix in IMAGE_EXTENSIONS for p in images_dir.iterdir()):
+            raise DatasetError(f"the images folder {images_dir} is empty", hint="copy the scene's photos into it")
+        if not (root / "sparse").exists() and not any((root / f"cameras{e}").exists() for e in (".bin", ".txt")):
+            raise DatasetError(
+                f"scene {root} has no sparse/ folder (COLMAP model)",
+                hint="run `strings-bench prepare PHOTOS_DIR --name NAME` to run SfM, or copy sparse/0 from COLMAP",
+            )
+        model = read_model(root)
+        missing = [c.name for c in model.cameras if not (images_dir / c.name).exists()]
+        if missing:
+            raise DatasetError(
+                f"{len(missing)} image(s) listed in the COLMAP model of {root} are missing from {images_dir}: "
+                f"{', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}",
+                hint="copy the missing photos, or re-run SfM on the photos you have",
+            )
+        masks_dir = root / masks if (root / masks).is_dir() else None
+        known = _read_annotations(root / ANNOTATION_FILE) if (root / ANNOTATION_FILE).exists() else None
+        scene = cls(root=root, name=name or root.name, model=model, images_dir=images_dir, masks_dir=masks_dir,
+                    known_text=known, settings=dict(settings or {}))
+        scene.train_idx, scene.test_idx = scene._split()
+        return scene
+
+    def _split(self) -> tuple[list[int], list[int]]:
+        names = self.model.names
+        split_file = self.root / SPLIT_FILE
+        if not split_file.exists():
+            return default_split(names)
+        try:
+            spec = json.loads(split_file.read_text())
+            test_names = list(spec["test"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise DatasetError(f"cannot read {split_file}: {exc}", hint='expected {"test": [image names], "train": [...]}') from exc
+        index = {n: i for i, n in enumerate(names)}
+        unknown = [n for n in test_names + list(spec.get("train", [])) if n not in index]
+        if unknown:
+            raise DatasetError(f"{split_file} names images that are not in the model: {unknown[:5]}",
+                               hint="fix the names, or delete split.json to use every 8th image")
+        test = sorted(index[n] for n in test_names)
+        train_names = spec.get("train")
+        train = sorted(index[n] for n in train_names) if train_names else [i for i in range(len(names)) if i not in set(test)]
+        return train, test
+
+    # ---- geometry -------------------------------------------------------------------------
+    @property
+    def num_views(self) -> int:
+        return len(self.model.cameras)
+
+    @property
+    def names(self) -> list[str]:
+        return self.model.names
+
+    def camera(self, i: int, downscale: float = 1) -> Camera:
+        cam = self.model.cameras[i]
+        if downscale == 1:
+            return cam
+        w, h = self._image_size(i, downscale)
+        return cam.resized(w, h) if (w, h) != (cam.width, cam.height) else cam
+
+    @property
+    def extent(self) -> float:
+        idx = self.train_idx or list(range(self.num_views))
+        return compute_extent(np.stack([self.model.cameras[i].center for i in idx]))
+
+    # ---- pixels ---------------------------------------------------------------------------
+    def _image_size(self, i: int, downscale: float) -> tuple[int, int]:
+        cam = self.model.cameras[i]
+        return max(1, int(round(cam.width / downscale))), max(1, int(round(cam.height / downscale)))
+
+    def image_path(self, i: int, downscale: float = 1) -> Path:
+        name = self.model.cameras[i].name
+        if downscale != 1 and float(downscale).is_integer():
+            pre = self.root / f"{self.images_dir.name}_{int(downscale)}" / name
+            if pre.exists():
+                return pre
+        return self.images_dir / name
+
+    def load_image(self, i: int, downscale: float = 1) -> np.ndarray:
+        """RGB float32 in [0, 1], (H, W, 3), at the camera's size for `downscale`."""
+        return _load_rgb(str(self.image_path(i, downscale)), self._image_size(i, downscale))
+
+    def mask_path(self, i: int) -> Path | None:
+        if self.masks_dir is None:
+            return None
+        stem = Path(self.model.cameras[i].name).stem
+        for ext in (".png", ".jpg", ".PNG"):
+            p = self.masks_dir / f"{stem}{ext}"
+            if p.exists():
+                return p
+        return None
+
+    def load_mask(self, i: int, downscale: float = 1) -> np.ndarray | None:
+        """Boolean text mask (H, W) or None if the scene has no mask for this view.
+
+        Masks may be stored at any resolution with the image's aspect ratio; other sizes are refused.
+        """
+        p = self.mask_path(i)
+        if p is None:
+            return None
+        cam = self.model.cameras[i]
+        return _load_mask(str(p), (cam.width, cam.height), self._image_size(i, downscale))
+
+    def known_words(self, i: int, downscale: float = 1) -> list[KnownWord] | None:
+        """Known words of view i with polygons scaled to `downscale`, or None when text is unknown."""
+        if self.known_text is None:
+            return None
+        cam = self.model.cameras[i]
+        w, h = self._image_size(i, downscale)
+        s = np.array([w / cam.width, h / cam.height])
+        return [KnownWord(k.text, k.polygon * s) for k in self.known_text.get(cam.name, [])]
+
+
+@lru_cache(maxsize=256)
+def _load_rgb(path: str, size: tuple[int, int]) -> np.ndarray:
+    try:
+        with Image.open(path) as im:
+            im = im.convert("RGB")
+            if im.size != size:
+                im = im.resize(size, Image.Resampling.LANCZOS)
+            arr = np.asarray(im, dtype=np.float32) / 255.0
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"cannot read image {path}: {exc}", hint="the file is missing or corrupt; replace it") from exc
+    arr.setflags(write=False)
+    return arr
+
+
+@lru_cache(maxsize=256)
+def _load_mask(path: str, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    try:
+        with Image.open(path) as im:
+            im = im.convert("L")
+            msize = im.size
+            if msize != size:
+                # Same aspect ratio (within a pixel of rounding) means the mask is just another resolution.
+                fw, fh = full_size
+                if abs(msize[0] * fh - msize[1] * fw) > max(fw, fh):
+                    raise DatasetError(
+                        f"mask {path} is {msize[0]}x{msize[1]} but its image is {fw}x{fh} (different aspect ratio)",
+                        hint="masks must be made from the undistorted images of this scene; regenerate them",
+                    )
+                im = im.resize(size, Image.Resampling.NEAREST)
+            arr = np.asarray(im) > 127
+    except OSError as exc:
+        raise DatasetError(f"cannot read mask {path}: {exc}", hint="the file is corrupt; regenerate the masks") from exc
+    arr.setflags(write=False)
+    return arr
+
+
+def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        return {
+            name: [KnownWord(str(w["text"]), np.asarray(w["polygon"], dtype=np.float64).reshape(-1, 2)) for w in words]
+            for name, words in data["views"].items()
+        }
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DatasetError(f"cannot read text annotations {path}: {exc}",
+                           hint='expected {"views": {image_name: [{"text": ..., "polygon": [[x, y], ...]}]}}') from exc
+
+
+def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> None:
+    from strings_bench.core.io import atomic_write_json
+
+    atomic_write_json(path, {"views": {n: [{"text": w.text, "polygon": np.asarray(w.polygon).tolist()} for w in ws]
+                                       for n, ws in views.items()}})
