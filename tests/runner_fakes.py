@@ -10,7 +10,7 @@ from PIL import Image
 
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, write_model
-from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.core.method import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr.base import Word
 

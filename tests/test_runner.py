@@ -213,7 +213,7 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
     pkg = tmp_path / "my_splat_plugin.py"
     pkg.write_text(
         "from strings_bench.methods.registry import MethodSpec\n"
-        "from strings_bench.methods.base import MethodAdapter\n"
+        "from strings_bench.core.method import MethodAdapter\n"
         "class A(MethodAdapter):\n"
         "    name = 'plugin-splat'\n"
         "    def train(self, scene, checkpoints, downscale=1):\n"

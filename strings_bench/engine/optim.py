@@ -139,3 +139,18 @@ class GaussianAdam:
     def state_dict(self) -> dict:
         return {"lrs": dict(self.lrs), "state": {k: {kk: (vv.clone() if torch.is_tensor(vv) else vv)
                                                      for kk, vv in s.items()} for k, s in self.state.items()}}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore `state_dict()` (learning rates, moments, step counts) onto the current parameters."""
+        missing = set(self.params) - set(state["state"])
+        if missing:
+            raise StringsBenchError(f"optimizer state lacks parameter group(s) {sorted(missing)}")
+        self.lrs = {k: float(state["lrs"].get(k, self.lrs[k])) for k in self.params}
+        self.state = {}
+        for k, p in self.params.items():
+            st = state["state"][k]
+            if st["exp_avg"].shape != p.shape:
+                raise StringsBenchError(f"optimizer state of {k} has shape {tuple(st['exp_avg'].shape)}, "
+                                        f"the parameter {tuple(p.shape)}")
+            self.state[k] = {"step": st["step"], "exp_avg": st["exp_avg"].to(p.device).clone(),
+                             "exp_avg_sq": st["exp_avg_sq"].to(p.device).clone()}

@@ -43,7 +43,7 @@ import torch
 from strings_bench.core.errors import StringsBenchError, TrainingError
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.losses import gs_loss
-from strings_bench.methods.base import CheckpointResult
+from strings_bench.core.method import CheckpointResult
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
 from strings_bench.engine.strategies.base import Strategy, scaled_interval, scaled_step
 from strings_bench.engine.strategies.default import DefaultStrategy

@@ -40,7 +40,7 @@ import numpy as np
 from PIL import Image
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.core.method import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
 
 PLACEHOLDERS = ("scene", "out", "iteration", "downscale", "test_views", "name")

@@ -12,7 +12,7 @@ from typing import Iterator
 
 from strings_bench.core.schedules import schedule_presets
 from strings_bench.engine.strategies.default import DefaultStrategy
-from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.core.method import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
 
 PAPER_CHECKPOINTS = (7000, 30000)

@@ -23,7 +23,7 @@ from typing import Iterator
 import numpy as np
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.core.method import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
 
 

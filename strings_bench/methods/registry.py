@@ -14,7 +14,7 @@ from importlib.metadata import entry_points
 from typing import Callable
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.methods.base import MethodAdapter
+from strings_bench.core.method import MethodAdapter
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.methods.base import CheckpointResult, MethodAdapter
+from strings_bench.core.method import CheckpointResult, MethodAdapter
 from strings_bench.methods.registry import MethodSpec, register_method
 
 if TYPE_CHECKING:

@@ -1,0 +1,398 @@
+"""3D Gaussian Splatting as a `Method`: the reference implementation every built-in method extends.
+
+`GaussianSplatting(config, strategy)` holds the model, the optimizer and the strategy state, and
+implements the method protocol (`strings_bench.core.method.Method`); the framework's loop
+(`engine.trainer.Trainer`) drives it. Methods change behaviour by subclassing and overriding these
+hooks (docs/engine.md):
+
+    initial_model(scene)            -> GaussianModel                 (default: 3DGS init from SfM points)
+    train_views()                   -> list of view indices          (default: scene.train_idx)
+    views_for_step(step)            -> view index                    (default: shuffled per epoch, seeded)
+    loss(out, gt, view_idx, step)   -> scalar tensor                 (default: 0.8 L1 + 0.2 (1 - SSIM))
+    position_lr(step)               -> float                         (default: 3DGS exponential schedule)
+    position_lr_scale(step)         -> None | float | (N,) tensor    (per-row factor on the position step)
+    sh_degree_for_step(step)        -> int                           (default: +1 every 1000 x steps_scale)
+    strategy_step(step)             -> int                           (step number the strategy sees)
+    on_step_start(step)             -> None                          (e.g. switch phase: self.set_model(...))
+    checkpoint_extra(step)          -> dict                          (method stats for CheckpointResult.extra)
+    extra_state() / load_extra_state(state)                          (a subclass's own resumable state)
+
+Every schedule inside (densification, opacity reset, SH degree, position-LR decay) is its nominal
+3DGS iteration number multiplied by `config.steps_scale`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from strings_bench.core.errors import StringsBenchError, TrainingError
+from strings_bench.engine.gaussians import GaussianModel
+from strings_bench.engine.losses import gs_loss
+from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
+from strings_bench.engine.strategies.base import Strategy, scaled_interval, scaled_step
+from strings_bench.engine.strategies.default import DefaultStrategy
+from strings_bench.core.method import Method
+
+if TYPE_CHECKING:
+    from strings_bench.scene.scene import Scene
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainConfig:
+    """The 3DGS training settings (flat `--set` keys of every Gaussian method, with `lr_<group>`)."""
+
+    steps_scale: float = 1.0  # multiplies every iteration number (quick runs)
+    seed: int = 0
+    sh_degree: int = 3
+    sh_increase_every: int = 1_000
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 3DGS default (black)
+    lrs: LearningRates = field(default_factory=LearningRates)
+    position_lr_steps: int = 30_000  # nominal length of the position-LR decay
+    lambda_dssim: float = 0.2
+    init_opacity: float = 0.1
+    backend: str = "auto"  # rasterizer backend: auto, cpu, gsplat
+
+    def __post_init__(self):
+        if self.steps_scale <= 0:
+            raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
+
+
+def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, str]:
+    """Every flat setting a Gaussian method takes -> where it goes ("train", "lr", "strategy")."""
+    from dataclasses import fields as dc_fields
+
+    keys = {f.name: "train" for f in dc_fields(TrainConfig) if f.name != "lrs"}
+    keys.update({f"lr_{f.name}": "lr" for f in dc_fields(LearningRates)})
+    for f in dc_fields(strategy_cls):
+        keys[f.name] = "train+strategy" if keys.get(f.name) == "train" else "strategy"
+    return keys
+
+
+def config_from_settings(settings: dict, strategy_cls: type[Strategy] = DefaultStrategy,
+                         ignore: tuple[str, ...] = ()) -> tuple[TrainConfig, Strategy]:
+    """Split a flat settings dict into (TrainConfig, strategy).
+
+    Keys: TrainConfig fields (steps_scale, seed, sh_degree, background, ...), learning rates as
+    `lr_<group>` (lr_means, lr_means_final, lr_opacity_logits, ...), and fields of `strategy_cls`
+    (grow_grad2d, refine_every, ...). Unknown keys are an error (typos must not pass silently);
+    keys in `ignore` are left to the caller. A key that is both a TrainConfig and a strategy field
+    (`seed`: the trainer's seed and MCMC's sampling generator) goes to both.
+    """
+    where = settings_keys(strategy_cls)
+    cfg_kw, lr_kw, strat_kw, unknown = {}, {}, {}, []
+    for key, value in settings.items():
+        if key in ignore:
+            continue
+        dest = where.get(key)
+        if dest is None:
+            unknown.append(key)
+            continue
+        if "train" in dest:
+            cfg_kw[key] = value
+        if "strategy" in dest:
+            strat_kw[key] = value
+        if dest == "lr":
+            lr_kw[key[3:]] = float(value)
+    if unknown:
+        raise StringsBenchError(f"unknown setting(s) {', '.join(sorted(unknown))}",
+                                hint=f"valid settings: {', '.join(sorted(set(where) | set(ignore)))}")
+    if "background" in cfg_kw:
+        cfg_kw["background"] = tuple(float(x) for x in cfg_kw["background"])
+    return TrainConfig(lrs=LearningRates(**lr_kw), **cfg_kw), strategy_cls(**strat_kw)
+
+
+def _state_to_cpu(obj):
+    """A strategy state made storable: tensors to the CPU, torch generators to their state."""
+    if isinstance(obj, torch.Generator):
+        return {"__torch_generator__": obj.get_state(), "device": str(obj.device)}
+    if torch.is_tensor(obj):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _state_to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_state_to_cpu(v) for v in obj)
+    return obj
+
+
+def _state_to_device(obj, device: torch.device):
+    if isinstance(obj, dict) and "__torch_generator__" in obj:
+        gen = torch.Generator(device=obj.get("device", "cpu"))
+        gen.set_state(obj["__torch_generator__"])
+        return gen
+    if torch.is_tensor(obj):
+        return obj.to(device)
+    if isinstance(obj, dict):
+        return {k: _state_to_device(v, device) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_state_to_device(v, device) for v in obj)
+    return obj
+
+
+class GaussianSplatting(Method):
+    """Vanilla 3DGS (Kerbl et al. 2023) on the suite's engine; see the module docstring for the hooks.
+
+    Args:
+        config: training settings (`TrainConfig`); default 3DGS.
+        strategy: densification strategy (a `Strategy` dataclass); default `DefaultStrategy`.
+        model: start from this model instead of `initial_model(scene)`.
+
+    Example::
+
+        method = GaussianSplatting(TrainConfig(steps_scale=0.01))
+        for result in Trainer(method, scene, checkpoints=[70, 300]).train():
+            print(result.iteration, result.gaussians)
+    """
+
+    name = "3dgs"
+    paper = ("Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
+             "Rendering (SIGGRAPH 2023)")
+    strategy_cls: type[Strategy] = DefaultStrategy
+    method_keys: tuple[str, ...] = ()  # a subclass's own flat settings (not TrainConfig / strategy fields)
+
+    def __init__(self, config: TrainConfig | None = None, strategy: Strategy | None = None,
+                 model: GaussianModel | None = None):
+        self.config = config or TrainConfig()
+        self.strategy = strategy if strategy is not None else self.strategy_cls()
+        self.settings: dict = {}
+        self._given_model = model
+        self.scene: "Scene | None" = None
+        self.model: GaussianModel | None = None
+        self.optimizer: GaussianAdam | None = None
+        self.strategy_state: dict = {}
+        self.downscale = 1.0
+        self.device = torch.device("cpu")
+        self.rng = np.random.default_rng(self.config.seed)
+        self._view_stack: list[int] = []
+        self._view_key: tuple | None = None
+        self._targets: dict[int, torch.Tensor] = {}
+        self._step_info: tuple | None = None
+        self.step = 0
+        self.last_loss = float("nan")
+
+    @classmethod
+    def from_settings(cls, **settings) -> "GaussianSplatting":
+        """Build from flat settings (TrainConfig fields, `lr_<group>`, strategy fields, `method_keys`)."""
+        config, strategy = config_from_settings(settings, cls.strategy_cls, ignore=cls.method_keys)
+        method = cls(config, strategy)
+        method.settings = dict(settings)
+        method.configure({k: v for k, v in settings.items() if k in cls.method_keys})
+        return method
+
+    def configure(self, method_settings: dict) -> None:
+        """Take a subclass's own settings (`method_keys`); validate them here."""
+
+    # ---- schedule helpers -------------------------------------------------------------------
+    def at(self, nominal: float) -> int:
+        return scaled_step(nominal, self.config.steps_scale)
+
+    def every(self, nominal: float) -> int:
+        return scaled_interval(nominal, self.config.steps_scale)
+
+    # ---- set-up --------------------------------------------------------------------------------
+    def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:
+        self.scene = scene
+        self.downscale = float(downscale)
+        self.device = torch.device(device)
+        if seed is not None:
+            self.config.seed = int(seed)
+        self.extent = float(scene.extent)
+        self.background = torch.tensor(self.config.background, dtype=torch.float32, device=self.device)
+        self.rng = np.random.default_rng(self.config.seed)
+        self._view_stack, self._view_key, self._targets = [], None, {}
+        self.step = 0
+        self.prepare(scene)
+        self.set_model(self._given_model if self._given_model is not None else self.initial_model(scene))
+
+    def prepare(self, scene: "Scene") -> None:
+        """Preprocessing before the initial model (STRinGS: masks and Algorithm 1)."""
+
+    # ---- hooks --------------------------------------------------------------------------------
+    def initial_model(self, scene: "Scene") -> GaussianModel:
+        return GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=self.config.sh_degree,
+                                         init_opacity=self.config.init_opacity, device=self.device)
+
+    def train_views(self) -> list[int]:
+        return list(self.scene.train_idx)
+
+    def views_for_step(self, step: int) -> int:
+        """3DGS order: a random permutation of the training views, redrawn when used up."""
+        views = self.train_views()
+        if not views:
+            raise TrainingError(f"scene {self.scene.name} has no training views",
+                                hint="check split.json or the number of registered images")
+        key = tuple(views)
+        if key != self._view_key:
+            self._view_key, self._view_stack = key, []
+        if not self._view_stack:
+            self._view_stack = [views[i] for i in self.rng.permutation(len(views))][::-1]
+        return self._view_stack.pop()
+
+    def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
+        return gs_loss(out.color, gt, self.config.lambda_dssim)
+
+    def position_lr(self, step: int) -> float:
+        lrs = self.config.lrs
+        return exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
+                              self.at(self.config.position_lr_steps))
+
+    def position_lr_scale(self, step: int):
+        return None
+
+    def sh_degree_for_step(self, step: int) -> int:
+        return min(self.config.sh_degree, step // self.every(self.config.sh_increase_every))
+
+    def strategy_step(self, step: int) -> int:
+        return step
+
+    def on_step_start(self, step: int) -> None:
+        pass
+
+    def checkpoint_extra(self, step: int) -> dict:
+        return {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
+                "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss}
+
+    # ---- model / optimizer ---------------------------------------------------------------------
+    def make_optimizer(self, model: GaussianModel) -> GaussianAdam:
+        return GaussianAdam(model.params, self.config.lrs.group_lrs(self.extent))
+
+    def set_model(self, model: GaussianModel) -> None:
+        """Start optimising `model` (fresh Adam state and strategy state): initial model, phase switches."""
+        if len(model) == 0:
+            raise TrainingError(f"the initial model for scene {self.scene.name} has no Gaussians",
+                                hint="the SfM model (or the selected subset of points) is empty")
+        self.model = model
+        self.optimizer = self.make_optimizer(model)
+        self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale)
+
+    def target(self, view_idx: int) -> torch.Tensor:
+        if view_idx not in self._targets:
+            img = self.scene.load_image(view_idx, self.downscale)
+            self._targets[view_idx] = torch.from_numpy(np.array(img, dtype=np.float32)).to(self.device)
+        return self._targets[view_idx]
+
+    def camera(self, view_idx: int):
+        return self.scene.camera(view_idx, self.downscale)
+
+    def render_raster(self, view_idx: int, sh_degree: int | None = None, **kw):
+        """The rasterizer's full output (colour, alpha, depth, radii, means2d) for a view."""
+        return self.model.render(self.camera(view_idx), self.background, sh_degree=sh_degree,
+                                 backend=self.config.backend, **kw)
+
+    # ---- the protocol ----------------------------------------------------------------------------
+    def train_step(self, step: int) -> float:
+        self.step = step
+        self.on_step_start(step)
+        model, opt, strategy = self.model, self.optimizer, self.strategy
+        # The rasterizer may cull a Gaussian with NaN parameters without a NaN loss: check the values too.
+        with torch.no_grad():
+            if not torch.isfinite(torch.stack([p.sum() for p in model.params.values()])).all():
+                raise self._nonfinite_error(step, "a parameter is not finite")
+        opt.set_lr("means", self.position_lr(step))
+        view = self.views_for_step(step)
+        cam = self.camera(view)
+        sstep = self.strategy_step(step)
+        out = self.render_raster(view, sh_degree=self.sh_degree_for_step(step), **strategy.get_raster_kwargs(sstep))
+        info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": cam.width,
+                "height": cam.height, "n_cameras": 1, "view_idx": view, "camera": cam}
+        strategy.step_pre_backward(model, opt, self.strategy_state, sstep, info)
+        loss = self.loss(out, self.target(view), view, step)
+        extra = strategy.loss_terms(model, info, sstep)
+        if torch.is_tensor(extra) or extra:
+            loss = loss + extra
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise self._nonfinite_error(step, f"the loss is {value}")
+        loss.backward()
+        grads = [p.grad for p in model.params.values() if p.grad is not None]
+        # One reduction per group: a sum is non-finite when any element is, or when the gradients are so
+        # large (> 3e38 in total) that the run has diverged anyway.
+        if grads and not torch.isfinite(torch.stack([g.sum() for g in grads])).all():
+            bad_grads = [k for k, p in model.params.items() if p.grad is not None and not torch.isfinite(p.grad).all()]
+            bad_grads = bad_grads or [k for k, p in model.params.items() if p.grad is not None
+                                      and not torch.isfinite(p.grad.sum())]
+            raise self._nonfinite_error(step, f"the gradient of {', '.join(bad_grads)} is not finite", bad_grads)
+        scale = self.position_lr_scale(step)
+        row_scale = None
+        if scale is not None:
+            if torch.is_tensor(scale) and scale.ndim >= 1:
+                row_scale = {"means": scale}
+            else:
+                opt.set_lr("means", opt.lrs["means"] * float(scale))
+        opt.step(row_scale)
+        self.last_loss = value
+        self._step_info = (step, sstep, info)
+        return value
+
+    def refine(self, step: int) -> None:
+        if self._step_info is None or self._step_info[0] != step:
+            return
+        _, sstep, info = self._step_info
+        self._step_info = None
+        self.strategy.step_post_backward(self.model, self.optimizer, self.strategy_state, sstep, info)
+        self.optimizer.zero_grad()
+
+    @torch.no_grad()
+    def render(self, view_idx: int) -> np.ndarray:
+        out = self.render_raster(view_idx, sh_degree=self.sh_degree_for_step(self.step))
+        return out.color.detach().clamp(0, 1).cpu().numpy().astype(np.float32)
+
+    def num_gaussians(self) -> int:
+        return len(self.model) if self.model is not None else 0
+
+    def save_model(self, path) -> None:
+        from strings_bench.scene.ply import write_ply
+
+        write_ply(path, self.model)
+
+    # ---- resumable state -------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        return {
+            "step": self.step,
+            "model": self.model.state_dict(),
+            "optimizer": _state_to_cpu(self.optimizer.state_dict()),
+            "strategy_state": _state_to_cpu(self.strategy_state),
+            "rng": self.rng.bit_generator.state,
+            "view_stack": list(self._view_stack),
+            "view_key": self._view_key,
+            "last_loss": self.last_loss,
+            "extra": self.extra_state(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        model = GaussianModel.from_state_dict(state["model"], device=self.device)
+        self.model = model
+        self.optimizer = self.make_optimizer(model)
+        self.optimizer.load_state_dict(_state_to_device(state["optimizer"], self.device))
+        self.strategy_state = _state_to_device(state["strategy_state"], self.device)
+        self.rng.bit_generator.state = state["rng"]
+        self._view_stack = list(state["view_stack"])
+        self._view_key = state["view_key"]
+        self.last_loss = state["last_loss"]
+        self.step = int(state["step"])
+        self.load_extra_state(state.get("extra") or {})
+
+    def extra_state(self) -> dict:
+        """A subclass's own resumable state (phase flags, ...)."""
+        return {}
+
+    def load_extra_state(self, state: dict) -> None:
+        pass
+
+    def _nonfinite_error(self, step: int, what: str, groups: list[str] | None = None) -> TrainingError:
+        bad_params = [k for k, p in self.model.params.items() if not torch.isfinite(p.detach()).all()]
+        parts = [what]
+        if bad_params:
+            parts.append(f"non-finite values in parameter group(s) {', '.join(bad_params)}")
+        elif groups is None:
+            parts.append("every parameter is finite (the render or the loss itself produced it)")
+        return TrainingError(
+            f"training of {self.scene.name} diverged at iteration {step}: " + "; ".join(parts),
+            hint="lower the learning rate of the named group, check the scene's images and poses, or use another seed")
