@@ -402,7 +402,6 @@ def test_absgs_statistic_matches_per_pixel_brute_force_with_the_reference_raster
 def tiny_scene(tmp_path_factory):
     import _engine_helpers as eh
 
-    eh.install_stand_in_raster()  # only while strings_bench.raster is missing
     return eh.make_tiny_scene(tmp_path_factory.mktemp("tiny"))
 
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _engine_helpers import make_tiny_scene, raster_or_stand_in  # noqa: E402
+from _engine_helpers import make_tiny_scene  # noqa: E402
 
 from strings_bench.core.errors import TrainingError  # noqa: E402
 from strings_bench.engine.gaussians import SH_C0, GaussianModel  # noqa: E402
@@ -30,8 +30,7 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def tiny_scene(tmp_path_factory):
-    with raster_or_stand_in():
-        yield make_tiny_scene(tmp_path_factory.mktemp("tiny"))
+    return make_tiny_scene(tmp_path_factory.mktemp("tiny"))
 
 
 def _random_model(n=40, seed=0, degree=1):
@@ -363,7 +362,6 @@ def test_gs3d_method_registered_and_trains(tiny_scene):
 @pytest.mark.slow
 def test_vanilla_3dgs_on_synthetic_books_reaches_25db():
     """Standard schedule (1 500 steps = 30K x 0.05) on synthetic/books at its default 320x240."""
-    pytest.importorskip("strings_bench.raster.reference")  # the real rasterizer, not the test stand-in
     from strings_bench.datasets import resolve_scenes
     from strings_bench.engine.losses import psnr
     from strings_bench.scene.scene import Scene

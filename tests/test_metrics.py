@@ -64,18 +64,17 @@ def test_ssim_matches_brute_force_with_zero_padding():
     np.testing.assert_allclose(metrics.ssim_map(x, y), ref, atol=1e-12)
 
 
-def test_ssim_matches_engine_loss_when_present():
-    losses = pytest.importorskip("strings_bench.engine.losses")
-    torch = pytest.importorskip("torch")
-    if not hasattr(losses, "ssim"):
-        pytest.skip("engine has no losses.ssim")
+def test_ssim_matches_engine_loss():
+    import torch
+
+    import strings_bench.engine.losses as losses
+
     x, y = _img(6), _img(7)
     t = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
-    try:
-        val = float(losses.ssim(t(x), t(y)))
-    except Exception:
-        val = float(losses.ssim(t(x).permute(2, 0, 1)[None], t(y).permute(2, 0, 1)[None]))
-    assert val == pytest.approx(metrics.ssim(x, y), abs=1e-4)
+    assert float(losses.ssim(t(x), t(y))) == pytest.approx(metrics.ssim(x, y), abs=1e-4)
+    # The same images as (1, 3, H, W) batches.
+    assert float(losses.ssim(t(x).permute(2, 0, 1)[None], t(y).permute(2, 0, 1)[None])) == pytest.approx(
+        metrics.ssim(x, y), abs=1e-4)
 
 
 def test_shape_mismatch_is_clear():

@@ -10,7 +10,7 @@ import torch
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _engine_helpers import make_tiny_scene, raster_or_stand_in  # noqa: E402
+from _engine_helpers import make_tiny_scene  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.engine.gaussians import GaussianModel  # noqa: E402
@@ -102,8 +102,7 @@ def test_malformed_files_give_clear_errors(tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_scene(tmp_path_factory):
-    with raster_or_stand_in():
-        yield make_tiny_scene(tmp_path_factory.mktemp("tiny_ply"))
+    return make_tiny_scene(tmp_path_factory.mktemp("tiny_ply"))
 
 
 def test_trainer_ply_reads_back_and_renders_via_cli(tiny_scene, tmp_path):

@@ -317,10 +317,29 @@ def test_opacity_logits_column_shape_and_outputs():
     assert a.backend == "cpu" and a.visible.dtype == torch.bool
 
 
-def test_numba_cache_dir_is_set():
-    import numba.core.config as nconfig
+_CACHE_PROBE = """
+import numba  # imported first: the package must still redirect numba's cache (config read at import)
+import numpy as np
+import strings_bench.raster.cpu_kernels as cpu_kernels
+out = np.zeros((2, 2))
+cpu_kernels.reduce_intersections(np.arange(6.0).reshape(3, 2), np.array([0, 2, 3]), np.array([0, 2, 1]), out)
+print(out.tolist())
+"""
 
-    assert os.environ.get("NUMBA_CACHE_DIR") and nconfig.CACHE_DIR
+
+def test_compiled_kernels_are_cached_under_the_suite_cache(tmp_path):
+    """In a fresh interpreter without NUMBA_CACHE_DIR, kernels compile into STRINGS_BENCH_CACHE/numba
+    (conftest sets NUMBA_CACHE_DIR for this session, so only a subprocess sees the package's default)."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["STRINGS_BENCH_CACHE"] = str(tmp_path / "suite")
+    done = subprocess.run([sys.executable, "-c", _CACHE_PROBE], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[[4.0, 6.0], [2.0, 3.0]]"  # rows 0+2 and row 1 of buf
+    names = {p.suffix for p in (tmp_path / "suite" / "numba").rglob("*reduce_intersections*")}
+    assert {".nbi", ".nbc"} <= names, sorted(p.name for p in tmp_path.rglob("*"))
 
 
 @pytest.mark.gpu

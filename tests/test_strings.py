@@ -137,14 +137,11 @@ import math  # noqa: E402
 
 from PIL import Image  # noqa: E402
 
-from _engine_helpers import install_stand_in_raster, make_tiny_scene  # noqa: E402
+from _engine_helpers import make_tiny_scene  # noqa: E402
 from strings_bench.methods.strings.masks import MissingMasksError  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
-from strings_bench.methods.strings.method import StringsMethod, text_lr_factor  # noqa: E402
-from strings_bench.engine.optim import exponential_lr  # noqa: E402
+from strings_bench.methods.strings.method import StringsMethod, StringsTrainer, text_lr_factor  # noqa: E402
 from strings_bench.scene.scene import Scene  # noqa: E402
-
-install_stand_in_raster()
 
 TEXT_BOX = (8, 6, 20, 14)  # x0, y0, x1, y1 on the 32 x 24 views
 
@@ -188,30 +185,52 @@ def test_registered_names_and_presets():
 
 
 def test_text_lr_factor_values():
-    # Paper constants: gamma 15000 -> alpha / 2 there; far before, ~0; far after, alpha.
-    assert text_lr_factor(15000, 0.5, 0.0005, 15000) == pytest.approx(0.25)
-    assert text_lr_factor(3000, 0.5, 0.0005, 15000) == pytest.approx(0.5 / (1 + math.exp(6)))
-    assert text_lr_factor(30000, 0.5, 0.0005, 15000) == pytest.approx(0.5 / (1 + math.exp(-7.5)))
+    # Paper constants alpha 0.5, beta 0.0005, gamma 15000; values of 0.5 / (1 + e^x) written out.
+    assert text_lr_factor(15000, 0.5, 0.0005, 15000) == 0.25
+    assert text_lr_factor(3000, 0.5, 0.0005, 15000) == pytest.approx(0.0012363115783173872, rel=1e-12)  # x = 6
+    assert text_lr_factor(30000, 0.5, 0.0005, 15000) == pytest.approx(0.4997236106815382, rel=1e-12)  # x = -7.5
     assert text_lr_factor(-1e9, 0.5, 0.0005, 15000) == 0.0  # no overflow
 
 
-def test_lr_schedule_in_both_phases(tiny_text_scene):
+def _extent_by_hand(scene):
+    """3DGS: 1.1 x the largest distance of a training camera centre (C = -R^T t) from their mean."""
+    c = np.stack([-scene.model.cameras[i].R.T @ scene.model.cameras[i].t for i in scene.train_idx])
+    return 1.1 * float(np.linalg.norm(c - c.mean(0), axis=1).max())
+
+
+# Paper preset (30K, T1 = 3000), global step t in phase 2:
+#   eta_opt(t) = 1.6e-4 * 100^(-(t - 3000) / 30000) x extent (3DGS' log-linear decay, shifted by T1)
+#   eta_r = 0.5 (non-text), 0.5 / (1 + exp(-0.0005 (t - 15000))) (text)
+PAPER_LR = [  # (t, eta_opt / extent, text eta_r), float64 values of the expressions in the comments
+    (3001, 1.5997544097736427e-4, 0.0012369283590600297),  # 1.6e-4 * 100^(-1/30000); 0.5 / (1 + e^5.9995)
+    (10500, 5.0596442562694074e-5, 0.047674732449554745),  # 1.6e-4 / sqrt(10); 0.5 / (1 + e^2.25)
+    (15000, 2.535829107937782e-5, 0.25),  # 1.6e-4 * 100^-0.4; 0.5 / 2
+    (18000, 1.6e-5, 0.4087872380968218),  # 1.6e-4 / 10; 0.5 / (1 + e^-1.5)
+    (30000, 2.5358291079377817e-6, 0.4997236106815382),  # 1.6e-4 * 100^-0.9; 0.5 / (1 + e^-7.5)
+]
+
+
+def test_paper_preset_position_lr_by_hand(tiny_text_scene):
     scene = tiny_text_scene
-    m = StringsMethod(**{**FAST, "steps_scale": 0.01})  # T1 = 30, gamma -> 150, beta -> 0.05
-    trainer = m.build_trainer(scene, [70, 300], 1)
-    assert trainer.t1 == 30
-    ext = trainer.extent
-    for t in (1, 15, 30):
+    ext = _extent_by_hand(scene)
+    method = get_method("strings").build("paper", mask_dilation_fraction=0.0, progress=False)
+    trainer = method.build_trainer(scene, [30000], 1)
+    assert trainer.t1 == 3000 and trainer.extent == pytest.approx(ext, rel=1e-12)
+    for t in (1, 1500, 3000):  # phase 1: positions locked
         assert trainer.position_lr(t) == 0.0
-    for t in (31, 100, 150, 300):
-        assert trainer.position_lr(t) == pytest.approx(exponential_lr(t - 30, 1.6e-4 * ext, 1.6e-6 * ext, 300))
-        text, non_text = trainer.lr_factors(t)
-        assert non_text == 0.5
-        assert text == pytest.approx(0.5 / (1 + math.exp(-0.0005 / 0.01 * (t - 15000 * 0.01))))
-    assert trainer.lr_factors(150)[0] == pytest.approx(0.25)
-    # Ablation: the 3DGS schedule in phase 1.
-    t2 = StringsMethod(**{**FAST, "steps_scale": 0.01, "phase1_position_lr": 1.0}).build_trainer(scene, [70], 1)
-    assert t2.position_lr(10) == pytest.approx(exponential_lr(10, 1.6e-4 * ext, 1.6e-6 * ext, 300))
+    trainer.set_model(trainer.initial_model(scene))
+    trainer.on_step_start(3001)  # phase 2: the non-text Gaussians join
+    is_text = trainer.model.extras["is_text"]
+    assert is_text.any() and (~is_text).any()
+    for t, eta_opt, eta_text in PAPER_LR:
+        assert trainer.position_lr(t) == pytest.approx(eta_opt * ext, rel=1e-12)
+        row_lr = trainer.position_lr(t) * trainer.position_lr_scale(t).double()  # what each row's step gets
+        np.testing.assert_allclose(row_lr[is_text].numpy(), eta_opt * ext * eta_text, rtol=1e-6)
+        np.testing.assert_allclose(row_lr[~is_text].numpy(), eta_opt * ext * 0.5, rtol=1e-6)
+    # Ablation strings-pos-lr: 3DGS' own (unshifted) schedule in phase 1: 1.6e-4 * 100^(-1500/30000).
+    ablation = get_method("strings-pos-lr").build("paper", mask_dilation_fraction=0.0, progress=False)
+    assert ablation.build_trainer(scene, [30000], 1).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
+                                                                                       rel=1e-12)
 
 
 def test_restart_schedules(tiny_text_scene):
@@ -226,7 +245,8 @@ def test_restart_schedules(tiny_text_scene):
 
 
 def _spy(trainer):
-    """Record, per step: phase, view, means LR, model size, and the per-row scale given to Adam."""
+    """Record, per step: phase, means LR, model size, the per-row scale given to Adam, whether Adam's
+    state is fresh, and the positions and their gradient before and after the step."""
     log = []
     from strings_bench.engine.optim import GaussianAdam
 
@@ -234,10 +254,14 @@ def _spy(trainer):
 
     def step(opt, row_scale=None):
         scale = None if not row_scale else row_scale.get("means")
-        log.append({"phase": trainer.phase, "lr": opt.lrs["means"], "n": len(trainer.model),
-                    "scale": None if scale is None else scale.clone(),
-                    "is_text": trainer.model.extras["is_text"].clone()})
-        return orig_step(opt, row_scale)
+        means = opt.params["means"]
+        entry = {"phase": trainer.phase, "lr": opt.lrs["means"], "n": len(trainer.model),
+                 "scale": None if scale is None else scale.clone(),
+                 "is_text": trainer.model.extras["is_text"].clone(), "fresh": opt.state["means"]["step"] == 0,
+                 "before": means.detach().clone(), "grad": None if means.grad is None else means.grad.clone()}
+        log.append(entry)
+        orig_step(opt, row_scale)
+        entry["after"] = means.detach().clone()
 
     return log, step
 
@@ -289,17 +313,29 @@ def test_phases_with_densification(tiny_text_scene, monkeypatch):
     # Phase 2: non-text Gaussians joined; per-row factors alpha (non-text) and the sigmoid (text).
     n_non_text = int((~trainer.segmentation.is_text).sum())
     first = p2[0]
-    assert int((~first["is_text"]).sum()) == n_non_text
-    text_f, non_f = trainer.lr_factors(7)
-    assert torch.allclose(first["scale"][first["is_text"]], torch.tensor(text_f))
-    assert torch.allclose(first["scale"][~first["is_text"]], torch.tensor(non_f))
+    is_text = first["is_text"]
+    assert int((~is_text).sum()) == n_non_text and is_text.any()
+    # Step 7 = T1 + 1 of the paper schedule x 0.002 (T1 = 6, decay over 60 steps, gamma 30, beta 0.25):
+    # eta_opt = 1.6e-4 * 100^(-1/60) x extent; eta_r = 0.5 / (1 + e^(0.25 * 23)) (text), 0.5 (non-text).
+    eta_opt = 1.4817899650060697e-4 * _extent_by_hand(trainer.scene)
+    want = torch.where(is_text, 0.0015863414212425946, 0.5).double() * eta_opt
+    np.testing.assert_allclose((first["lr"] * first["scale"].double()).numpy(), want.numpy(), rtol=1e-6)
+    # The step itself: phase 2 starts a fresh Adam, whose first update is lr * g / |g| per coordinate, so
+    # every position with a gradient moves by exactly its row's LR (to float32 rounding of the positions).
+    assert first["fresh"]
+    moved = (first["after"].double() - first["before"].double()).abs()
+    has_grad = first["grad"].abs() > 1e-12
+    ulp = torch.from_numpy(np.spacing(np.maximum(first["before"].abs().numpy(), first["after"].abs().numpy())))
+    err = (moved - want[:, None].expand_as(moved)).abs()
+    assert has_grad[is_text].any() and has_grad[~is_text].any()
+    assert (err[has_grad] <= ulp.double()[has_grad] + 1e-5 * want[:, None].expand_as(moved)[has_grad]).all()
     assert all(e["lr"] > 0 for e in p2)
     assert results[-1].extra["text_gaussians"] == int(trainer.model.extras["is_text"].sum()) > 0
     assert "fallback" not in results[-1].extra
 
 
 def test_is_text_follows_clone_split_prune():
-    from strings_bench.engine.strategies import ops
+    import strings_bench.engine.strategies.ops as ops
 
     model = random_model(6)
     model.extras["is_text"] = torch.tensor([True, False, True, False, True, False])
@@ -328,3 +364,124 @@ def test_missing_masks_is_a_clear_error(tmp_path):
     scene = make_tiny_scene(tmp_path / "scene", n_views=9, n_points=20)
     with pytest.raises(MissingMasksError, match="masks/"):
         list(StringsMethod(**FAST).train(scene, [4]))
+
+
+# ---- Eq. 1 through the trainer, with unequal visibility counts ------------------------------------
+# Text points: the left of the plane, tracks of 2..7 views; non-text points: the right, tracks of 1 and 9
+# views (so the range of 1/c over all SfM points differs from that over the text points). Test views 2
+# and 6 sit in some text tracks, so a track's size differs from its number of mask hits.
+EQ1_TEXT_TRACKS = [[0, 2], [0, 1, 3], [0, 1, 2, 3, 4], [0, 1, 3, 4, 5, 6], [0, 1, 2, 3, 4, 5, 6],
+                   [0, 6], [0, 4, 7], [0, 2, 5, 7, 8]]
+EQ1_NON_TEXT_TRACKS = [[4], [0, 1, 2, 3, 4, 5, 6, 7, 8], [1, 5], [8]]
+EQ1_N_MAX = 6
+
+
+def eq1_paper_default(track_sizes, n_max):
+    """Eq. 1 as the paper defines it (the suite's default): c_i = |V_i|, the size of point i's COLMAP
+    track, min and max of 1/c over the text points, nearest integer (half up)."""
+    inv = [1.0 / c for c in track_sizes]
+    lo, hi = min(inv), max(inv)
+    return [math.floor(1 + (n_max - 1) * (x - lo) / (hi - lo) + 0.5) for x in inv]
+
+
+@pytest.fixture(scope="module")
+def eq1_scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eq1") / "scene"
+    rng = np.random.default_rng(5)
+    n_text, n_non = len(EQ1_TEXT_TRACKS), len(EQ1_NON_TEXT_TRACKS)
+    n = n_text + n_non
+    x = np.concatenate([rng.uniform(-0.9, -0.5, n_text), rng.uniform(0.5, 0.9, n_non)])
+    xyz = np.stack([x, rng.uniform(-0.5, 0.5, n), np.zeros(n)], 1)
+    rgb = np.stack([np.arange(n) * 17 + 10, np.full(n, 128), np.full(n, 60)], 1)  # one colour per point
+    scene = make_tiny_scene(root, n_views=9, n_points=20, sfm_xyz=xyz, sfm_rgb=rgb,
+                            tracks=EQ1_TEXT_TRACKS + EQ1_NON_TEXT_TRACKS)
+    # Masks: the pixel of every text point's projection (the right half of the plane lands >= 5 px away).
+    (root / "masks").mkdir()
+    for cam in scene.model.cameras:
+        m = np.zeros((cam.height, cam.width), np.uint8)
+        uv, z = cam.project(xyz[:n_text])
+        assert (z > 0).all() and (uv >= 0).all() and (uv[:, 0] < cam.width).all() and (uv[:, 1] < cam.height).all()
+        m[np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)] = 255
+        Image.fromarray(m).save(root / "masks" / cam.name)
+    return Scene.load(root), xyz, rgb
+
+
+def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
+    scene, xyz, rgb = eq1_scene
+    n_text = len(EQ1_TEXT_TRACKS)
+    assert sorted(scene.test_idx) == [2, 6]
+    sizes = [len(t) for t in EQ1_TEXT_TRACKS]
+    want = eq1_paper_default(sizes, EQ1_N_MAX)
+    # By hand: 1/c in [1/7, 1/2]; c = 2 -> 6; 3 -> 1 + 5 (1/3 - 1/7) / (5/14) = 3.67 -> 4; 5 -> 1.8 -> 2;
+    # 6 -> 1.33 -> 1; 7 -> 1.
+    assert want == [6, 4, 2, 1, 1, 6, 4, 2]
+    trainer = StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}).build_trainer(scene, [1], 1)
+    assert trainer.segmentation.is_text.tolist() == [True] * n_text + [False] * len(EQ1_NON_TEXT_TRACKS)
+    first = {}
+    set_model = trainer.set_model
+
+    def keep_first(model):  # the model training starts from
+        first.setdefault("sh0", model.params["sh0"].detach().double().clone())
+        set_model(model)
+
+    trainer.set_model = keep_first
+    list(trainer.train())
+    # Each child copies its parent's colour: count the Gaussians of each SfM point's colour.
+    sh0 = first["sh0"][:, 0, :]
+    point_sh0 = torch.from_numpy((rgb / 255.0 - 0.5) / 0.28209479177387814)
+    dist = (sh0[:, None, :] - point_sh0[None]).abs().amax(-1)
+    assert (dist.min(1).values < 1e-5).all()
+    counts = torch.bincount(dist.argmin(1), minlength=len(rgb)).tolist()
+    assert counts == want + [0] * len(EQ1_NON_TEXT_TRACKS)  # phase 1 holds only the text Gaussians
+    assert trainer.densify_stats["text_gaussians_after_densify"] == sum(want) == len(sh0)
+
+
+# ---- the phase-1 loss: masked L1, mean over the whole image ---------------------------------------
+def _trainer_with_masks(scene, masks):
+    base = StringsMethod(**FAST).build_trainer(scene, [6], 1)
+    return StringsTrainer(scene, base.config, base.strategy, base.st, masks, base.segmentation)
+
+
+class _Out:
+    def __init__(self, color):
+        self.color = color
+
+
+def test_phase1_masked_l1_by_hand(tiny_text_scene):
+    mask = np.array([[True, False], [False, True]])
+    trainer = _trainer_with_masks(tiny_text_scene, {0: mask})
+    gt = torch.tensor([[[0.2, 0.4, 0.6], [0.9, 0.9, 0.9]], [[0.1, 0.1, 0.1], [1.0, 0.5, 0.0]]])
+    render = torch.tensor([[[0.5, 0.4, 0.0], [0.0, 0.0, 0.0]], [[0.7, 0.7, 0.7], [0.25, 0.5, 0.75]]],
+                          requires_grad=True)
+    loss = trainer.loss(_Out(render), gt, 0, step=1)
+    # |gt m - r m|: pixel (0,0) 0.3 + 0 + 0.6, pixel (1,1) 0.75 + 0 + 0.75, masked pixels 0; / 12 values.
+    assert float(loss.detach()) == pytest.approx(2.4 / 12, abs=1e-7)
+    loss.backward()
+    # d/dr = -m sign(gt - r) / 12 (0 where gt = r or outside the mask).
+    g = np.array([[[1, 0, -1], [0, 0, 0]], [[0, 0, 0], [-1, 0, 1]]]) / 12
+    np.testing.assert_allclose(render.grad.numpy(), g, atol=1e-9)
+
+
+def test_phase1_masked_l1_random_against_float64(tiny_text_scene):
+    scene = tiny_text_scene
+    view = scene.train_idx[0]
+    trainer = StringsMethod(**FAST).build_trainer(scene, [6], 1)
+    mask = np.asarray(trainer.masks[view])
+    assert mask.dtype == bool and 0 < mask.sum() < mask.size  # a 0/1 mask, not 0/255
+    x0, y0, x1, y1 = TEXT_BOX
+    assert mask[y0:y1, x0:x1].all() and mask.sum() == (x1 - x0) * (y1 - y0)
+    g = torch.Generator().manual_seed(0)
+    gt = trainer.target(view)
+    render = torch.rand(gt.shape, generator=g, requires_grad=True)
+    loss = trainer.loss(_Out(render), gt, view, step=trainer.t1)
+    gt64, r64, m64 = gt.double().numpy(), render.detach().double().numpy(), mask[:, :, None].astype(np.float64)
+    diff = gt64 * m64 - r64 * m64
+    assert float(loss.detach()) == pytest.approx(np.abs(diff).mean(), rel=1e-6)
+    loss.backward()
+    np.testing.assert_allclose(render.grad.numpy(), -m64 * np.sign(diff) / diff.size, atol=1e-12)
+    # Phase 1 ignores pixels outside the mask; phase 2's loss (L1 + SSIM over the image) does not.
+    changed = render.detach().clone()
+    changed[~torch.from_numpy(mask.copy())] = 0.0
+    assert float(trainer.loss(_Out(changed), gt, view, step=trainer.t1)) == float(loss.detach())
+    assert float(trainer.loss(_Out(changed), gt, view, step=trainer.t1 + 1)) != \
+        float(trainer.loss(_Out(render.detach()), gt, view, step=trainer.t1 + 1))
