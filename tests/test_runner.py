@@ -15,6 +15,7 @@ import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import MethodSpec, register_method
+from strings_bench.eval.ocr import Word
 
 
 @pytest.fixture(scope="module")
@@ -132,6 +133,7 @@ import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.methods.registry import MethodSpec, register_method
+from strings_bench.eval.ocr import Word
 rf.register_fakes()
 register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
 runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, preset="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
@@ -364,3 +366,42 @@ def test_run_preset_scales_methods_without_that_preset(tmp_path, scene_dir):
     quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "quick", "fake")
     assert quick.jobs[0].checkpoints == (350, 1500)
     assert quick.jobs[0].labels == {350: "7K", 1500: "30K"}
+
+
+class _BowtieOCR(rf.FakeOCR):
+    """FakeOCR whose word boxes come out self-intersecting (corners 2 and 3 swapped), as real engines sometimes give."""
+
+    def read(self, image, mask=None):
+        return [Word(w.text, w.polygon[[0, 2, 1, 3]]) for w in super().read(image, mask)]
+
+
+def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
+    out_paper, out_robust = tmp_path / "paper", tmp_path / "robust"
+    _run(out_paper, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False)
+    _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
+    assert json.loads((out_paper / "run.json").read_text())["cer_profile"] == "paper"  # the default
+    assert json.loads((out_robust / "run.json").read_text())["cer_profile"] == "robust"
+    final = runner.CellKey("fake-a", "toyset", "toy", 150)
+    rec_p = json.loads((final.path(out_paper) / "result.json").read_text())
+    rec_r = json.loads((final.path(out_robust) / "result.json").read_text())
+    assert rec_p["config"]["cer_profile"] == "paper" and rec_p["cer"]["profile"]["polygons"] == "strict"
+    assert rec_r["config"]["cer_profile"] == "robust" and rec_r["cer"]["profile"]["polygons"] == "repair"
+    assert rec_r["cer_known"]["profile"]["name"] == "robust"
+    # The render is the ground truth and both read "hello", but in bow-tie boxes: the authors' rule
+    # never matches them (5 errors / 5 per view), the repair does (0).
+    n_views = len(rec_p["cer"]["images"])
+    assert n_views >= 1
+    assert (rec_p["cer"]["errors"], rec_p["cer"]["chars"]) == (5 * n_views, 5 * n_views)
+    assert (rec_r["cer"]["errors"], rec_r["cer"]["chars"]) == (0, 5 * n_views)
+    # Resuming with another profile would mix scorings in one folder.
+    with pytest.raises(StringsBenchError, match="cer-profile"):
+        _run(out_paper, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
+    # A folder from before the option was scored with what is now "robust".
+    manifest = json.loads((out_robust / "run.json").read_text())
+    del manifest["cer_profile"]
+    (out_robust / "run.json").write_text(json.dumps(manifest))
+    with pytest.raises(StringsBenchError, match="before --cer-profile existed"):
+        _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False)
+    _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
+    with pytest.raises(StringsBenchError, match="unknown CER profile"):
+        _run(tmp_path / "x", scene_dir, methods=["fake-a"], cer_profile="nope")

@@ -131,6 +131,7 @@ class Job:
     downscale: float
     ocr: str
     method_overrides: dict = field(default_factory=dict)
+    cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
 
     def cells(self) -> list[CellKey]:
         return [CellKey(self.method, self.dataset, self.scene, it) for it in self.checkpoints]
@@ -258,8 +259,10 @@ def eval_mask(scene, i: int, downscale: float, settings: dict | None) -> np.ndar
 class Evaluator:
     """Computes everything about one checkpoint of one scene. GT-side work is done once per scene."""
 
-    def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True):
+    def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True,
+                 cer_profile: str = "paper"):
         self.scene = scene
+        self.cer_profile = cer_profile
         self.ocr = ocr_backend
         self.downscale = downscale
         self.run_dir = Path(run_dir)
@@ -356,10 +359,10 @@ class Evaluator:
             if known:
                 known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
                 ocr_views[name]["known_words"] = [{"text": k.text, "polygon": np.asarray(k.polygon).tolist()} for k in known]
-        scene_cer = cer.scene_cer(pairs)
+        scene_cer = cer.scene_cer(pairs, profile=self.cer_profile)
         # Known-text CER leaves out words too small for any OCR (cer.KNOWN_TEXT_MIN_HEIGHT_PX); the result's
         # `legibility` records the threshold and the excluded counts. The paper-protocol CER above is untouched.
-        known_cer = cer.known_scene_cer(known_pairs) if known_pairs else None
+        known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
 
         def mean(key):
             vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
@@ -421,7 +424,8 @@ class Runner:
         scene = _load_scene(job)
         adapter = _build_method(job)
         ocr = _get_ocr(self.ocr)
-        evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips)
+        evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips,
+                              cer_profile=job.cer_profile)
         wanted = set(job.checkpoints)
         written: list[CellKey] = []
         seen: set[int] = set()
@@ -467,6 +471,7 @@ class Runner:
                 "scene": {"path": job.scene_path, "settings": job.scene_settings, "test_views": evaluator.names},
                 "preset": job.preset,
                 "downscale": job.downscale,
+                "cer_profile": job.cer_profile,
                 "checkpoints": list(job.checkpoints),
                 "versions": versions(),
                 "metrics": _metrics_describe(),
@@ -556,13 +561,16 @@ class RunPlan:
 
 
 def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
-             ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None) -> RunPlan:
+             ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None,
+             cer_profile: str = "paper") -> RunPlan:
+    from strings_bench.eval.cer import get_profile
     from strings_bench.datasets.registry import resolve_scenes
     from strings_bench.methods.registry import get_method
 
     if not methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
     p = get_preset(preset)
+    get_profile(cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
     refs = resolve_scenes(datasets)
     if not refs:
@@ -586,9 +594,9 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
         labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
         for ref in refs:
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
-                            tuple(checkpoints), labels, preset, ds, ocr, m_over))
+                            tuple(checkpoints), labels, preset, ds, ocr, m_over, cer_profile))
     manifest = {
-        "preset": asdict(p), "downscale": ds, "ocr": ocr,
+        "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": cer_profile,
         "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
         "datasets": datasets,
@@ -610,6 +618,14 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
             raise StringsBenchError(
                 f"{run_dir} holds results made with {k}={old.get(k)!r}; this run asks for {manifest.get(k)!r}",
                 hint="use another --out folder, or the same settings to resume")
+    # Folders made before the profile was recorded were scored with the rules now named "robust".
+    old_profile = old.get("cer_profile", "robust")
+    if old_profile != manifest.get("cer_profile", "paper"):
+        raise StringsBenchError(
+            f"{run_dir} holds CER scored with profile {old_profile!r}"
+            + ("" if "cer_profile" in old else " (made before --cer-profile existed: the rules now named robust)")
+            + f"; this run asks for {manifest.get('cer_profile', 'paper')!r}",
+            hint="use another --out folder, or the same --cer-profile to resume")
     if (old.get("preset") or {}).get("name") != manifest["preset"]["name"]:
         raise StringsBenchError(
             f"{run_dir} holds results of preset {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
@@ -681,8 +697,8 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
         progress: bool = True, write_report: bool = True, ocr_backend=None,
-        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last") -> Path:
+        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper") -> Path:
     """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
-    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides)
+    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
                    write_report=write_report, lpips_at=lpips_at)

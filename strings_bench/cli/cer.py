@@ -46,7 +46,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     cer.add_argument("gt", type=Path, help="OCR of the ground-truth views: results JSON or folder")
     cer.add_argument("pred", type=Path, help="OCR of the rendered views: results JSON or folder")
     cer.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    cer.add_argument("--profile", default="paper", help="normalisation profile (default: paper)")
+    cer.add_argument("--cer-profile", "--profile", dest="profile", default="paper",
+                     help="CER profile: paper (default; the authors' rules exactly), robust (repairs invalid polygons, "
+                          "NFC, all whitespace removed; a deviation), case-sensitive, nfkc-casefold; see docs/ocr.md. "
+                          "--profile is the older name")
     cer.add_argument("--iou", type=float, default=0.1, help="IoU threshold of a GT-prediction match (default 0.1)")
     cer.add_argument("--out", type=Path, help="also write the JSON result to this file")
     cer.set_defaults(func=_cmd_cer)
@@ -199,5 +202,6 @@ def _cmd_cer(args: argparse.Namespace) -> int:
         if names:
             print(f"  {label}: {', '.join(names)}")
     p = profile.to_dict()
-    print(f"profile {p['name']} (Unicode {p['unicode_form']}, case {p['case']}, whitespace {p['whitespace']}); IoU >= {args.iou:g}")
+    print(f"CER profile {p['name']} (Unicode {p['unicode_form']}, case {p['case']}, whitespace removed: {p['whitespace']}, "
+          f"invalid polygons: {p['polygons']}); IoU >= {args.iou:g}")
     return 0

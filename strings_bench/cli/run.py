@@ -29,6 +29,9 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
     p.add_argument("--ocr", default="rapidocr", help="OCR backend for OCR-CER (rapidocr, tesseract, gcv)")
+    p.add_argument("--cer-profile", default="paper",
+                   help="OCR-CER profile (default paper: the authors' rules exactly; robust: repairs invalid polygons, "
+                        "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS), help="where jobs run (default local)")
     p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the preset's, 1)")
     p.add_argument("--set", dest="settings", action="append", default=[], metavar="METHOD.KEY=VALUE",
@@ -56,7 +59,8 @@ def _run(args) -> int:
 
     out = run(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
               downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-              progress=not args.no_progress, method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at)
+              progress=not args.no_progress, method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
+              cer_profile=args.cer_profile)
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     return 0

@@ -1,19 +1,24 @@
 """OCR character error rate (OCR-CER) as the STRinGS authors compute it (REFERENCE.md section 3).
 
 Per image, with GT words = OCR of the masked ground-truth view and predicted words = OCR of the
-masked rendered view:
+masked rendered view, under the default profile "paper" (the authors' rules, exactly):
 
-1. A bipartite graph joins a GT word and a predicted word when their polygons have IoU >= 0.1.
-   Invalid polygons are repaired (shapely make_valid, then buffer(0)); polygons of zero area, fewer
-   than 3 points or non-finite coordinates never match.
+1. A bipartite graph joins a GT word and a predicted word when their shapely polygons have
+   IoU >= 0.1. The IoU is 0 when either polygon is not valid (`Polygon.is_valid` is False:
+   self-intersecting "bow-tie" quads, collinear points ...); such polygons are never repaired, so
+   the word joins no component. Fewer than 3 points or non-finite coordinates never match either
+   (the authors' code would stop there; we do not).
 2. For every connected component holding a GT word, the GT texts and the predicted texts are each
-   normalised (profile "paper": NFC, lower case, all whitespace removed) and concatenated, each side
-   ordered by the mean x or the mean y of its polygons' vertices; the smallest Levenshtein distance
-   of the 4 combinations is the component's error. A GT word in no edge is its own component and
-   costs its length; components with only predicted words cost nothing (recall-based).
-3. Image CER = errors / GT characters (may exceed 1). Scene CER = total errors / total GT
-   characters over the images with GT text; images whose GT OCR found no text are left out, and
-   images where either OCR failed are left out; both are counted and named.
+   normalised (`text.lower().replace(' ', '')`, nothing else) and concatenated, each side ordered
+   by the mean x or the mean y of its polygon's vertices (ties: input order); the smallest
+   Levenshtein distance of the 4 combinations is the component's error. A GT word in no edge is its
+   own component and costs its length; components with only predicted words cost nothing.
+3. Image CER = errors / GT characters (same normalisation; may exceed 1). Scene CER = total errors /
+   total GT characters over the images with GT text; images whose GT OCR found no text are left
+   out, and images where either OCR failed are left out; both are counted and named.
+
+The non-default profile "robust" (a deviation, see `PROFILES` and docs/ocr.md) repairs invalid
+polygons (shapely make_valid, then buffer(0)), applies Unicode NFC and removes all whitespace.
 
 `known_text_cer` scores OCR of a view against the known strings (synthetic scenes) with the same
 machinery, the known words taking the place of the GT OCR. Known words whose box is less than
@@ -46,23 +51,39 @@ IOU_THRESHOLD = 0.1
 KNOWN_TEXT_MIN_HEIGHT_PX = 6.5
 
 
-# --------------------------------------------------------------------------- normalisation profiles
+# --------------------------------------------------------------------------- CER profiles
+POLYGON_RULES = ("strict", "repair")
+WHITESPACE_RULES = ("space", "all", "keep")
+
+
 @dataclass(frozen=True)
 class NormalizationProfile:
-    """How texts are made comparable before edit distances; recorded with every result."""
+    """How texts are made comparable and how word polygons are taken; recorded with every result.
+
+    whitespace: "space" removes the space character ' ' only (the authors), "all" removes every
+    Unicode whitespace (tabs, newlines, NBSP ...), "keep" removes nothing ("remove" is read as "all",
+    the name used before the "space" rule existed).
+    polygons: "strict" = an invalid shapely polygon never matches (the authors); "repair" = invalid
+    polygons are repaired with make_valid, then buffer(0).
+    """
 
     name: str
-    unicode_form: str | None = "NFC"  # NFC, NFKC, NFD, NFKD or None
+    unicode_form: str | None = None  # NFC, NFKC, NFD, NFKD or None
     case: str = "lower"  # "lower", "casefold" or "keep"
-    whitespace: str = "remove"  # "remove" (all Unicode whitespace) or "keep"
+    whitespace: str = "space"
+    polygons: str = "strict"
 
     def __post_init__(self) -> None:
+        if self.whitespace == "remove":
+            object.__setattr__(self, "whitespace", "all")
         if self.unicode_form not in (None, "NFC", "NFKC", "NFD", "NFKD"):
             raise StringsBenchError(f"profile {self.name!r}: unknown Unicode form {self.unicode_form!r}", hint="use NFC, NFKC, NFD, NFKD or None")
         if self.case not in ("lower", "casefold", "keep"):
             raise StringsBenchError(f"profile {self.name!r}: unknown case rule {self.case!r}", hint="use lower, casefold or keep")
-        if self.whitespace not in ("remove", "keep"):
-            raise StringsBenchError(f"profile {self.name!r}: unknown whitespace rule {self.whitespace!r}", hint="use remove or keep")
+        if self.whitespace not in WHITESPACE_RULES:
+            raise StringsBenchError(f"profile {self.name!r}: unknown whitespace rule {self.whitespace!r}", hint=f"use one of: {', '.join(WHITESPACE_RULES)}")
+        if self.polygons not in POLYGON_RULES:
+            raise StringsBenchError(f"profile {self.name!r}: unknown polygon rule {self.polygons!r}", hint=f"use one of: {', '.join(POLYGON_RULES)}")
 
     def normalize(self, text: str) -> str:
         if self.unicode_form:
@@ -73,19 +94,30 @@ class NormalizationProfile:
             text = text.casefold()
         if self.unicode_form and self.case != "keep":
             text = unicodedata.normalize(self.unicode_form, text)  # case mapping can decompose (e.g. "İ")
-        if self.whitespace == "remove":
+        if self.whitespace == "space":
+            text = text.replace(" ", "")
+        elif self.whitespace == "all":
             text = "".join(text.split())
         return text
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "unicode_form": self.unicode_form, "case": self.case, "whitespace": self.whitespace}
+        return {"name": self.name, "unicode_form": self.unicode_form, "case": self.case, "whitespace": self.whitespace,
+                "polygons": self.polygons}
 
+
+CERProfile = NormalizationProfile
 
 PROFILES: dict[str, NormalizationProfile] = {
-    # The authors: lower-case, spaces removed. NFC makes composed and decomposed accents equal.
-    "paper": NormalizationProfile("paper", "NFC", "lower", "remove"),
-    "case-sensitive": NormalizationProfile("case-sensitive", "NFC", "keep", "remove"),
-    "nfkc-casefold": NormalizationProfile("nfkc-casefold", "NFKC", "casefold", "remove"),
+    # The authors' rules, exactly: text.lower().replace(' ', ''); invalid polygons never match.
+    "paper": NormalizationProfile("paper", None, "lower", "space", "strict"),
+    # Deviation, never the default: repairs invalid polygons (an OCR's bow-tie box still overlaps the
+    # word it outlines), NFC (composed and decomposed accents compare equal) and removes all
+    # whitespace (tabs, newlines, NBSP that some OCR engines put inside a word). This was the only
+    # behaviour before issue 15.
+    "robust": NormalizationProfile("robust", "NFC", "lower", "all", "repair"),
+    # Text variants of the paper's rules; they keep its polygon rule so that only the text differs.
+    "case-sensitive": NormalizationProfile("case-sensitive", None, "keep", "space", "strict"),
+    "nfkc-casefold": NormalizationProfile("nfkc-casefold", "NFKC", "casefold", "all", "strict"),
 }
 
 
@@ -93,7 +125,7 @@ def get_profile(profile: str | NormalizationProfile) -> NormalizationProfile:
     if isinstance(profile, NormalizationProfile):
         return profile
     if profile not in PROFILES:
-        raise StringsBenchError(f"unknown normalisation profile {profile!r}", hint=f"choose one of: {', '.join(PROFILES)}")
+        raise StringsBenchError(f"unknown CER profile {profile!r}", hint=f"choose one of: {', '.join(PROFILES)}")
     return PROFILES[profile]
 
 
@@ -179,13 +211,23 @@ def _polygonal_part(geom: Any) -> Any:
     return None  # a line or point: no area
 
 
-def polygon_geometry(polygon: Any) -> Any:
-    """A valid shapely area for a word polygon, or None when it has no area (it then never matches)."""
+def polygon_geometry(polygon: Any, polygons: str = "repair") -> Any:
+    """A shapely area for a word polygon, or None when it never matches.
+
+    polygons="strict" (the authors' rule): None unless `shapely.Polygon(points).is_valid`; nothing
+    is repaired. polygons="repair": invalid polygons are repaired (make_valid, then buffer(0)) and
+    kept when they have area (used by the "robust" CER profile, by `text_height_px` and by OCR
+    post-processing). Both: fewer than 3 points or non-finite coordinates give None.
+    """
+    if polygons not in POLYGON_RULES:
+        raise StringsBenchError(f"unknown polygon rule {polygons!r}", hint=f"use one of: {', '.join(POLYGON_RULES)}")
     pts = np.asarray(polygon, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3 or not np.all(np.isfinite(pts)):
         return None
     geom = shapely.Polygon(pts)
     if not geom.is_valid:
+        if polygons == "strict":
+            return None
         geom = _polygonal_part(shapely.make_valid(geom))
         if geom is not None and not geom.is_valid:
             geom = _polygonal_part(geom.buffer(0))
@@ -195,7 +237,12 @@ def polygon_geometry(polygon: Any) -> Any:
 
 
 def iou_edges(gt_geoms: Sequence[Any], pred_geoms: Sequence[Any], threshold: float = IOU_THRESHOLD) -> list[tuple[int, int]]:
-    """(gt index, pred index) pairs with IoU >= threshold; None geometries never match."""
+    """(gt index, pred index) pairs with IoU >= threshold (> 0); None geometries never match.
+
+    IoU = area(intersection) / area(union), both computed by shapely (GEOS) as the authors do.
+    """
+    if not threshold > 0:
+        raise StringsBenchError(f"IoU threshold {threshold!r} must be > 0", hint="the paper uses 0.1")
     gi = [i for i, g in enumerate(gt_geoms) if g is not None]
     pi = [j for j, g in enumerate(pred_geoms) if g is not None]
     if not gi or not pi:
@@ -207,7 +254,7 @@ def iou_edges(gt_geoms: Sequence[Any], pred_geoms: Sequence[Any], threshold: flo
     if len(qa) == 0:
         return []
     inter = shapely.area(shapely.intersection(g_arr[qa], p_arr[qb]))
-    union = shapely.area(g_arr[qa]) + shapely.area(p_arr[qb]) - inter
+    union = shapely.area(shapely.union(g_arr[qa], p_arr[qb]))
     iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
     keep = iou >= threshold
     return sorted((gi[a], pi[b]) for a, b in zip(qa[keep], qb[keep]))
@@ -245,9 +292,13 @@ def image_cer(
     pred_text = [prof.normalize(w.text) for w in pred]
     chars = sum(len(t) for t in gt_text)
     n, m = len(gt), len(pred)
+    if not iou_threshold > 0:
+        raise StringsBenchError(f"IoU threshold {iou_threshold!r} must be > 0", hint="the paper uses 0.1")
     if n == 0:
         return ImageCER(0, 0, ())
-    edges = iou_edges([polygon_geometry(w.polygon) for w in gt], [polygon_geometry(w.polygon) for w in pred], iou_threshold)
+    rule = prof.polygons
+    edges = iou_edges([polygon_geometry(w.polygon, rule) for w in gt], [polygon_geometry(w.polygon, rule) for w in pred],
+                      iou_threshold)
     rows = [a for a, _ in edges]
     cols = [n + b for _, b in edges]
     graph = coo_matrix((np.ones(len(edges)), (rows, cols)), shape=(n + m, n + m))
@@ -287,7 +338,7 @@ def text_height_px(polygon: Any) -> float:
     distance between them, so a box sheared or foreshortened by perspective is as tall as its
     glyphs really are on screen. Other polygons: the short side of their minimum rotated rectangle.
     """
-    geom = polygon_geometry(polygon)
+    geom = polygon_geometry(polygon, "repair")  # our legibility filter, not the authors' rule: a bow-tie box still has a height
     if geom is None:
         return math.nan
     pts = np.asarray(polygon, dtype=np.float64)
