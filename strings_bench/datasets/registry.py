@@ -68,12 +68,9 @@ def register_dataset(card: DatasetCard) -> DatasetCard:
 
 
 def _load_builtin_cards() -> None:
-    # Importing the card modules registers them.
-    from . import synthetic  # noqa: F401
-    try:
-        from . import cards  # noqa: F401
-    except ImportError:  # real-dataset cards are optional at this stage
-        pass
+    # Importing the card modules registers them. cards.py needs no optional dependency, so an
+    # ImportError there is a bug and must surface (swallowing it silently removed the real datasets).
+    from . import cards, synthetic  # noqa: F401
 
 
 def list_datasets() -> list[DatasetCard]:

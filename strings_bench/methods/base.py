@@ -25,6 +25,9 @@ class CheckpointResult:
     gaussians: int
     peak_memory_mb: float = float("nan")
     extra: dict = field(default_factory=dict)  # method-specific stats (e.g. text Gaussians, fallback flags)
+    # The method's work before its first optimisation step (initial model; STRinGS: masks, Algorithm 1,
+    # Eq. 1); 0 when there is none. The runner reports total_seconds = preprocess + train.
+    preprocess_seconds: float = 0.0
 
 
 class MethodAdapter(ABC):
@@ -32,6 +35,8 @@ class MethodAdapter(ABC):
 
     name: str = "method"
     paper: str = ""
+    # Whether the method may show progress bars (the runner sets it from --no-progress).
+    progress: bool = True
 
     def __init__(self, **settings):
         self.settings = dict(settings)
