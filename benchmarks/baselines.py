@@ -4,8 +4,10 @@
     python benchmarks/baselines.py --methods 3dgs mcmc --preset tiny --small --json out.json
 
 PSNR is the mean over the scene's test views of the checkpoint renders (strings_bench.eval.metrics.psnr).
-Training time is the trainer's optimisation time (no checkpoint renders). `--small` uses the
-160x120, 24-view variant of the synthetic scene (the one the tests use).
+Training time is the trainer's optimisation time (no checkpoint renders); preprocess time (the
+initial model) is in the JSON. `--preset` takes the suite's schedule scales (strings_bench/schedules.py:
+quick x0.01, standard x0.05, ...), the same the methods' presets use. `--small` uses the 160x120,
+24-view variant of the synthetic scene (the one the tests use).
 """
 
 from __future__ import annotations
@@ -18,27 +20,46 @@ import time
 import numpy as np
 
 DEFAULT_METHODS = ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]
-STEPS_SCALE = {"paper": 1.0, "quick": 0.05, "tiny": 0.005}
 
 
-def main(argv=None) -> int:
+def parser() -> argparse.ArgumentParser:
+    from strings_bench.core.schedules import SCHEDULE_SCALES  # the suite's one table (quick = x0.01)
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="synthetic/books", help="dataset/scene spec or a scene folder")
     ap.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
-    ap.add_argument("--preset", default="quick", choices=sorted(STEPS_SCALE))
+    ap.add_argument("--preset", default="quick", choices=sorted(SCHEDULE_SCALES),
+                    help="schedule scale from strings_bench/schedules.py: " +
+                         ", ".join(f"{k} x{v:g}" for k, v in SCHEDULE_SCALES.items()))
     ap.add_argument("--downscale", type=float, default=1)
     ap.add_argument("--small", action="store_true", help="synthetic scenes at 160x120 with 24 views")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=None, help="trainer seed (default 0; for mcmc also its sampling RNG)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--paper-checkpoints", nargs="+", type=int, default=[7000, 30000],
                     help="paper iterations to evaluate (scaled by the preset's steps_scale)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="setting for every method, e.g. steps_scale=0.02 (values parsed as JSON when possible)")
     ap.add_argument("--json", help="also write the figures to this JSON file")
-    args = ap.parse_args(argv)
+    return ap
 
-    from strings_bench.core.io import atomic_write_json
+
+def main(argv=None) -> int:
+    return run(parser().parse_args(argv))
+
+
+def build(method: str, preset: str, paper_checkpoints, **settings):
+    """(adapter, steps_scale, checkpoints): the checkpoints follow the schedule the method actually
+    trains with (its preset from strings_bench/schedules.py, or a given steps_scale)."""
     from strings_bench.methods.registry import get_method
+    from strings_bench.core.schedules import SCHEDULE_SCALES
+
+    adapter = get_method(method).build(preset, **settings)
+    s = float(adapter.settings.get("steps_scale", SCHEDULE_SCALES[preset]))
+    return adapter, s, sorted({max(1, round(c * s)) for c in paper_checkpoints})
+
+
+def run(args) -> int:
+    from strings_bench.core.io import atomic_write_json
     from strings_bench.eval.metrics import psnr
     from strings_bench.scene.scene import Scene
 
@@ -61,18 +82,18 @@ def main(argv=None) -> int:
             overrides[key] = json.loads(value)
         except ValueError:
             overrides[key] = value
-    s = float(overrides.get("steps_scale", STEPS_SCALE[args.preset]))
-    checkpoints = sorted({max(1, round(c * s)) for c in args.paper_checkpoints})
     gts = {scene.names[i]: scene.load_image(i, args.downscale) for i in scene.test_idx}
     rows = []
+    seed = {} if args.seed is None else {"seed": args.seed}
     for method in args.methods:
-        adapter = get_method(method).build(args.preset, seed=args.seed, device=args.device,
-                                                     **overrides)
+        adapter, s, checkpoints = build(method, args.preset, args.paper_checkpoints, device=args.device,
+                                        **seed, **overrides)
         t0 = time.perf_counter()
         for res in adapter.train(scene, checkpoints, args.downscale):
             vals = [psnr(img, gts[name]) for name, img in res.renders.items()]
             rows.append({"method": method, "iteration": res.iteration, "psnr": float(np.mean(vals)),
-                         "train_seconds": res.train_seconds, "gaussians": res.gaussians,
+                         "train_seconds": res.train_seconds, "preprocess_seconds": res.preprocess_seconds,
+                         "gaussians": res.gaussians,
                          "wall_seconds": time.perf_counter() - t0})
             r = rows[-1]
             print(f"{method:14s} it {r['iteration']:6d}  PSNR {r['psnr']:6.2f} dB  train {r['train_seconds']:7.1f} s  "

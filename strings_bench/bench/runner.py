@@ -402,7 +402,7 @@ def _get_ocr(name_or_backend):
 class Runner:
     """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests)."""
 
-    def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress=None,
+    def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress: bool = True,
                  on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last"):
         self.run_dir = Path(run_dir)
         self.ocr = ocr
@@ -423,6 +423,7 @@ class Runner:
             return []
         scene = _load_scene(job)
         adapter = _build_method(job)
+        adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
         ocr = _get_ocr(self.ocr)
         evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips,
                               cer_profile=job.cer_profile)
@@ -476,7 +477,10 @@ class Runner:
                 "versions": versions(),
                 "metrics": _metrics_describe(),
             },
-            "timings": {"train_seconds": result.train_seconds, "eval_seconds": time.perf_counter() - t0},
+            "timings": {"train_seconds": result.train_seconds,
+                        "preprocess_seconds": _preprocess_seconds(result),
+                        "total_seconds": result.train_seconds + _preprocess_seconds(result),
+                        "eval_seconds": time.perf_counter() - t0},
             "gaussians": int(result.gaussians),
             "peak_memory_mb": result.peak_memory_mb,
             "extra": result.extra,
@@ -484,6 +488,11 @@ class Runner:
         }
         atomic_write_json(cell_dir / RESULT_FILE, _jsonable(record))
         write_results_csv(self.run_dir)
+
+
+def _preprocess_seconds(result) -> float:
+    value = getattr(result, "preprocess_seconds", 0.0)  # adapters written before the field: none
+    return 0.0 if value is None else float(value)
 
 
 def _metrics_describe() -> dict:
@@ -495,7 +504,7 @@ def _metrics_describe() -> dict:
 # ---- results.csv ---------------------------------------------------------------------------------
 CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
-    "train_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
 ]
 
@@ -512,6 +521,22 @@ def iter_cells(run_dir: str | Path) -> Iterable[dict]:
                                     hint="delete that cell's folder and re-run to recompute it") from exc
 
 
+def _timing_columns(rec: dict) -> dict:
+    """train/preprocess/total seconds of a cell. Cells written before preprocess time was recorded
+    (no `timings.preprocess_seconds`) take STRinGS' extra["preprocess_seconds"] (masks and Algorithm
+    1, all it measured then; its Eq. 1 time was not measured) or else 0 (other methods had none)."""
+    t = rec.get("timings") or {}
+    train = t.get("train_seconds")
+    pre = t.get("preprocess_seconds")
+    if pre is None:
+        pre = (rec.get("extra") or {}).get("preprocess_seconds", 0.0)
+    total = t.get("total_seconds")
+    if total is None and train is not None:
+        total = train + pre
+    return {"train_seconds": "" if train is None else train, "preprocess_seconds": "" if pre is None else pre,
+            "total_seconds": "" if total is None else total}
+
+
 def cell_row(rec: dict) -> dict:
     c = rec.get("cer") or {}
     k = rec.get("cer_known")
@@ -526,7 +551,7 @@ def cell_row(rec: dict) -> dict:
         "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
         "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
         "lpips": num(rec["metrics"].get("lpips")),
-        "train_seconds": num(rec["timings"].get("train_seconds")),
+        **_timing_columns(rec),
         "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
@@ -666,7 +691,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             bar.set_postfix_str(f"{key.method} {key.dataset}/{key.scene} @{key.iteration}")
 
     runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips, on_cell=on_cell,
-                    lpips_at=lpips_at)
+                    lpips_at=lpips_at, progress=progress)
     ex = get_executor(executor, runner) if isinstance(executor, str) else executor
     errors: list[tuple[Job, BaseException]] = []
     try:

@@ -68,12 +68,10 @@ def register_dataset(card: DatasetCard) -> DatasetCard:
 
 
 def _load_builtin_cards() -> None:
-    # Importing the card modules registers them.
+    # Importing the card modules registers them. cards.py needs no optional dependency, so an
+    # ImportError there is a bug and must surface (swallowing it silently removed the real datasets).
+    import strings_bench.datasets.cards as cards
     import strings_bench.datasets.synthetic as synthetic
-    try:
-        import strings_bench.datasets.cards as cards
-    except ImportError:  # real-dataset cards are optional at this stage
-        pass
 
 
 def list_datasets() -> list[DatasetCard]:

@@ -87,10 +87,11 @@ class GaussianModel:
     @classmethod
     def from_points(cls, xyz, rgb, sh_degree: int = 3, init_opacity: float = 0.1,
                     extras: Mapping[str, torch.Tensor] | None = None, device: str | torch.device = "cpu",
-                    min_scale: float = 1e-7) -> "GaussianModel":
+                    min_sq_dist: float = 1e-7) -> "GaussianModel":
         """3DGS initialisation from SfM points: colour from the point (uint8 or [0,1] floats), opacity
-        `init_opacity`, isotropic scale sqrt(mean squared distance to the 3 nearest neighbours),
-        identity rotation, higher SH orders zero."""
+        `init_opacity`, isotropic scale sqrt(max(mean squared distance to the 3 nearest neighbours,
+        min_sq_dist)), identity rotation, higher SH orders zero. 3DGS clamps the squared distance at
+        1e-7 before the square root (so the smallest scale is sqrt(1e-7) ~ 3.16e-4)."""
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         rgb = np.asarray(rgb)
         if rgb.shape != xyz.shape:
@@ -100,7 +101,7 @@ class GaussianModel:
                                     hint="the scene's SfM model has no 3D points; re-run SfM")
         colour = rgb.astype(np.float64) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float64)
         n = len(xyz)
-        d2 = np.maximum(knn_mean_sq_dist(xyz), min_scale ** 2)
+        d2 = np.maximum(knn_mean_sq_dist(xyz), min_sq_dist)
         f32 = dict(dtype=torch.float32, device=device)
         params = {
             "means": torch.tensor(xyz, **f32),

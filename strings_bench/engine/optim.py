@@ -45,10 +45,23 @@ class LearningRates:
 
 
 def exponential_lr(step: float, lr_init: float, lr_final: float, max_steps: float) -> float:
-    """3DGS position schedule: log-linear from lr_init at step 0 to lr_final at max_steps, then flat."""
-    if lr_init == 0.0 or lr_final == 0.0:
-        return 0.0 if lr_init == 0.0 else lr_init
+    """3DGS position schedule: log-linear from lr_init at step 0 to lr_final at max_steps, then flat.
+
+    With t = clip(step / max_steps, 0, 1) the value is lr_init^(1-t) * lr_final^t. A zero end point
+    takes the limit of that product (as 3DGS' get_expon_lr_func does through exp(log(0)) = 0):
+    lr_final = 0 gives lr_init at t = 0 and 0 for every t > 0; lr_init = 0 gives 0 for t < 1 and
+    lr_final at t = 1; both 0 give 0. (At the one point where 3DGS' numpy expression is 0 * -inf =
+    NaN, t = 0 resp. t = 1, the limit is used.) For a smooth decay towards 0 give a small positive
+    lr_final. Negative rates are an error.
+    """
+    if lr_init < 0 or lr_final < 0 or math.isnan(lr_init) or math.isnan(lr_final):
+        raise StringsBenchError(f"learning rates must be >= 0, got lr_init={lr_init}, lr_final={lr_final}",
+                                hint="check lr_means / lr_means_final")
     t = min(max(step / max(max_steps, 1e-12), 0.0), 1.0)
+    if lr_final == 0.0:
+        return lr_init if t == 0.0 else 0.0
+    if lr_init == 0.0:
+        return lr_final if t == 1.0 else 0.0
     return math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
 
 

@@ -20,7 +20,10 @@ round(paper iteration x steps_scale)); every schedule inside (densification, opa
 position-LR decay) is its nominal 3DGS iteration number multiplied by `steps_scale`.
 
 Training time counts the optimisation steps only (render, loss, backward, Adam, densification),
-not the checkpoint renders or file writes. Peak memory is the process's peak resident set size
+not the checkpoint renders or file writes. Preprocess time (CheckpointResult.preprocess_seconds) is
+the method's work before the first step: `self.preprocess_seconds` (set by an adapter for work done
+before the trainer exists, e.g. STRinGS' masks and Algorithm 1) plus building the initial model
+(nearest-neighbour scales; STRinGS' Eq. 1). Peak memory is the process's peak resident set size
 (resource.getrusage ru_maxrss; it is a process-lifetime peak, so it includes earlier work in the
 same process), or torch.cuda.max_memory_allocated on a CUDA device.
 """
@@ -105,6 +108,8 @@ class Trainer:
         self._targets: dict[int, torch.Tensor] = {}
         self.background = torch.tensor(self.config.background, dtype=torch.float32, device=self.device)
         self.last_loss = float("nan")
+        self.preprocess_seconds = 0.0  # work before the trainer (adapters add theirs)
+        self.init_seconds = 0.0  # building the initial model (measured in train())
 
     # ---- schedule helpers -------------------------------------------------------------------
     def at(self, nominal: float) -> int:
@@ -201,7 +206,9 @@ class Trainer:
 
         self.seed_everything()
         self._deferred_refinement = None
+        t0 = time.perf_counter()
         self.set_model(self._given_model if self._given_model is not None else self.initial_model(self.scene))
+        self.init_seconds = time.perf_counter() - t0
         at_steps = set(self.checkpoint_steps(checkpoints))
         total = max(at_steps)
         train_seconds = 0.0
@@ -307,7 +314,7 @@ class Trainer:
         renders = self.render_views(list(self.scene.test_idx), sh_degree=degree) if self.config.render_test else {}
         extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
                  "sh_degree": degree,
-                 "last_loss": self.last_loss}
+                 "last_loss": self.last_loss, "init_seconds": self.init_seconds}
         if self.config.ply_dir:
             from strings_bench.scene.ply import write_ply
 
@@ -316,7 +323,8 @@ class Trainer:
             extra["ply"] = str(path)
         extra.update(self.checkpoint_extra(step))
         return CheckpointResult(iteration=step, renders=renders, train_seconds=train_seconds,
-                                gaussians=len(self.model), peak_memory_mb=peak_memory_mb(self.device), extra=extra)
+                                gaussians=len(self.model), peak_memory_mb=peak_memory_mb(self.device), extra=extra,
+                                preprocess_seconds=self.preprocess_seconds + self.init_seconds)
 
 
 # ---- settings dicts (method presets, CLI --set) -> config + strategy ---------------------------------
@@ -327,7 +335,8 @@ def config_from_settings(settings: dict, checkpoints=None, downscale: float | No
     Keys: TrainConfig fields (steps_scale, seed, sh_degree, background, ...), learning rates as
     `lr_<group>` (lr_means, lr_means_final, lr_opacity_logits, ...), and fields of `strategy_cls`
     (grow_grad2d, refine_every, ...). Unknown keys are an error (typos must not pass silently);
-    keys in `ignore` are left to the caller.
+    keys in `ignore` are left to the caller. A key that is both a TrainConfig and a strategy field
+    (`seed`: the trainer's seed and MCMC's sampling generator) goes to both.
     """
     from dataclasses import fields as dc_fields
 
@@ -338,12 +347,13 @@ def config_from_settings(settings: dict, checkpoints=None, downscale: float | No
     for key, value in settings.items():
         if key in ignore:
             continue
-        if key in cfg_fields:
-            cfg_kw[key] = value
+        if key in cfg_fields or key in strat_fields:
+            if key in cfg_fields:
+                cfg_kw[key] = value
+            if key in strat_fields:
+                strat_kw[key] = value
         elif key.startswith("lr_") and key[3:] in lr_fields:
             lr_kw[key[3:]] = float(value)
-        elif key in strat_fields:
-            strat_kw[key] = value
         else:
             unknown.append(key)
     if unknown:

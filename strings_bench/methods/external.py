@@ -15,8 +15,9 @@ Settings:
 
 Contract with the command: write one PNG per test view into `{out}`, named after the test image
 (`<image stem>.png`, or the image's own name if it ends in .png), at the size of the scene's images
-for the downscale; optionally `{out}/stats.json` with `train_seconds` and `gaussians`. Without
-stats.json, training time is the command's wall time and Gaussians are unknown (n/a).
+for the downscale; optionally `{out}/stats.json` with `train_seconds`, `gaussians` and
+`preprocess_seconds` (default 0). Without stats.json, training time is the command's wall time and
+Gaussians are unknown (n/a).
 
 The command is run once per checkpoint; a program that trains progressively can keep its own state
 between calls (e.g. resume from its checkpoint at the previous iteration).
@@ -135,6 +136,7 @@ class ExternalCommandAdapter(MethodAdapter):
                     train_seconds=float(stats.get("train_seconds", total)),
                     gaussians=int(stats.get("gaussians", -1)),  # -1: unknown, shown as n/a
                     extra={"command_seconds": total, "stats": stats},
+                    preprocess_seconds=float(stats.get("preprocess_seconds", 0.0)),
                 )
         finally:
             if tmp is not None:

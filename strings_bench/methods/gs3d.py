@@ -28,6 +28,7 @@ class GS3DAdapter(MethodAdapter):
         from strings_bench.engine.trainer import Trainer, config_from_settings
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls)
+        config.progress = config.progress and self.progress
         return Trainer(scene, config, strategy)
 
     def train(self, scene, checkpoints=None, downscale: float = 1) -> Iterator[CheckpointResult]:

@@ -54,6 +54,7 @@ class MCMCAdapter(GS3DAdapter):
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls,
                                                 ignore=METHOD_KEYS)
+        config.progress = config.progress and self.progress
         factor = float(self.settings.get("init_scale_factor", 0.1))
         if not factor > 0:
             raise StringsBenchError(f"mcmc init_scale_factor must be > 0, got {factor}")

@@ -62,6 +62,7 @@ class MipSplattingAdapter(GS3DAdapter):
         from strings_bench.engine.trainer import config_from_settings
 
         config, strategy = config_from_settings(self.settings, checkpoints, downscale, self.strategy_cls)
+        config.progress = config.progress and self.progress
         return _trainer_cls()(scene, config, strategy)
 
 

@@ -10,6 +10,7 @@ rendered with our rasterizer (`GaussianModel.render`). Settings:
   cell at this iteration (labelled e.g. "30K"). A list in `iterations` gives several checkpoints.
 - `background` (default black, as 3DGS), `sh_degree` (default: the file's), `backend` (raster backend).
 - `train_seconds` (optional): the training time to report; otherwise NaN (tables show n/a).
+- `preprocess_seconds` (optional, default 0): preprocessing time of that training, added to the total.
 
     strings-bench run --methods ply --set ply.ply_path=/models/{scene}/point_cloud.ply --datasets strings360
 """
@@ -69,7 +70,8 @@ class PlyAdapter(MethodAdapter):
                     renders[scene.names[i]] = np.clip(out.color.detach().cpu().numpy(), 0, 1).astype(np.float32)
             yield CheckpointResult(iteration=it, renders=renders,
                                    train_seconds=float(self.settings.get("train_seconds", math.nan)),
-                                   gaussians=int(model.params["means"].shape[0]), extra={"ply_path": str(path)})
+                                   gaussians=int(model.params["means"].shape[0]), extra={"ply_path": str(path)},
+                                   preprocess_seconds=float(self.settings.get("preprocess_seconds", 0.0)))
 
 
 def _factory(**settings) -> PlyAdapter:

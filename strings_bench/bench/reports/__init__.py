@@ -61,4 +61,7 @@ def write_report(run_dir: str | Path) -> Path:
         lines += ["## figures", ""]
         for name, p in figures.items():
             lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({p.relative_to(out)})", ""]
+            if name.startswith("cer_vs_time"):
+                lines += ["Mean OCR-CER against mean whole-run training time: preprocessing (text masks, 3D text "
+                          "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
     return atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from strings_bench.core.io import atomic_write
-from strings_bench.bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title
+from strings_bench.bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title, with_total_seconds
 
 CROP_PAD = 0.25  # fraction of the text box added on every side of a crop
 
@@ -45,14 +45,15 @@ def _colors(methods: list[str]) -> dict[str, tuple]:
 
 
 def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path | None:
-    """Teaser scatter: mean OCR-CER (over all scenes) against mean training minutes at one checkpoint."""
+    """Teaser scatter: mean OCR-CER (over all scenes) against mean whole-run training minutes
+    (total_seconds = preprocessing + optimisation) at one checkpoint."""
     if df.empty:
         return None
     label = label or main_labels(df)[0]
-    sub = df[df["label"] == label]
+    sub = with_total_seconds(df[df["label"] == label])
     if sub.empty:
         return None
-    g = sub.groupby("method").agg(cer=("cer", "mean"), minutes=("train_seconds", lambda s: s.mean() / 60)).reset_index()
+    g = sub.groupby("method").agg(cer=("cer", "mean"), minutes=("total_seconds", lambda s: s.mean() / 60)).reset_index()
     g = g.dropna(subset=["minutes"])
     if g.empty:
         return None
@@ -66,7 +67,7 @@ def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path |
                    marker="*" if r.method == "strings" else "o", zorder=3, label=method_title(r.method))
         if not math.isnan(y):
             ax.annotate(method_title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
-    ax.set_xlabel(f"training time at {label} (minutes)")
+    ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
     ax.set_ylabel(f"OCR-CER at {label} (lower is better)")
     _cer_axis(ax, g["cer"])
     ax.grid(True, alpha=0.3)

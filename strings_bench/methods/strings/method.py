@@ -43,7 +43,10 @@ class StringsSettings:
     t1: int = 3000  # length of phase 1
     alpha: float = 0.5
     beta: float = 0.0005
-    gamma: float = 15000  # paper; the release uses 12000
+    gamma: float = 15000  # paper (global counter); the release: 12000 on the phase-2 counter
+    # Which step counter gamma (and t in eta_r) is on: "global" (paper: t counts from the start of
+    # phase 1) or "phase2" (release: t = step - T1, i.e. 1 at the first phase-2 step), see docs/strings.md.
+    gamma_counter: str = "global"
     tau: int = 1  # text point: mask hits >= tau
     n_max: int | None = None  # None: scene.settings["n_max"], else 15
     equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
@@ -64,6 +67,9 @@ class StringsSettings:
     def __post_init__(self):
         if self.phase2_schedules not in ("global", "restart"):
             raise StringsBenchError(f"phase2_schedules must be 'global' or 'restart', got {self.phase2_schedules!r}")
+        if self.gamma_counter not in ("global", "phase2"):
+            raise StringsBenchError(f"gamma_counter must be 'global' or 'phase2', got {self.gamma_counter!r}",
+                                    hint="'global' = the paper's counter, 'phase2' = the release's (starts at 1 after T1)")
         if self.t1 < 0:
             raise StringsBenchError(f"t1 must be >= 0, got {self.t1}")
         if self.phase1_position_lr < 0:
@@ -176,8 +182,9 @@ class StringsTrainer(_trainer_base()):
 
     def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
         if self.in_phase1(step):
-            m = self._mask_tensor(view_idx)
-            return (gt * m - out.color * m).abs().mean()  # mean over the whole image, no SSIM
+            from strings_bench.engine.losses import masked_l1
+
+            return masked_l1(out.color, gt, self._mask_tensor(view_idx))  # mean over the whole image, no SSIM
         return super().loss(out, gt, view_idx, step)
 
     def _mask_tensor(self, view_idx: int) -> torch.Tensor:
@@ -202,9 +209,11 @@ class StringsTrainer(_trainer_base()):
         return self.base_position_lr(step - self.t1)  # eta_opt: the 3DGS schedule shifted by T1
 
     def lr_factors(self, step: int) -> tuple[float, float]:
-        """(eta_r for text, eta_r for non-text) at actual step `step` (phase 2)."""
+        """(eta_r for text, eta_r for non-text) at actual (global) step `step` (phase 2). With
+        gamma_counter "phase2", t is the phase-2 counter step - T1 (1 at the first phase-2 step)."""
         s = self.config.steps_scale
-        text = text_lr_factor(step, self.st.alpha, self.st.beta / s, self.st.gamma * s)
+        t = step - self.t1 if self.st.gamma_counter == "phase2" else step
+        text = text_lr_factor(t, self.st.alpha, self.st.beta / s, self.st.gamma * s)
         return text, float(self.st.alpha)
 
     def position_lr_scale(self, step: int):
@@ -234,7 +243,7 @@ class StringsTrainer(_trainer_base()):
             "sfm_points": int(self.scene.model.num_points),
             "text_points": int(self.segmentation.num_text),
             "text_views": len(self.text_views),
-            "preprocess_seconds": self.preprocess_seconds,
+            "masks_segmentation_seconds": self.preprocess_seconds,  # part of CheckpointResult.preprocess_seconds
             **self.densify_stats,
         }
         if self.fallback:
@@ -258,6 +267,7 @@ class StringsMethod(MethodAdapter):
         rest = {k: v for k, v in self.settings.items() if k not in known_st and k != "checkpoints"}
         # Checkpoints are the steps actually run (runner and trainer convention).
         config, strategy = config_from_settings(rest, checkpoints, downscale)
+        config.progress = config.progress and self.progress  # --no-progress (the runner sets self.progress)
         return st, config, strategy
 
     def build_trainer(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> StringsTrainer:
@@ -267,9 +277,10 @@ class StringsMethod(MethodAdapter):
         st, config, strategy = self._split(checkpoints, downscale)
         t0 = time.perf_counter()
         mask_settings = st.mask_settings()
-        masks = text_masks(scene, scene.train_idx, downscale, mask_settings)
+        masks = text_masks(scene, scene.train_idx, downscale, mask_settings, progress=config.progress)
         seg_ds = st.segmentation_downscale or downscale
-        seg_masks = masks if seg_ds == downscale else text_masks(scene, scene.train_idx, seg_ds, mask_settings)
+        seg_masks = masks if seg_ds == downscale else text_masks(scene, scene.train_idx, seg_ds, mask_settings,
+                                                                 progress=config.progress)
         seg = segment_text_points(scene, seg_masks, seg_ds, st.tau)
         return StringsTrainer(scene, config, strategy, st, masks, seg, preprocess_seconds=time.perf_counter() - t0)
 
@@ -282,7 +293,8 @@ def _presets() -> dict[str, dict]:
     from strings_bench.core.schedules import schedule_presets
 
     presets = schedule_presets()
-    presets["release"] = {"steps_scale": 1.0, "gamma": 12000, "mask_dilation_px": 225.0,
+    # The release's gamma is 12000 on its phase-2 counter (= the paper's 15000 on the global one at T1 = 3000).
+    presets["release"] = {"steps_scale": 1.0, "gamma": 12000, "gamma_counter": "phase2", "mask_dilation_px": 225.0,
                           "phase2_schedules": "restart"}
     return presets
 
