@@ -70,3 +70,12 @@ def make_tiny_scene(root: Path, n_views: int = 9, width: int = 32, height: int =
     # Interior test views (the default every-8th split would hold out the ends of the arc).
     (root / "split.json").write_text(json.dumps({"test": [cams[i].name for i in range(2, n_views, 4)]}))
     return Scene.load(root)
+
+
+def train(method, scene, checkpoints, **kwargs) -> list:
+    """All checkpoint results of `method` trained on `scene` by the framework's loop (CPU, no bar)."""
+    from strings_bench.engine.trainer import Trainer
+
+    kwargs.setdefault("progress", False)
+    kwargs.setdefault("device", "cpu")
+    return list(Trainer(method, scene, checkpoints, **kwargs).train())

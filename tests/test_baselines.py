@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parent))  # tests/_engine_helpers
 
+import _engine_helpers as eh  # noqa: E402
 from strings_bench.scene.camera import Camera
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.optim import GaussianAdam
@@ -400,7 +401,6 @@ def test_absgs_statistic_matches_per_pixel_brute_force_with_the_reference_raster
 # ---------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def tiny_scene(tmp_path_factory):
-    import _engine_helpers as eh
 
     return eh.make_tiny_scene(tmp_path_factory.mktemp("tiny"))
 
@@ -409,21 +409,20 @@ def test_mip_trainer_renders_through_the_filter_and_keeps_it_current(tiny_scene)
     from strings_bench.methods.registry import get_method
 
     # refine every step (nominal 1: never stretched by the quick-schedule floor)
-    adapter = get_method("mip-splatting").build(None, steps_scale=0.01, sh_degree=0, progress=False, refine_every=1)
-    trainer = adapter.make_trainer(tiny_scene, [12], 1)
-    trainer.set_model(trainer.initial_model(tiny_scene))
+    trainer = get_method("mip-splatting").build(None, steps_scale=0.01, sh_degree=0, refine_every=1)
+    trainer.setup(tiny_scene, downscale=1, device="cpu")
     cams = [trainer.camera(i) for i in trainer.train_views()]
     np.testing.assert_allclose(trainer.model.extras[FILTER_KEY].numpy(),
                                filter_sigma(trainer.model.means, cams).numpy(), rtol=1e-6)
     view = tiny_scene.test_idx[0]
     with torch.no_grad():
-        got = trainer.render(view, sh_degree=0).color
+        got = trainer.render_raster(view, sh_degree=0).color
         folded = fold_3d_filter(trainer.model).render(trainer.camera(view), trainer.background, sh_degree=0,
                                                       mip_filter=True).color
         raw = trainer.model.render(trainer.camera(view), trainer.background, sh_degree=0, mip_filter=True).color
     assert torch.allclose(got, folded, atol=1e-5)
     assert not torch.allclose(got, raw, atol=1e-4)  # the filter changes the image
-    results = list(trainer.train())
+    results = eh.train(trainer, tiny_scene, [12])
     assert results[-1].iteration == 12 and np.isfinite(next(iter(results[-1].renders.values()))).all()
     # recomputed at the last densification step (every step)
     np.testing.assert_allclose(trainer.model.extras[FILTER_KEY].numpy(),
@@ -434,14 +433,14 @@ def test_mcmc_initialisation_and_short_run(tiny_scene):
     from strings_bench.engine.gaussians import GaussianModel as GM
     from strings_bench.methods.registry import get_method
 
-    adapter = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, progress=False, refine_every=1)
-    trainer = adapter.make_trainer(tiny_scene, [12], 1)
-    model = trainer.initial_model(tiny_scene)
+    trainer = get_method("mcmc").build(None, steps_scale=0.01, sh_degree=0, refine_every=1)
+    trainer.setup(tiny_scene, downscale=1, device="cpu")
+    model = trainer.model
     plain = GM.from_points(tiny_scene.model.xyz, tiny_scene.model.rgb, sh_degree=0)
     np.testing.assert_allclose(model.opacities.detach().numpy(), 0.5, rtol=1e-6)
     np.testing.assert_allclose(model.scales.detach().numpy(), 0.1 * plain.scales.detach().numpy(), rtol=1e-5)
-    results = list(trainer.train())
     n0 = len(model)
+    results = eh.train(trainer, tiny_scene, [12])
     # growth by 5 % at each of steps 6..12 (refine window (5, 250), every step), capped at 10 x n0;
     # the checkpoint at 12 is taken before step 12's growth (as the reference saves, then densifies)
     expected = n0
@@ -464,8 +463,7 @@ def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small
     gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}
     final = {}
     for method in ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]:
-        adapter = get_method(method).build("standard", progress=False)
-        results = list(adapter.train(scene, [350, 1500], 1))
+        results = eh.train(get_method(method).build("standard"), scene, [350, 1500])
         assert [r.iteration for r in results] == [350, 1500]
         last = results[-1]
         for img in last.renders.values():

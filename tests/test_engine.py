@@ -10,13 +10,14 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _engine_helpers import make_tiny_scene  # noqa: E402
+from _engine_helpers import make_tiny_scene, train  # noqa: E402
 
-from strings_bench.core.errors import TrainingError  # noqa: E402
+from strings_bench.core.errors import StringsBenchError, TrainingError  # noqa: E402
 from strings_bench.engine.gaussians import SH_C0, GaussianModel  # noqa: E402
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr  # noqa: E402
 from strings_bench.engine.strategies import DefaultStrategy, Strategy, ops  # noqa: E402
-from strings_bench.engine.trainer import TrainConfig, Trainer  # noqa: E402
+from strings_bench.engine.splatting import GaussianSplatting, TrainConfig  # noqa: E402
+from strings_bench.engine.trainer import Trainer  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -236,18 +237,17 @@ def test_default_strategy_schedule_scales_with_steps():
 def test_checkpoint_is_taken_before_that_steps_opacity_reset(tiny_scene):
     """A reset due on a checkpoint step runs after the checkpoint (the reference saves, then densifies)."""
     strategy = DefaultStrategy(refine_start_iter=1000, reset_every=10, refine_stop_iter=1000)
-    tr = Trainer(tiny_scene, TrainConfig(checkpoints=(10, 12), sh_degree=0, progress=False), strategy)
+    tr = GaussianSplatting(TrainConfig(sh_degree=0), strategy)
     seen = {}
-    for result in tr.train():
+    for result in Trainer(tr, tiny_scene, (10, 12), progress=False).train():
         seen[result.iteration] = float(tr.model.opacities.detach().max())
     assert seen[10] > 0.05            # initial opacity 0.1, not reset yet when the checkpoint renders
     assert seen[12] < 0.02            # reset to 0.01 right after the checkpoint, two Adam steps since
 
 
 def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
-    cfg = TrainConfig(checkpoints=(50, 350), steps_scale=0.05, sh_degree=1, progress=False,
-                      ply_dir=str(tmp_path / "ply"))
-    tr = Trainer(tiny_scene, cfg)
+    cfg = TrainConfig(steps_scale=0.05, sh_degree=1)
+    tr = GaussianSplatting(cfg)
     losses = []
     orig = tr.train_step
 
@@ -256,7 +256,7 @@ def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
         return losses[-1]
 
     tr.train_step = record
-    results = list(tr.train())
+    results = train(tr, tiny_scene, (50, 350), model_path=lambda step: tmp_path / "ply" / f"iteration_{step}.ply")
     assert [r.iteration for r in results] == [50, 350]
     assert [r.extra["paper_iteration"] for r in results] == [1000, 7000]
     assert results[0].train_seconds < results[1].train_seconds
@@ -272,15 +272,15 @@ def test_trainer_end_to_end_loss_decreases(tiny_scene, tmp_path):
     # held-out views are reproduced much better than by the initial point cloud
     gt = {tiny_scene.names[i]: tiny_scene.load_image(i) for i in tiny_scene.test_idx}
     tr.set_model(tr.initial_model(tiny_scene))
-    err0 = np.mean([np.abs(img - gt[k]).mean() for k, img in tr.render_views(tiny_scene.test_idx).items()])
+    err0 = np.mean([np.abs(tr.render(i) - gt[tiny_scene.names[i]]).mean() for i in tiny_scene.test_idx])
     err = np.mean([np.abs(results[1].renders[k] - gt[k]).mean() for k in gt])
     assert err < 0.5 * err0, (err, err0)
 
 
 def test_trainer_is_repeatable(tiny_scene):
     def run(seed):
-        cfg = TrainConfig(checkpoints=(20,), steps_scale=0.02, sh_degree=0, progress=False, seed=seed)
-        return next(iter(Trainer(tiny_scene, cfg).train()))
+        cfg = TrainConfig(steps_scale=0.02, sh_degree=0, seed=seed)
+        return train(GaussianSplatting(cfg), tiny_scene, (20,))[0]
 
     a, b, c = run(0), run(0), run(1)
     for k in a.renders:
@@ -293,40 +293,41 @@ def test_trainer_schedules_scale():
         extent = 2.0
         name = "fake"
 
-    tr = Trainer(FakeScene(), TrainConfig(checkpoints=(7000, 30000), steps_scale=0.1))
-    assert tr.checkpoint_steps([3000, 700, 700]) == [700, 3000]
+    tr = GaussianSplatting(TrainConfig(steps_scale=0.1))
+    tr.scene, tr.extent = FakeScene(), FakeScene.extent
+    assert Trainer(tr, FakeScene(), [3000, 700, 700]).checkpoints == [700, 3000]
+    with pytest.raises(StringsBenchError, match="positive"):
+        Trainer(tr, FakeScene(), [0, 10])
     assert tr.sh_degree_for_step(99) == 0 and tr.sh_degree_for_step(100) == 1 and tr.sh_degree_for_step(2000) == 3
     assert tr.position_lr(1500) == pytest.approx(2 * math.sqrt(1.6e-4 * 1.6e-6))
     assert tr.position_lr(3000) == pytest.approx(1.6e-6 * 2)
 
 
 def test_nan_parameter_stops_training_naming_group(tiny_scene):
-    class Poison(Trainer):
+    class Poison(GaussianSplatting):
         def on_step_start(self, step):
             if step == 7:
                 with torch.no_grad():
                     self.model.params["log_scales"][3, 0] = float("nan")
 
-    cfg = TrainConfig(checkpoints=(20,), sh_degree=0, progress=False)
     with pytest.raises(TrainingError, match=r"iteration 7.*log_scales"):
-        list(Poison(tiny_scene, cfg, strategy=Strategy()).train())
+        train(Poison(TrainConfig(sh_degree=0), Strategy()), tiny_scene, (20,))
 
 
 def test_nan_gradient_stops_training_naming_group(tiny_scene):
-    class BadGrad(Trainer):
+    class BadGrad(GaussianSplatting):
         def loss(self, out, gt, view_idx, step):
             base = super().loss(out, gt, view_idx, step)
             if step == 4:  # finite value, infinite derivative: sqrt at 0
                 base = base + 0 * torch.sqrt(self.model.params["quats"][:, 1] * 0).sum()
             return base
 
-    cfg = TrainConfig(checkpoints=(10,), sh_degree=0, progress=False)
     with pytest.raises(TrainingError, match=r"iteration 4.*quats"):
-        list(BadGrad(tiny_scene, cfg, strategy=Strategy()).train())
+        train(BadGrad(TrainConfig(sh_degree=0), Strategy()), tiny_scene, (10,))
 
 
 def test_per_row_position_lr_scale(tiny_scene):
-    class Frozen(Trainer):
+    class Frozen(GaussianSplatting):
         def initial_model(self, scene):
             m = super().initial_model(scene)
             m.extras["is_text"] = torch.arange(len(m)) % 2 == 0
@@ -336,8 +337,8 @@ def test_per_row_position_lr_scale(tiny_scene):
         def position_lr_scale(self, step):
             return (~self.model.extras["is_text"]).float()  # text rows get position LR 0
 
-    tr = Frozen(tiny_scene, TrainConfig(checkpoints=(15,), sh_degree=0, progress=False), strategy=Strategy())
-    list(tr.train())
+    tr = Frozen(TrainConfig(sh_degree=0), Strategy())
+    train(tr, tiny_scene, (15,))
     moved = (tr.model.params["means"].detach() - tr.start).abs().sum(1) > 0
     is_text = tr.model.extras["is_text"]
     assert not moved[is_text].any() and moved[~is_text].float().mean() > 0.5
@@ -349,14 +350,13 @@ def test_gs3d_method_registered_and_trains(tiny_scene):
 
     spec = get_method("3dgs")
     assert spec.presets["paper"]["steps_scale"] == 1.0 and "quick" in spec.presets
-    adapter = spec.build(preset="quick", sh_degree=0, progress=False, lr_opacity_logits=0.025, grow_grad2d=3e-4)
-    trainer = adapter.make_trainer(tiny_scene, [10, 20], 1)
-    assert trainer.config.lrs.opacity_logits == 0.025 and trainer.strategy.grow_grad2d == 3e-4
-    assert trainer.config.steps_scale == 0.01
-    results = list(adapter.train(tiny_scene, [10, 20]))
+    method = spec.build(preset="quick", sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
+    assert method.config.lrs.opacity_logits == 0.025 and method.strategy.grow_grad2d == 3e-4
+    assert method.config.steps_scale == 0.01
+    results = train(method, tiny_scene, [10, 20])
     assert [r.iteration for r in results] == [10, 20]
-    with pytest.raises(StringsBenchError, match="unknown setting"):
-        spec.build(grow_grad_2d=1).make_trainer(tiny_scene, [10], 1)
+    with pytest.raises(StringsBenchError, match=r"(?s)no setting.*grow_grad_2d.*valid settings:.*grow_grad2d"):
+        spec.build(grow_grad_2d=1)
 
 
 @pytest.mark.slow
@@ -368,8 +368,7 @@ def test_vanilla_3dgs_on_synthetic_books_reaches_25db():
 
     ref = resolve_scenes(["synthetic/books"])[0]
     scene = Scene.load(ref.path, settings=ref.settings)
-    cfg = TrainConfig(checkpoints=(1500,), steps_scale=0.05, progress=False)
-    result = next(iter(Trainer(scene, cfg).train()))
+    result = train(GaussianSplatting(TrainConfig(steps_scale=0.05)), scene, (1500,))[0]
     scores = [psnr(torch.from_numpy(result.renders[scene.names[i]]), torch.from_numpy(np.asarray(scene.load_image(i))))
               for i in scene.test_idx]
     assert np.mean(scores) >= 25.0, scores

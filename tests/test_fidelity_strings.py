@@ -16,7 +16,7 @@ import pytest
 import torch
 from PIL import Image
 
-from _engine_helpers import make_tiny_scene
+from _engine_helpers import make_tiny_scene, train
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import get_method
 from strings_bench.engine.optim import exponential_lr
@@ -45,13 +45,14 @@ def text_scene(tmp_path_factory):
     return Scene.load(root)
 
 
-QUIET = dict(progress=False, mask_dilation_fraction=0.0, mask_dilation_px=None, n_max=3, sh_degree=1)
+QUIET = dict(mask_dilation_fraction=0.0, mask_dilation_px=None, n_max=3, sh_degree=1)
 
 
 def _strings_trainer(scene, preset, **settings):
     m = get_method("strings").build(preset, **{**QUIET, **settings})
-    s = m.settings["steps_scale"]
-    return m.build_trainer(scene, [max(1, round(7000 * s)), max(1, round(30000 * s))], 1)
+    m.progress = False
+    m.setup(scene, downscale=1, device="cpu")
+    return m
 
 
 # ---- §3 gamma: which counter ------------------------------------------------------------------------
@@ -144,19 +145,19 @@ def test_strings_reports_preprocess_time(text_scene, monkeypatch):
 
     monkeypatch.setattr(masks_mod, "text_masks", slow_masks)
     m = get_method("strings").build(None, **QUIET, steps_scale=0.001)  # T1 = 3 steps
-    results = list(m.train(text_scene, [2, 5], 1))
+    results = train(m, text_scene, [2, 5])
     for r in results:
         assert r.preprocess_seconds >= 0.3
-        assert r.preprocess_seconds == pytest.approx(r.extra["masks_segmentation_seconds"] + r.extra["init_seconds"])
-        assert r.extra["init_seconds"] > 0
+        # the loop times the whole set-up: masks and Algorithm 1, then the initial model with Eq. 1
+        assert r.preprocess_seconds > r.extra["masks_segmentation_seconds"] >= 0.3
     assert results[0].preprocess_seconds == results[1].preprocess_seconds
     assert results[0].train_seconds < results[1].train_seconds
 
 
 def test_3dgs_reports_its_init_as_preprocess(text_scene):
-    m = get_method("3dgs").build(None, progress=False, sh_degree=1, steps_scale=0.001)
-    (r,) = list(m.train(text_scene, [2], 1))
-    assert r.preprocess_seconds == r.extra["init_seconds"] > 0
+    m = get_method("3dgs").build(None, sh_degree=1, steps_scale=0.001)
+    (r,) = train(m, text_scene, [2])
+    assert r.preprocess_seconds > 0
 
 
 def _fake_registry():
@@ -294,21 +295,20 @@ def test_exponential_lr_zero_end_points():
 def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     from strings_bench.cli.run import parse_settings
     from strings_bench.engine.strategies.mcmc import MCMCStrategy
-    from strings_bench.engine.trainer import config_from_settings
+    from strings_bench.engine.splatting import config_from_settings
 
     config, strategy = config_from_settings({"seed": 7}, strategy_cls=MCMCStrategy)
     assert config.seed == 7 and strategy.seed == 7
     over = parse_settings(["mcmc.seed=11"])
-    adapter = get_method("mcmc").build("tiny", progress=False, **over["mcmc"])
-    trainer = adapter.make_trainer(text_scene, [5], 1)
+    trainer = get_method("mcmc").build("tiny", **over["mcmc"])
     assert trainer.config.seed == 11 and trainer.strategy.seed == 11
     state = trainer.strategy.initialize_state(1.0, 0.005)
     assert state["generator"] is not None and state["generator"].initial_seed() == 11
     # Without a seed MCMC samples from torch's global RNG (seeded by the trainer's default 0), as documented.
-    plain = get_method("mcmc").build("tiny").make_trainer(text_scene, [5], 1)
+    plain = get_method("mcmc").build("tiny")
     assert plain.config.seed == 0 and plain.strategy.seed is None
     # A seed for a method whose strategy has none still reaches only the trainer.
-    t3 = get_method("3dgs").build("tiny", seed=5).make_trainer(text_scene, [5], 1)
+    t3 = get_method("3dgs").build("tiny", seed=5)
     assert t3.config.seed == 5
 
 
@@ -362,7 +362,7 @@ def test_phase1_loss_is_losses_masked_l1(text_scene, monkeypatch):
 
     monkeypatch.setattr(losses, "masked_l1", spy)
     m = get_method("strings").build(None, **QUIET, steps_scale=0.001)  # T1 = 3
-    list(m.train(text_scene, [4], 1))
+    train(m, text_scene, [4])
     assert len(calls) == 3  # steps 1..3 (phase 1); step 4 is phase 2 (3DGS loss)
 
 
@@ -378,16 +378,14 @@ def test_no_progress_reaches_trainer_and_mask_bar(text_scene, monkeypatch):
     seen = []
     real = masks_mod.text_masks
     monkeypatch.setattr(masks_mod, "text_masks", lambda *a, **k: seen.append(k.get("progress")) or real(*a, **k))
-    for name in ("3dgs", "mcmc", "mip-splatting", "absgs", "edc-absgs"):
-        a = get_method(name).build("tiny")
-        a.progress = False
-        assert a.make_trainer(text_scene, [5], 1).config.progress is False, name
-        a.progress = True
-        assert a.make_trainer(text_scene, [5], 1).config.progress is True, name
-    s = get_method("strings").build("tiny", mask_dilation_fraction=0.0)
-    s.progress = False
-    assert s.build_trainer(text_scene, [5], 1).config.progress is False
-    assert seen == [False]
+    from strings_bench.engine.trainer import Trainer
+
+    for name in ("3dgs", "mcmc", "mip-splatting", "absgs", "edc-absgs", "strings"):
+        for progress in (False, True):
+            a = get_method(name).build("tiny", **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
+            next(iter(Trainer(a, text_scene, [2], progress=progress).train()))
+            assert a.progress is progress, name  # the loop hands its setting to the method
+    assert seen == [False, True]  # STRinGS' mask bar follows it
 
 
 def test_no_progress_run_writes_no_training_bar(tmp_path, capfd):

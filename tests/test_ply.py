@@ -107,14 +107,14 @@ def tiny_scene(tmp_path_factory):
 
 def test_trainer_ply_reads_back_and_renders_via_cli(tiny_scene, tmp_path):
     from strings_bench.cli import main
-    from strings_bench.engine.trainer import TrainConfig, Trainer
+    from _engine_helpers import train
+    from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
 
     n_threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        tr = Trainer(tiny_scene, TrainConfig(checkpoints=(30,), steps_scale=0.05, sh_degree=1, progress=False,
-                                             ply_dir=str(tmp_path)))
-        result = next(iter(tr.train()))
+        tr = GaussianSplatting(TrainConfig(steps_scale=0.05, sh_degree=1))
+        (result,) = train(tr, tiny_scene, (30,), model_path=lambda step: tmp_path / f"iteration_{step}.ply")
         back = read_ply(result.extra["ply"])
         for k, v in tr.model.params.items():
             assert torch.equal(back.params[k].detach(), v.detach()), k

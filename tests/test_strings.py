@@ -137,10 +137,10 @@ import math  # noqa: E402
 
 from PIL import Image  # noqa: E402
 
-from _engine_helpers import make_tiny_scene  # noqa: E402
+from _engine_helpers import make_tiny_scene, train  # noqa: E402
 from strings_bench.methods.strings.masks import MissingMasksError  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
-from strings_bench.methods.strings.method import StringsMethod, StringsTrainer, text_lr_factor  # noqa: E402
+from strings_bench.methods.strings.method import Strings, text_lr_factor  # noqa: E402
 from strings_bench.scene.scene import Scene  # noqa: E402
 
 TEXT_BOX = (8, 6, 20, 14)  # x0, y0, x1, y1 on the 32 x 24 views
@@ -169,7 +169,19 @@ def _cache(tmp_path, monkeypatch):
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
 
 
-FAST = dict(steps_scale=0.002, mask_dilation_fraction=0.0, n_max=3, progress=False, sh_degree=1)  # T1 = 6 steps
+FAST = dict(steps_scale=0.002, mask_dilation_fraction=0.0, n_max=3, sh_degree=1)  # T1 = 6 steps
+
+
+def StringsMethod(**settings) -> Strings:
+    """A configured STRinGS from flat settings, as `--set` gives them."""
+    return Strings.from_settings(**settings)
+
+
+def _setup(method, scene):
+    """`method` set up on `scene` as the training loop does it (masks, Algorithm 1, initial model)."""
+    method.progress = False
+    method.setup(scene, downscale=1, device="cpu")
+    return method
 
 
 def test_registered_names_and_presets():
@@ -181,7 +193,9 @@ def test_registered_names_and_presets():
     rel = get_method("strings").build("release").settings
     assert rel["gamma"] == 12000 and rel["mask_dilation_px"] == 225 and rel["phase2_schedules"] == "restart"
     with pytest.raises(Exception, match="unknown setting"):
-        list(StringsMethod(steps_scale=0.002, no_such_setting=1).train(None, [6]))
+        StringsMethod(steps_scale=0.002, no_such_setting=1)
+    with pytest.raises(Exception, match="no setting.*no_such_setting"):
+        get_method("strings").build(no_such_setting=1)
 
 
 def test_text_lr_factor_values():
@@ -213,8 +227,8 @@ PAPER_LR = [  # (t, eta_opt / extent, text eta_r), float64 values of the express
 def test_paper_preset_position_lr_by_hand(tiny_text_scene):
     scene = tiny_text_scene
     ext = _extent_by_hand(scene)
-    method = get_method("strings").build("paper", mask_dilation_fraction=0.0, progress=False)
-    trainer = method.build_trainer(scene, [30000], 1)
+    method = get_method("strings").build("paper", mask_dilation_fraction=0.0)
+    trainer = _setup(method, scene)
     assert trainer.t1 == 3000 and trainer.extent == pytest.approx(ext, rel=1e-12)
     for t in (1, 1500, 3000):  # phase 1: positions locked
         assert trainer.position_lr(t) == 0.0
@@ -228,19 +242,17 @@ def test_paper_preset_position_lr_by_hand(tiny_text_scene):
         np.testing.assert_allclose(row_lr[is_text].numpy(), eta_opt * ext * eta_text, rtol=1e-6)
         np.testing.assert_allclose(row_lr[~is_text].numpy(), eta_opt * ext * 0.5, rtol=1e-6)
     # Ablation strings-pos-lr: 3DGS' own (unshifted) schedule in phase 1: 1.6e-4 * 100^(-1500/30000).
-    ablation = get_method("strings-pos-lr").build("paper", mask_dilation_fraction=0.0, progress=False)
-    assert ablation.build_trainer(scene, [30000], 1).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
+    ablation = get_method("strings-pos-lr").build("paper", mask_dilation_fraction=0.0)
+    assert _setup(ablation, scene).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
                                                                                        rel=1e-12)
 
 
 def test_restart_schedules(tiny_text_scene):
-    trainer = StringsMethod(**{**FAST, "steps_scale": 0.01}).build_trainer(
-        tiny_text_scene, [70], 1)
+    trainer = _setup(StringsMethod(**{**FAST, "steps_scale": 0.01}), tiny_text_scene)
     assert trainer.strategy_step(20) == 20 and trainer.strategy_step(35) == 5
     # SH degree +1 every max(1000 x 0.01, 50) = 50 steps, counted from the start of phase 2 (step 30)
     assert trainer.sh_degree_for_step(79) == 0 and trainer.sh_degree_for_step(80) == 1
-    glob = StringsMethod(**{**FAST, "steps_scale": 0.01, "phase2_schedules": "global"}).build_trainer(
-        tiny_text_scene, [70], 1)
+    glob = _setup(StringsMethod(**{**FAST, "steps_scale": 0.01, "phase2_schedules": "global"}), tiny_text_scene)
     assert glob.strategy_step(35) == 35 and glob.sh_degree_for_step(50) == 1 and glob.sh_degree_for_step(49) == 0
 
 
@@ -269,8 +281,7 @@ def _spy(trainer):
 def test_phase1_positions_frozen_and_text_views_only(tiny_text_scene, monkeypatch):
     scene = tiny_text_scene
     # No densification or opacity reset in this run: every Gaussian exists throughout phase 1.
-    m = StringsMethod(**FAST, refine_start_iter=10 ** 9, reset_every=10 ** 9)
-    trainer = m.build_trainer(scene, [6], 1)
+    trainer = StringsMethod(**FAST, refine_start_iter=10 ** 9, reset_every=10 ** 9)
     init = {}
     orig_init = trainer.initial_model
 
@@ -283,7 +294,7 @@ def test_phase1_positions_frozen_and_text_views_only(tiny_text_scene, monkeypatc
     views = []
     orig_views = trainer.views_for_step
     trainer.views_for_step = lambda step: views.append(orig_views(step)) or views[-1]
-    (result,) = list(trainer.train())
+    (result,) = train(trainer, scene, [6])
     assert result.extra["phase"] == 1 and result.iteration == 6
     assert torch.equal(trainer.model.params["means"].detach(), init["means"])  # position LR 0
     assert not torch.equal(trainer.model.params["sh0"].detach(), init["sh0"])  # colours did train
@@ -297,13 +308,12 @@ def test_phase1_positions_frozen_and_text_views_only(tiny_text_scene, monkeypatc
 
 def test_phases_with_densification(tiny_text_scene, monkeypatch):
     scene = tiny_text_scene
-    m = StringsMethod(**FAST)
-    trainer = m.build_trainer(scene, [6, 14], 1)
+    trainer = StringsMethod(**FAST)
     from strings_bench.engine.optim import GaussianAdam
 
     log, step = _spy(trainer)
     monkeypatch.setattr(GaussianAdam, "step", step)
-    results = list(trainer.train())
+    results = train(trainer, scene, [6, 14])
     assert [r.iteration for r in results] == [6, 14]
     p1 = [e for e in log if e["phase"] == 1]
     p2 = [e for e in log if e["phase"] == 2]
@@ -353,7 +363,7 @@ def test_no_text_points_falls_back_to_3dgs(tmp_path, caplog):
     _write_masks(root, scene, TEXT_BOX, empty_views=range(9))
     scene = Scene.load(root)
     with caplog.at_level(logging.WARNING):
-        results = list(StringsMethod(**FAST).train(scene, [4]))
+        results = train(StringsMethod(**FAST), scene, [4])
     assert "no SfM point" in caplog.text and "plain 3DGS" in caplog.text
     (r,) = results
     assert r.extra["fallback"] == "no_text_points" and r.extra["text_gaussians"] == 0
@@ -363,7 +373,7 @@ def test_no_text_points_falls_back_to_3dgs(tmp_path, caplog):
 def test_missing_masks_is_a_clear_error(tmp_path):
     scene = make_tiny_scene(tmp_path / "scene", n_views=9, n_points=20)
     with pytest.raises(MissingMasksError, match="masks/"):
-        list(StringsMethod(**FAST).train(scene, [4]))
+        train(StringsMethod(**FAST), scene, [4])
 
 
 # ---- Eq. 1 through the trainer, with unequal visibility counts ------------------------------------
@@ -415,7 +425,7 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
     # By hand: 1/c in [1/7, 1/2]; c = 2 -> 6; 3 -> 1 + 5 (1/3 - 1/7) / (5/14) = 3.67 -> 4; 5 -> 1.8 -> 2;
     # 6 -> 1.33 -> 1; 7 -> 1.
     assert want == [6, 4, 2, 1, 1, 6, 4, 2]
-    trainer = StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}).build_trainer(scene, [1], 1)
+    trainer = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}), scene)
     assert trainer.segmentation.is_text.tolist() == [True] * n_text + [False] * len(EQ1_NON_TEXT_TRACKS)
     first = {}
     set_model = trainer.set_model
@@ -425,7 +435,7 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
         set_model(model)
 
     trainer.set_model = keep_first
-    list(trainer.train())
+    train(trainer, scene, [1])
     # Each child copies its parent's colour: count the Gaussians of each SfM point's colour.
     sh0 = first["sh0"][:, 0, :]
     point_sh0 = torch.from_numpy((rgb / 255.0 - 0.5) / 0.28209479177387814)
@@ -438,8 +448,9 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
 
 # ---- the phase-1 loss: masked L1, mean over the whole image ---------------------------------------
 def _trainer_with_masks(scene, masks):
-    base = StringsMethod(**FAST).build_trainer(scene, [6], 1)
-    return StringsTrainer(scene, base.config, base.strategy, base.st, masks, base.segmentation)
+    method = _setup(StringsMethod(**FAST), scene)
+    method.masks, method._mask_tensors = masks, {}
+    return method
 
 
 class _Out:
@@ -465,7 +476,7 @@ def test_phase1_masked_l1_by_hand(tiny_text_scene):
 def test_phase1_masked_l1_random_against_float64(tiny_text_scene):
     scene = tiny_text_scene
     view = scene.train_idx[0]
-    trainer = StringsMethod(**FAST).build_trainer(scene, [6], 1)
+    trainer = _setup(StringsMethod(**FAST), scene)
     mask = np.asarray(trainer.masks[view])
     assert mask.dtype == bool and 0 < mask.sum() < mask.size  # a 0/1 mask, not 0/255
     x0, y0, x1, y1 = TEXT_BOX

@@ -35,7 +35,7 @@ import time
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol
+from typing import Any, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 from PIL import Image
@@ -43,6 +43,8 @@ from PIL import Image
 from strings_bench import __version__
 from strings_bench.core.errors import OCRError, StringsBenchError
 from strings_bench.core.io import atomic_write, atomic_write_json, atomic_write_text
+from strings_bench.core.method import Method
+from strings_bench.core.results import safe_name
 from strings_bench.core.schedules import SCHEDULE_SCALES
 
 log = logging.getLogger(__name__)
@@ -132,6 +134,14 @@ class Job:
     ocr: str
     method_overrides: dict = field(default_factory=dict)
     cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
+    device: str = "auto"  # resolved where the job runs (engine.trainer.resolve_device)
+    save_every: str = "10"  # minutes, "<N>steps" or "off" (engine.trainer.SaveEvery.parse)
+    keep_models: bool = False  # write each cell's model.ply
+
+    def state_path(self) -> Path:
+        """The resumable training state of this (method, scene)."""
+        return (Path(self.run_dir) / "state" / safe_name(self.method) / safe_name(self.dataset) / safe_name(self.scene)
+                / "training_state.pt")
 
     def cells(self) -> list[CellKey]:
         return [CellKey(self.method, self.dataset, self.scene, it) for it in self.checkpoints]
@@ -431,7 +441,7 @@ class Runner:
         written: list[CellKey] = []
         seen: set[int] = set()
         describe = _jsonable(adapter.describe())
-        for result in adapter.train(scene, list(job.checkpoints), job.downscale):
+        for result in self._checkpoints(job, adapter, scene, describe):
             if result.iteration not in wanted:
                 log.debug("%s yielded unrequested checkpoint %d; ignored", job.method, result.iteration)
                 continue
@@ -443,13 +453,32 @@ class Runner:
             written.append(key)
             if self.on_cell:
                 self.on_cell(key)
-            if seen >= wanted:
+            if all(is_finished(run_dir, k) for k in job.cells()):
                 break
-        missing = sorted(wanted - seen)
+        missing = sorted(k.iteration for k in job.cells() if not is_finished(run_dir, k))
         if missing:
             raise StringsBenchError(f"method {job.method} stopped without checkpoint(s) {missing} on {job.dataset}/{job.scene}",
                                     hint="the adapter's train() must yield one CheckpointResult per requested iteration")
+        if all(is_finished(run_dir, k) for k in job.cells()):
+            job.state_path().unlink(missing_ok=True)  # every cell is written: the state is no longer needed
         return written
+
+    def _checkpoints(self, job: Job, adapter, scene, describe: dict) -> Iterator:
+        """The method's checkpoints: trained by the framework's loop for a `Method` (resumable), or
+        yielded by an adapter for models trained elsewhere."""
+        if not isinstance(adapter, Method):
+            return adapter.train(scene, list(job.checkpoints), job.downscale)
+        from strings_bench.engine.trainer import SaveEvery, Trainer
+
+        def model_path(step: int) -> Path:
+            return CellKey(job.method, job.dataset, job.scene, step).path(Path(job.run_dir)) / "model.ply"
+
+        fingerprint = {"settings": json.loads(json.dumps(describe.get("settings", {}), sort_keys=True, default=str)),
+                       "scene_path": job.scene_path, "dataset": job.dataset}
+        return Trainer(adapter, scene, job.checkpoints, downscale=job.downscale, device=job.device,
+                       progress=self.progress is not False, state_path=job.state_path(),
+                       save_every=SaveEvery.parse(job.save_every), model_path=model_path if job.keep_models else None,
+                       fingerprint=fingerprint).train()
 
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene) -> None:
         t0 = time.perf_counter()
@@ -477,6 +506,8 @@ class Runner:
                 "versions": versions(),
                 "metrics": _metrics_describe(),
             },
+            "resumed_from_step": int(getattr(result, "resumed_from_step", 0)),
+            "device": result.extra.get("device", ""),  # as resolved by the training loop ("" for adapters)
             "timings": {"train_seconds": result.train_seconds,
                         "preprocess_seconds": _preprocess_seconds(result),
                         "total_seconds": result.train_seconds + _preprocess_seconds(result),
@@ -587,7 +618,11 @@ class RunPlan:
 
 def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
              ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None,
-             cer_profile: str = "paper") -> RunPlan:
+             cer_profile: str = "paper", device: str = "auto", save_every: str = "10",
+             keep_models: bool = False) -> RunPlan:
+    """The jobs of a run. Methods and their settings are checked before any scene is built or
+    generated: an unknown method or `--set` key fails at once, naming the valid ones."""
+    from strings_bench.engine.trainer import SaveEvery, check_device_name
     from strings_bench.eval.cer import get_profile
     from strings_bench.datasets.registry import resolve_scenes
     from strings_bench.methods.registry import get_method
@@ -597,13 +632,16 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     p = get_preset(preset)
     get_profile(cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
-    refs = resolve_scenes(datasets)
-    if not refs:
-        raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
+    check_device_name(device)
+    SaveEvery.parse(save_every)
     ds = float(downscale if downscale is not None else p.downscale)
     run_dir = Path(run_dir)
     overrides = dict(method_overrides or {})
-    jobs = []
+    unknown = sorted(k for k in set(overrides) - set(methods) if k not in ("", "*"))
+    if unknown:
+        raise StringsBenchError(f"--set names method(s) {', '.join(unknown)} that this run does not train",
+                                hint=f"methods of this run: {', '.join(methods)}")
+    planned = []
     for m in methods:
         spec = specs[m]
         m_over = dict(overrides.get(m, {}))
@@ -617,9 +655,13 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
         if callable(fixed) and fixed():
             checkpoints = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
         labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
-        for ref in refs:
-            jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
-                            tuple(checkpoints), labels, preset, ds, ocr, m_over, cer_profile))
+        planned.append((m, m_over, checkpoints, labels))
+    refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
+    if not refs:
+        raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
+    jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(checkpoints), labels,
+                preset, ds, ocr, m_over, cer_profile, device, str(save_every), bool(keep_models))
+            for m, m_over, checkpoints, labels in planned for ref in refs]
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": cer_profile,
         "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
@@ -722,8 +764,13 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
         progress: bool = True, write_report: bool = True, ocr_backend=None,
-        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper") -> Path:
-    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
-    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile)
+        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper",
+        device: str = "auto", save_every: str = "10", keep_models: bool = False) -> Path:
+    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset.
+    `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
+    training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
+    `keep_models` writes each cell's model.ply."""
+    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
+                    device=device, save_every=save_every, keep_models=keep_models)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
                    write_report=write_report, lpips_at=lpips_at)

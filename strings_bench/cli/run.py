@@ -41,6 +41,13 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lpips-at", default="last", choices=["last", "all"],
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--device", default="auto",
+                   help="where methods train: auto (CUDA when torch sees a GPU, else cpu; default), cpu, cuda, cuda:N")
+    p.add_argument("--save-every", default="10", metavar="MINUTES|Nsteps",
+                   help="save the resumable training state every MINUTES of training (default 10), every N steps "
+                        "('500steps'), or 'off'; it is also saved at every checkpoint. A killed run continues from it")
+    p.add_argument("--keep-models", action="store_true",
+                   help="write each cell's model (model.ply, 3DGS layout) next to its result.json")
     p.set_defaults(func=_run)
 
     r = sub.add_parser("report", help="(re)write the tables and figures of a run folder")
@@ -60,7 +67,8 @@ def _run(args) -> int:
     out = run(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
               downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
               progress=not args.no_progress, method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
-              cer_profile=args.cer_profile)
+              cer_profile=args.cer_profile, device=args.device, save_every=args.save_every,
+              keep_models=args.keep_models)
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     return 0

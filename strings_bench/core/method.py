@@ -45,6 +45,7 @@ class Method(ABC):
 
     name: str = "method"
     paper: str = ""
+    progress: bool = True  # whether it may show progress bars (the loop sets it)
 
     @abstractmethod
     def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:

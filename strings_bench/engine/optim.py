@@ -29,14 +29,13 @@ class LearningRates:
     0.025 — pass `opacity_logits=0.025` to match it.
     """
 
-    means: float = 1.6e-4
-    means_final: float = 1.6e-6
-    sh0: float = 2.5e-3
-    shN: float = 2.5e-3 / 20
-    opacity_logits: float = 0.05
-    log_scales: float = 5e-3
-    quats: float = 1e-3
-
+    means: float = 1.6e-4  # initial position LR (x scene extent)
+    means_final: float = 1.6e-6  # final position LR at position_lr_steps (x extent)
+    sh0: float = 2.5e-3  # SH degree-0 colour
+    shN: float = 2.5e-3 / 20  # higher SH orders
+    opacity_logits: float = 0.05  # opacity (3DGS paper 0.05; the 2024 release 0.025)
+    log_scales: float = 5e-3  # log scales
+    quats: float = 1e-3  # rotations
     def group_lrs(self, extent: float) -> dict[str, float]:
         d = asdict(self)
         d.pop("means_final")

@@ -23,6 +23,7 @@ Every schedule inside (densification, opacity reset, SH degree, position-LR deca
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError, TrainingError
+from strings_bench.core.settings import Setting, dataclass_settings
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.losses import gs_loss
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
@@ -50,14 +52,14 @@ class TrainConfig:
     """The 3DGS training settings (flat `--set` keys of every Gaussian method, with `lr_<group>`)."""
 
     steps_scale: float = 1.0  # multiplies every iteration number (quick runs)
-    seed: int = 0
-    sh_degree: int = 3
-    sh_increase_every: int = 1_000
+    seed: int = 0  # seeds the view order and torch/numpy/random
+    sh_degree: int = 3  # highest spherical-harmonics degree
+    sh_increase_every: int = 1_000  # the SH degree rises by one every this many (nominal) steps
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 3DGS default (black)
     lrs: LearningRates = field(default_factory=LearningRates)
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
-    lambda_dssim: float = 0.2
-    init_opacity: float = 0.1
+    lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
+    init_opacity: float = 0.1  # opacity of the initial Gaussians
     backend: str = "auto"  # rasterizer backend: auto, cpu, gsplat
 
     def __post_init__(self):
@@ -155,13 +157,17 @@ class GaussianSplatting(Method):
     paper = ("Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
              "Rendering (SIGGRAPH 2023)")
     strategy_cls: type[Strategy] = DefaultStrategy
-    method_keys: tuple[str, ...] = ()  # a subclass's own flat settings (not TrainConfig / strategy fields)
+    # A subclass's own settings dataclass (e.g. STRinGS' t1, alpha, beta, gamma); its instance is
+    # `self.method_settings`.
+    method_settings_cls: type | None = None
+    forced_settings: dict = {}  # settings a variant pins (the paper's ablations), over any given
 
     def __init__(self, config: TrainConfig | None = None, strategy: Strategy | None = None,
                  model: GaussianModel | None = None):
         self.config = config or TrainConfig()
         self.strategy = strategy if strategy is not None else self.strategy_cls()
         self.settings: dict = {}
+        self.method_settings = self.method_settings_cls() if self.method_settings_cls is not None else None
         self._given_model = model
         self.scene: "Scene | None" = None
         self.model: GaussianModel | None = None
@@ -179,15 +185,28 @@ class GaussianSplatting(Method):
 
     @classmethod
     def from_settings(cls, **settings) -> "GaussianSplatting":
-        """Build from flat settings (TrainConfig fields, `lr_<group>`, strategy fields, `method_keys`)."""
-        config, strategy = config_from_settings(settings, cls.strategy_cls, ignore=cls.method_keys)
+        """Build from flat settings: TrainConfig fields, `lr_<group>`, strategy fields and the fields of
+        `method_settings_cls`. Unknown keys are an error naming the valid ones."""
+        settings = {**settings, **cls.forced_settings}
+        own = {f.name for f in dataclasses.fields(cls.method_settings_cls)} if cls.method_settings_cls else set()
+        config, strategy = config_from_settings(settings, cls.strategy_cls, ignore=tuple(own))
         method = cls(config, strategy)
         method.settings = dict(settings)
-        method.configure({k: v for k, v in settings.items() if k in cls.method_keys})
+        if cls.method_settings_cls is not None:
+            method.method_settings = cls.method_settings_cls(**{k: v for k, v in settings.items() if k in own})
         return method
 
-    def configure(self, method_settings: dict) -> None:
-        """Take a subclass's own settings (`method_keys`); validate them here."""
+    @classmethod
+    def settings_schema(cls) -> list[Setting]:
+        """Every setting this method takes, with its default and meaning (`strings-bench methods show`)."""
+        out = dataclass_settings(TrainConfig, "training", skip=("lrs",))
+        out += dataclass_settings(LearningRates, "learning rates (x scene extent for means)", prefix="lr_")
+        seen = {s.name for s in out}
+        out += [s for s in dataclass_settings(cls.strategy_cls, f"densification ({cls.strategy_cls.__name__})")
+                if s.name not in seen]
+        if cls.method_settings_cls is not None:
+            out += dataclass_settings(cls.method_settings_cls, cls.name)
+        return out
 
     # ---- schedule helpers -------------------------------------------------------------------
     def at(self, nominal: float) -> int:

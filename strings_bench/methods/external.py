@@ -42,13 +42,22 @@ from PIL import Image
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.method import CheckpointResult, MethodAdapter
-from strings_bench.methods.registry import MethodSpec, register_method
+from strings_bench.core.settings import Setting
 
 PLACEHOLDERS = ("scene", "out", "iteration", "downscale", "test_views", "name")
 
 
 class ExternalCommandAdapter(MethodAdapter):
     name = "external"
+
+    @classmethod
+    def settings_schema(cls) -> list[Setting]:
+        g = "external"
+        return [Setting("command", None, "command template: {scene} {out} {iteration} {downscale} {test_views} {name}", g),
+                Setting("shell", False, "run the command through a shell", g),
+                Setting("timeout", None, "seconds per command (None: no limit)", g),
+                Setting("workdir", None, "where renders go (None: a temporary folder, removed afterwards)", g),
+                Setting("env", None, "extra environment variables (a JSON object)", g)]
 
     def build_command(self, scene, out: Path, iteration: int, downscale: float) -> list[str] | str:
         template = self.settings.get("command")
@@ -141,11 +150,3 @@ class ExternalCommandAdapter(MethodAdapter):
         finally:
             if tmp is not None:
                 tmp.cleanup()
-
-
-SPEC = register_method(MethodSpec(
-    name="external",
-    factory=lambda **s: ExternalCommandAdapter(**s),
-    description="run an external command per checkpoint that writes test-view PNGs (setting command with "
-                "{scene} {out} {iteration})",
-))

@@ -25,12 +25,24 @@ import numpy as np
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.method import CheckpointResult, MethodAdapter
-from strings_bench.methods.registry import MethodSpec, register_method
+from strings_bench.core.settings import Setting
 
 
 class PlyAdapter(MethodAdapter):
     name = "ply"
     paper = ""
+
+    @classmethod
+    def settings_schema(cls) -> list[Setting]:
+        g = "ply"
+        return [Setting("ply_path", None, "PLY file or template with {scene}, {dataset}, {iteration} (required)", g),
+                Setting("iteration", 30000, "the checkpoint iteration the model stands for", g),
+                Setting("iterations", None, "several checkpoint iterations (a list), instead of iteration", g),
+                Setting("background", (0.0, 0.0, 0.0), "render background (3DGS: black)", g),
+                Setting("sh_degree", None, "SH degree to render with (None: the file's)", g),
+                Setting("backend", "auto", "rasterizer backend", g),
+                Setting("train_seconds", None, "training time to report (None: n/a)", g),
+                Setting("preprocess_seconds", 0.0, "preprocessing time to report", g)]
 
     def fixed_checkpoints(self) -> list[int]:
         """The runner evaluates these iterations instead of the preset's (nothing is trained)."""
@@ -72,15 +84,3 @@ class PlyAdapter(MethodAdapter):
                                    train_seconds=float(self.settings.get("train_seconds", math.nan)),
                                    gaussians=int(model.params["means"].shape[0]), extra={"ply_path": str(path)},
                                    preprocess_seconds=float(self.settings.get("preprocess_seconds", 0.0)))
-
-
-def _factory(**settings) -> PlyAdapter:
-    return PlyAdapter(**settings)
-
-
-SPEC = register_method(MethodSpec(
-    name="ply",
-    factory=_factory,
-    description="evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
-    defaults={"iteration": 30000},
-))

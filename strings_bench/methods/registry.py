@@ -1,8 +1,15 @@
-"""Method specs with presets, in the style of nerfbaselines.
+"""Method specs as data, in the style of nerfbaselines.
 
-Built-in methods register themselves when their module is imported (see BUILTIN_MODULES). A
-user's package registers more through the entry-point group `strings_bench.methods`, whose
-entries point at a MethodSpec object (or a callable returning one).
+A `MethodSpec` names its implementation lazily (`"module:Class"`: nothing is imported until a
+method is built or described), its defaults, its presets, and the paper's own results where they
+are published (REFERENCE.md §5), so reports can show the paper's figure next to the measured one.
+The built-in methods are the table `BUILTIN_SPECS` below: registration is explicit, never an import
+side effect. A user's package adds more through the entry-point group `strings_bench.methods`,
+whose entries point at a MethodSpec (or a callable returning one).
+
+Implementations are either a `Method` (trained by the framework's loop; settings from
+`cls.from_settings(**settings)` and described by `cls.settings_schema()`) or a `MethodAdapter`
+(models trained elsewhere; built with `cls(**settings)`).
 """
 
 from __future__ import annotations
@@ -11,38 +18,74 @@ import importlib
 import logging
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Callable
+from typing import Any, Callable
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.method import MethodAdapter
+from strings_bench.core.schedules import schedule_presets
+from strings_bench.core.settings import Setting, format_settings
 
 log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "strings_bench.methods"
 
-# One module per method; each calls register_method() at import.
-BUILTIN_MODULES: list[str] = [
-    "strings_bench.methods.gs3d",
-    "strings_bench.methods.strings.method",
-    "strings_bench.methods.absgs",
-    "strings_bench.methods.edc_absgs",
-    "strings_bench.methods.mip_splatting",
-    "strings_bench.methods.mcmc",
-    "strings_bench.methods.ply_adapter",
-    "strings_bench.methods.external",
-]
-
 
 @dataclass
 class MethodSpec:
+    """A method as data.
+
+    Args:
+        name: the name used by `--methods` and `--set NAME.key=value`.
+        implementation: `"module:Class"` (imported on first use), or the class / a factory itself.
+        description: one line for `methods list`.
+        paper: the citation.
+        defaults: settings over the implementation's own defaults.
+        presets: preset name -> settings over `defaults` (the run's preset picks one when it exists).
+        paper_results: published figures, {dataset: {"cer": {iteration: value}, "minutes": {iteration: value}}}.
+    """
+
     name: str
-    factory: Callable[..., MethodAdapter]  # called with the merged settings
+    implementation: str | Callable[..., Any]
     description: str = ""
     paper: str = ""
     defaults: dict = field(default_factory=dict)
-    presets: dict[str, dict] = field(default_factory=dict)  # preset name -> settings overriding defaults
+    presets: dict[str, dict] = field(default_factory=dict)
+    paper_results: dict = field(default_factory=dict)
 
-    def build(self, preset: str | None = None, **overrides) -> MethodAdapter:
+    def load(self) -> Any:
+        """The implementation class (or factory)."""
+        impl = self.implementation
+        if not isinstance(impl, str):
+            return impl
+        module, _, attr = impl.partition(":")
+        try:
+            return getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as exc:
+            raise StringsBenchError(f"method {self.name}: cannot load its implementation {impl!r}: {exc}",
+                                    hint="check the spec's implementation string (module:Class)") from exc
+
+    def settings(self) -> list[Setting] | None:
+        """Every setting with its default (the spec's defaults applied) and meaning; None when the
+        implementation does not describe its settings (then any key is passed on)."""
+        impl = self.load()
+        schema = getattr(impl, "settings_schema", None)
+        if schema is None:
+            return None
+        return [Setting(s.name, self.defaults.get(s.name, s.default), s.help, s.group) for s in schema()]
+
+    def check_keys(self, keys) -> None:
+        """Refuse unknown setting names, naming the valid ones (before anything is built or trained)."""
+        schema = self.settings()
+        if schema is None:
+            return
+        valid = {s.name for s in schema}
+        unknown = sorted(set(keys) - valid)
+        if unknown:
+            raise StringsBenchError(f"method {self.name} has no setting(s) {', '.join(unknown)}",
+                                    hint=f"valid settings: {', '.join(sorted(valid))} "
+                                         f"(`strings-bench methods show {self.name}`)")
+
+    def resolve(self, preset: str | None = None, **overrides) -> dict:
+        """The settings a build uses: defaults, then the preset, then the overrides."""
         settings = dict(self.defaults)
         if preset is not None:
             if preset not in self.presets:
@@ -50,8 +93,106 @@ class MethodSpec:
                                         hint=f"presets: {', '.join(self.presets) or 'none'}")
             settings.update(self.presets[preset])
         settings.update(overrides)
-        return self.factory(**settings)
+        return settings
 
+    def build(self, preset: str | None = None, **overrides):
+        """A configured method object (a `Method` or a `MethodAdapter`)."""
+        settings = self.resolve(preset, **overrides)
+        impl = self.load()
+        self.check_keys(settings)
+        from_settings = getattr(impl, "from_settings", None)
+        obj = from_settings(**settings) if from_settings is not None else impl(**settings)
+        if getattr(obj, "name", None) != self.name:
+            try:
+                obj.name = self.name  # a spec may reuse a class under another name
+            except AttributeError:
+                pass
+        return obj
+
+    def show(self) -> str:
+        """Human-readable description: what `strings-bench methods show NAME` prints."""
+        lines = [f"{self.name}: {self.description}".rstrip(": ")]
+        if self.paper:
+            lines.append(f"paper: {self.paper}")
+        lines.append(f"implementation: {self.implementation if isinstance(self.implementation, str) else self.implementation!r}")
+        if self.presets:
+            lines.append("presets: " + "; ".join(f"{k} {v}" for k, v in self.presets.items()))
+        for dataset, figures in self.paper_results.items():
+            parts = [f"{what} " + ", ".join(f"{_label(it)} {v:g}" for it, v in sorted(vals.items()))
+                     for what, vals in figures.items()]
+            lines.append(f"paper's results on {dataset}: " + "; ".join(parts))
+        schema = self.settings()
+        lines.append("")
+        lines.append("settings (default, meaning):" if schema is not None
+                     else "settings: not described by the implementation (any key is passed on)")
+        if schema:
+            lines.append(format_settings(schema))
+        return "\n".join(lines)
+
+
+def _label(iteration: int) -> str:
+    return f"{iteration // 1000}K" if iteration % 1000 == 0 else str(iteration)
+
+
+# ---- the built-in methods ----------------------------------------------------------------------------
+def _paper(cer: tuple[tuple[float, float], ...], minutes: tuple[float, float]) -> dict:
+    """REFERENCE.md §5: CER on TandT, DL3DV, STRinGS-360 at 7K/30K; minutes on STRinGS-360 (RTX 3090 Ti)."""
+    out = {ds: {"cer": {7000: a, 30000: b}} for ds, (a, b) in zip(("tandt", "dl3dv", "strings360"), cer)}
+    out["strings360"]["minutes"] = {7000: minutes[0], 30000: minutes[1]}
+    return out
+
+
+STRINGS_PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
+_SCHEDULES = schedule_presets()  # paper 1.0, standard 0.05, quick 0.01, tiny 0.005
+_STRINGS_PRESETS = {**_SCHEDULES,
+                    # The release: gamma 12000 on its phase-2 counter (= the paper's 15000 at T1 = 3000),
+                    # its script's 225 px mask dilation.
+                    "release": {"steps_scale": 1.0, "gamma": 12000, "gamma_counter": "phase2",
+                                "mask_dilation_px": 225.0, "phase2_schedules": "restart"}}
+
+BUILTIN_SPECS: list[MethodSpec] = [
+    MethodSpec("3dgs", "strings_bench.methods.gs3d:GS3D",
+               "vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
+               "Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
+               "Rendering (SIGGRAPH 2023)",
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2))),
+    MethodSpec("strings", "strings_bench.methods.strings.method:Strings",
+               "STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
+               "masked phase-1 loss, region-dependent position LR)", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS),
+               _paper(((.122, .099), (.187, .123), (.177, .106)), (1.9, 12.6))),
+    MethodSpec("strings-no-densify", "strings_bench.methods.strings.method:StringsNoDensify",
+               "STRinGS ablation: without the one-time text densification (Eq. 1)", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS)),
+    MethodSpec("strings-pos-lr", "strings_bench.methods.strings.method:StringsPosLR",
+               "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS)),
+    MethodSpec("absgs", "strings_bench.methods.absgs:AbsGS",
+               "AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) gradient",
+               "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5))),
+    MethodSpec("edc-absgs", "strings_bench.methods.edc_absgs:EDCAbsGS",
+               "EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
+               "position LR 4e-5 -> 2e-6",
+               "Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
+               {"steps_scale": 1.0, "lr_means": 4e-5, "lr_means_final": 2e-6}, dict(_SCHEDULES),
+               _paper(((.142, .118), (.239, .162), (.328, .116)), (5.5, 23.2))),
+    MethodSpec("mip-splatting", "strings_bench.methods.mip_splatting:MipSplatting",
+               "Mip-Splatting: 3D smoothing filter from the training cameras' sampling rate + 2D mip filter",
+               "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)",
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7))),
+    MethodSpec("mcmc", "strings_bench.methods.mcmc:MCMC",
+               "3DGS-MCMC: dead-Gaussian relocation (eq. 9), 5% growth to a cap, opacity/scale L1, SGLD position noise",
+               "Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
+               "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)",
+               {"steps_scale": 1.0, "init_opacity": 0.5, "init_scale_factor": 0.1}, dict(_SCHEDULES),
+               _paper(((.272, .120), (.511, .142), (.927, .110)), (5.6, 34.0))),
+    MethodSpec("ply", "strings_bench.methods.ply_adapter:PlyAdapter",
+               "evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
+               defaults={"iteration": 30000}),
+    MethodSpec("external", "strings_bench.methods.external:ExternalCommandAdapter",
+               "run any training program (setting command) and evaluate the test-view renders it writes"),
+]
 
 _METHODS: dict[str, MethodSpec] = {}
 _loaded = False
@@ -67,8 +208,8 @@ def _load() -> None:
     if _loaded:
         return
     _loaded = True
-    for mod in BUILTIN_MODULES:
-        importlib.import_module(mod)
+    for spec in BUILTIN_SPECS:
+        register_method(spec)
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             obj = ep.load()
@@ -90,3 +231,8 @@ def get_method(name: str) -> MethodSpec:
     if name not in _METHODS:
         raise StringsBenchError(f"unknown method {name!r}", hint=f"known methods: {', '.join(sorted(_METHODS))}")
     return _METHODS[name]
+
+
+def show_method(name: str) -> str:
+    """What `strings-bench methods show NAME` prints: every setting with its default and meaning."""
+    return get_method(name).show()

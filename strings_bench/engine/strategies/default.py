@@ -26,23 +26,23 @@ from strings_bench.engine.strategies.base import Strategy
 
 @dataclass
 class DefaultStrategy(Strategy):
-    prune_opa: float = 0.005
-    grow_grad2d: float = 2e-4
-    grow_scale3d: float = 0.01
-    prune_scale3d: float = 0.1
+    prune_opa: float = 0.005  # prune Gaussians below this opacity
+    grow_grad2d: float = 2e-4  # densify when the mean screen-space gradient norm (NDC) exceeds this
+    grow_scale3d: float = 0.01  # clone if largest scale <= this x extent, else split
+    prune_scale3d: float = 0.1  # after screen_prune_after, prune world scale > this x extent
     # REFERENCE §1 states a 20 px screen-radius prune after 3K, but the authors' code zeroes its
     # max-radius buffer whenever it clones/splits, just before that test, so the rule never fires
     # there (gsplat disables it too). At our 320x240 it would fire: on synthetic/books it pruned
     # 3.4k -> 1.1k Gaussians at the first refinement after 3K (PSNR 15.7 -> 9.2 dB). Off by
     # default (inf, as in practice); set 20 to apply the rule as written.
-    prune_screen_px: float = math.inf
-    refine_start_iter: int = 500
-    refine_stop_iter: int = 15_000
-    refine_every: int = 100
-    reset_every: int = 3_000
-    reset_value: float = 0.01
-    screen_prune_after: int = 3_000
-    n_split: int = 2
+    prune_screen_px: float = math.inf  # prune screen radius > this px after 3K (inf = off: the reference never applies it)
+    refine_start_iter: int = 500  # first densification step (nominal)
+    refine_stop_iter: int = 15_000  # last densification step (nominal)
+    refine_every: int = 100  # densification interval (nominal)
+    reset_every: int = 3_000  # opacity reset interval (nominal)
+    reset_value: float = 0.01  # opacity after a reset: min(opacity, this)
+    screen_prune_after: int = 3_000  # big-Gaussian prunes start after this step (nominal)
+    n_split: int = 2  # children of a split
     max_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:

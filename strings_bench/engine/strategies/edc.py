@@ -66,18 +66,17 @@ def long_axis_split(model: GaussianModel, optimizer: GaussianAdam | None, mask: 
 @dataclass
 class EDCStrategy(AbsGSStrategy):
     grow_grad2d_abs: float = 3.5e-4
-    prune_screen_px: float = math.inf   # no screen-size pruning
-    split_offset: float = 1.5
-    other_axes_factor: float = 0.85
-    opacity_factor: float = 0.6
-    recovery_delay: int = 300
-    recovery_prune_opa: float = 0.05
+    prune_screen_px: float = math.inf  # no screen-size pruning
+    split_offset: float = 1.5  # children at +-this x s_max along the longest axis
+    other_axes_factor: float = 0.85  # children's other axes x this
+    opacity_factor: float = 0.6  # children's opacity x this
+    recovery_delay: int = 300  # steps after an opacity reset before recovery-aware pruning
+    recovery_prune_opa: float = 0.05  # recovery-aware pruning threshold
     # Scaled schedules shrink the 300-iteration recovery window (to 15 steps at steps_scale 0.05), too
     # short for opacities reset to 0.01 to climb back above 0.05 at the unscaled opacity LR: the window
     # is at least this many actual steps (and ends before the next reset). No effect at steps_scale 1.
-    recovery_min_steps: int = 100
-    release_schedule: bool = False
-
+    recovery_min_steps: int = 100  # minimum recovery window at scaled schedules
+    release_schedule: bool = False  # use the public code's schedule instead of the paper's
     def select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
         count = state["count"]
         grads_abs = state["grad2d_abs"] / count.clamp_min(1)

@@ -110,19 +110,19 @@ def position_noise(model: GaussianModel, position_lr: float, noise_lr: float = 5
 
 @dataclass
 class MCMCStrategy(Strategy):
-    refine_start_iter: int = 500
-    refine_stop_iter: int = 25_000
-    refine_every: int = 100
+    refine_start_iter: int = 500  # first relocation step (nominal)
+    refine_stop_iter: int = 25_000  # last relocation step (nominal)
+    refine_every: int = 100  # relocation interval (nominal)
     min_opacity: float = 0.005      # "dead" threshold
-    grow_rate: float = 0.05
+    grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to the cap
     cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians
-    cap_multiple: float = 10.0
-    opacity_reg: float = 0.01
-    scale_reg: float = 0.01
-    noise_lr: float = 5e5
-    noise_k: float = 100.0
-    noise_x0: float = 0.995
-    n_max: int = N_MAX
+    cap_multiple: float = 10.0  # cap = this x initial Gaussians when cap_max is None
+    opacity_reg: float = 0.01  # weight of mean |opacity| in the loss
+    scale_reg: float = 0.01  # weight of mean |scale| in the loss
+    noise_lr: float = 5e5  # position noise scale x position LR
+    noise_k: float = 100.0  # steepness of the noise gate sigmoid(k((1-o)-x0))
+    noise_x0: float = 0.995  # centre of the noise gate
+    n_max: int = N_MAX  # largest number of copies in the relocation formula
     seed: int | None = None         # sampling RNG (None: torch's global RNG, seeded by the trainer)
 
     def __post_init__(self):

@@ -160,8 +160,7 @@ class MipStrategy(DefaultStrategy):
     filter_every: int = 100       # recomputation interval after densification stops
     near: float = 0.2             # world units, as the public code
     frustum_margin: float = 0.15  # fraction of the image size added on each side
-    sigma_scale: float = SIGMA_SCALE
-
+    sigma_scale: float = SIGMA_SCALE  # 3D filter variance factor (sqrt(0.2) in the paper)
     def get_raster_kwargs(self, step: int) -> dict:
         return {"mip_filter": True} if self.mip_2d else {}
 

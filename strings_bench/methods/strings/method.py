@@ -17,15 +17,14 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.method import CheckpointResult, MethodAdapter
-from strings_bench.methods.registry import MethodSpec, register_method
+from strings_bench.engine.splatting import GaussianSplatting
 
 if TYPE_CHECKING:
     from strings_bench.scene.scene import Scene
@@ -41,27 +40,27 @@ class StringsSettings:
     """STRinGS-specific settings (iteration numbers nominal, for the 30 000-step schedule)."""
 
     t1: int = 3000  # length of phase 1
-    alpha: float = 0.5
-    beta: float = 0.0005
+    alpha: float = 0.5  # eta_r plateau: non-text factor, text factor's limit
+    beta: float = 0.0005  # steepness of the text factor's sigmoid
     gamma: float = 15000  # paper (global counter); the release: 12000 on the phase-2 counter
     # Which step counter gamma (and t in eta_r) is on: "global" (paper: t counts from the start of
     # phase 1) or "phase2" (release: t = step - T1, i.e. 1 at the first phase-2 step), see docs/strings.md.
-    gamma_counter: str = "global"
+    gamma_counter: str = "global"  # counter of gamma: "global" (paper) or "phase2" (release)
     tau: int = 1  # text point: mask hits >= tau
     n_max: int | None = None  # None: scene.settings["n_max"], else 15
     equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
     text_densify: bool = True  # False = ablation "without text densification"
-    max_text_gaussians: int = 10_000_000
+    max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
     # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
     # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
     # Gaussians at the first refinement of phase 2 (measured on synthetic/books), see docs/strings.md.
-    phase2_schedules: str = "restart"
-    mask_source: str = "dataset"
-    mask_dilation_fraction: float = 0.05
-    mask_dilation_px: float | None = None
-    mask_ocr_backend: str = "rapidocr"
+    phase2_schedules: str = "restart"  # "restart" (release) or "global" schedules in phase 2 (see above)
+    mask_source: str = "dataset"  # text masks: "dataset" (masks/), "ocr" (detector polygons), "known" (synthetic)
+    mask_dilation_fraction: float = 0.05  # dilation kernel diameter / image width (paper 5 %)
+    mask_dilation_px: float | None = None  # dilation diameter in px at full size (release 225); overrides the fraction
+    mask_ocr_backend: str = "rapidocr"  # detector for mask_source "ocr"
     segmentation_downscale: float | None = None  # None: the training downscale
 
     def __post_init__(self):
@@ -98,35 +97,46 @@ def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
     return int((scene.settings or {}).get("n_max", DEFAULT_N_MAX))
 
 
-# ---- the trainer ---------------------------------------------------------------------------------
-def _trainer_base():
-    from strings_bench.engine.trainer import Trainer
+# ---- the method ------------------------------------------------------------------------------------
+class Strings(GaussianSplatting):
+    """STRinGS' two phases on the engine's hooks. Settings: StringsSettings fields, plus everything
+    3dgs takes (TrainConfig fields, lr_<group>, DefaultStrategy fields), flat."""
 
-    return Trainer
+    name = "strings"
+    paper = PAPER
+    method_settings_cls = StringsSettings
 
+    @property
+    def st(self) -> StringsSettings:
+        return self.method_settings
 
-class StringsTrainer(_trainer_base()):
-    """Trainer with STRinGS' two phases, built on the engine's hooks."""
+    # ---- preprocessing: masks and Algorithm 1 (timed as preprocess_seconds by the loop) ---------
+    def prepare(self, scene: "Scene") -> None:
+        from strings_bench.methods.strings.masks import text_masks
+        from strings_bench.methods.strings.segmentation import segment_text_points
 
-    def __init__(self, scene: "Scene", config, strategy, st: StringsSettings, masks: dict[int, np.ndarray],
-                 segmentation: "TextSegmentation", preprocess_seconds: float = 0.0):
-        super().__init__(scene, config, strategy)
-        self.st = st
-        self.masks = masks
-        self.segmentation = segmentation
-        self.preprocess_seconds = float(preprocess_seconds)
+        st, ds = self.st, self.downscale
+        t0 = time.perf_counter()
+        mask_settings = st.mask_settings()
+        progress = getattr(self, "progress", True)
+        self.masks = text_masks(scene, scene.train_idx, ds, mask_settings, progress=progress)
+        seg_ds = st.segmentation_downscale or ds
+        seg_masks = self.masks if seg_ds == ds else text_masks(scene, scene.train_idx, seg_ds, mask_settings,
+                                                               progress=progress)
+        self.segmentation = segment_text_points(scene, seg_masks, seg_ds, st.tau)
+        self.masks_segmentation_seconds = time.perf_counter() - t0
         self.t1 = self.at(st.t1)
         self.n_max = resolve_n_max(st, scene)
-        self.text_views = [i for i in scene.train_idx if i in masks and masks[i].any()]
+        self.text_views = [i for i in scene.train_idx if i in self.masks and self.masks[i].any()]
         self.fallback = None
-        if segmentation.num_text == 0:
+        if self.segmentation.num_text == 0:
             self.fallback = "no_text_points"
             log.warning("STRinGS: no SfM point of scene %s lands in a text mask (%d points, %d views with text); "
                         "training plain 3DGS instead (result extra['fallback'] = 'no_text_points')",
                         scene.name, scene.model.num_points, len(self.text_views))
         elif not self.text_views:  # masks too coarse at the training resolution to keep any text pixel
             log.warning("STRinGS: scene %s has text points but no training mask is non-empty at downscale %s; "
-                        "phase 1 uses every training view", scene.name, config.downscale)
+                        "phase 1 uses every training view", scene.name, ds)
             self.text_views = list(scene.train_idx)
         self.phase = 2 if self.fallback else 1
         self.densify_stats: dict = {}
@@ -146,13 +156,14 @@ class StringsTrainer(_trainer_base()):
             return model
         is_text = self.segmentation.is_text
         sfm = scene.model
-        model = GaussianModel.from_points(sfm.xyz[is_text], sfm.rgb[is_text], sh_degree=self.config.sh_degree,
-                                          init_opacity=self.config.init_opacity, device=self.device,
-                                          extras={"is_text": torch.ones(int(is_text.sum()), dtype=torch.bool)})
+        model = GaussianModel.from_points(
+            sfm.xyz[is_text], sfm.rgb[is_text], sh_degree=self.config.sh_degree, init_opacity=self.config.init_opacity,
+            device=self.device, extras={"is_text": torch.ones(int(is_text.sum()), dtype=torch.bool, device=self.device)})
         n0 = len(model)
         if self.st.text_densify:
             factors = densification_factors(sfm.visibility_counts()[is_text], self.n_max, self.st.equal_counts)
-            gen = torch.Generator(device="cpu").manual_seed(self.config.seed)
+            # the children are sampled on the model's device, so the generator must live there too
+            gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
             densify_text_model(model, factors, gen, max_gaussians=self.st.max_text_gaussians)
         self.densify_stats = {"text_points": n0, "text_gaussians_after_densify": len(model), "n_max": self.n_max}
         return model
@@ -165,9 +176,9 @@ class StringsTrainer(_trainer_base()):
         non_text = ~self.segmentation.is_text
         if not non_text.any():
             return
-        extra = GaussianModel.from_points(sfm.xyz[non_text], sfm.rgb[non_text], sh_degree=self.config.sh_degree,
-                                          init_opacity=self.config.init_opacity, device=self.device,
-                                          extras={"is_text": torch.zeros(int(non_text.sum()), dtype=torch.bool)})
+        extra = GaussianModel.from_points(
+            sfm.xyz[non_text], sfm.rgb[non_text], sh_degree=self.config.sh_degree, init_opacity=self.config.init_opacity,
+            device=self.device, extras={"is_text": torch.zeros(int(non_text.sum()), dtype=torch.bool, device=self.device)})
         # A fresh optimizer and strategy state for the joined model, as a new training setup would.
         self.set_model(GaussianModel.concat([self.model, extra]))
 
@@ -237,86 +248,38 @@ class StringsTrainer(_trainer_base()):
 
     def checkpoint_extra(self, step: int) -> dict:
         extra = {
+            **super().checkpoint_extra(step),
             "phase": self.phase,
             "t1_steps": self.t1,
             "text_gaussians": int(self.model.extras["is_text"].sum()),
             "sfm_points": int(self.scene.model.num_points),
             "text_points": int(self.segmentation.num_text),
             "text_views": len(self.text_views),
-            "masks_segmentation_seconds": self.preprocess_seconds,  # part of CheckpointResult.preprocess_seconds
+            "masks_segmentation_seconds": self.masks_segmentation_seconds,  # part of preprocess_seconds
             **self.densify_stats,
         }
         if self.fallback:
             extra["fallback"] = self.fallback
         return extra
 
+    # ---- resumable state: the phase (the model, optimizer and generators are the base's) ---------
+    def extra_state(self) -> dict:
+        return {"phase": self.phase, "densify_stats": dict(self.densify_stats)}
 
-# ---- the adapter ---------------------------------------------------------------------------------
-class StringsMethod(MethodAdapter):
-    """Settings: StringsSettings fields, plus everything `trainer.config_from_settings` takes
-    (TrainConfig fields, lr_<group>, DefaultStrategy fields), flat, as for 3dgs."""
-
-    name = "strings"
-    paper = PAPER
-
-    def _split(self, checkpoints, downscale):
-        from strings_bench.engine.trainer import config_from_settings
-
-        known_st = {f.name for f in fields(StringsSettings)}
-        st = StringsSettings(**{k: v for k, v in self.settings.items() if k in known_st})
-        rest = {k: v for k, v in self.settings.items() if k not in known_st and k != "checkpoints"}
-        # Checkpoints are the steps actually run (runner and trainer convention).
-        config, strategy = config_from_settings(rest, checkpoints, downscale)
-        config.progress = config.progress and self.progress  # --no-progress (the runner sets self.progress)
-        return st, config, strategy
-
-    def build_trainer(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> StringsTrainer:
-        from strings_bench.methods.strings.masks import text_masks
-        from strings_bench.methods.strings.segmentation import segment_text_points
-
-        st, config, strategy = self._split(checkpoints, downscale)
-        t0 = time.perf_counter()
-        mask_settings = st.mask_settings()
-        masks = text_masks(scene, scene.train_idx, downscale, mask_settings, progress=config.progress)
-        seg_ds = st.segmentation_downscale or downscale
-        seg_masks = masks if seg_ds == downscale else text_masks(scene, scene.train_idx, seg_ds, mask_settings,
-                                                                 progress=config.progress)
-        seg = segment_text_points(scene, seg_masks, seg_ds, st.tau)
-        return StringsTrainer(scene, config, strategy, st, masks, seg, preprocess_seconds=time.perf_counter() - t0)
-
-    def train(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> Iterator[CheckpointResult]:
-        yield from self.build_trainer(scene, checkpoints, downscale).train()
+    def load_extra_state(self, state: dict) -> None:
+        self.phase = int(state.get("phase", self.phase))
+        self.densify_stats = dict(state.get("densify_stats", self.densify_stats))
 
 
-# ---- registration ----------------------------------------------------------------------------------
-def _presets() -> dict[str, dict]:
-    from strings_bench.core.schedules import schedule_presets
+class StringsNoDensify(Strings):
+    """Ablation of the paper: without the one-time text densification (Eq. 1)."""
 
-    presets = schedule_presets()
-    # The release's gamma is 12000 on its phase-2 counter (= the paper's 15000 on the global one at T1 = 3000).
-    presets["release"] = {"steps_scale": 1.0, "gamma": 12000, "gamma_counter": "phase2", "mask_dilation_px": 225.0,
-                          "phase2_schedules": "restart"}
-    return presets
+    name = "strings-no-densify"
+    forced_settings = {"text_densify": False}
 
 
-DEFAULTS = {"steps_scale": 1.0}
+class StringsPosLR(Strings):
+    """Ablation of the paper: the 3DGS position LR in phase 1 instead of 0."""
 
-register_method(MethodSpec(
-    name="strings", factory=StringsMethod, paper=PAPER, defaults=dict(DEFAULTS), presets=_presets(),
-    description="STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
-                "masked phase-1 loss, region-dependent position LR)"))
-
-
-def _ablation(name: str, desc: str, **settings) -> None:
-    def make(**given):
-        m = StringsMethod(**{**given, **settings})
-        m.name = name
-        return m
-    register_method(MethodSpec(name=name, factory=make, paper=PAPER, defaults=dict(DEFAULTS), presets=_presets(),
-                               description=desc))
-
-
-_ablation("strings-no-densify", "STRinGS ablation: without the one-time text densification (Eq. 1)",
-          text_densify=False)
-_ablation("strings-pos-lr", "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1",
-          phase1_position_lr=1.0)
+    name = "strings-pos-lr"
+    forced_settings = {"phase1_position_lr": 1.0}
