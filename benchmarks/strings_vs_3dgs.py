@@ -53,6 +53,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
+    from strings_bench.bench.results import cell_row, iter_cells
 
     methods = args.methods.split(",")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
     runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,
                with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None)
 
-    rows = [runner.cell_row(r) for r in runner.iter_cells(run_dir)]
+    rows = [cell_row(r) for r in iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
     rows.sort(key=lambda r: (scenes.index(r["scene"]), int(r["iteration"]), methods.index(r["method"])))
     print(f"\nSTRinGS vs 3DGS, preset {preset}, OCR {args.ocr} (run folder {run_dir})\n")

@@ -315,15 +315,17 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
 # ---- §4 dataset cards -------------------------------------------------------------------------------
 def test_broken_import_inside_cards_surfaces(monkeypatch):
     import strings_bench.datasets as pkg
+    import strings_bench.datasets.card as card
     import strings_bench.datasets.registry as registry
 
     registry.list_datasets()  # cards imported normally
     assert {"strings360", "tandt", "dl3dv"} <= {c.id for c in registry.list_datasets()}
-    # A bug inside cards.py: it imports a name the registry does not have. It must not be swallowed.
+    # A bug inside cards.py: it imports a name card.py does not have. It must not be swallowed.
     monkeypatch.delitem(sys.modules, "strings_bench.datasets.cards")
     monkeypatch.delattr(pkg, "cards")
-    monkeypatch.delattr(registry, "read_index")
-    with pytest.raises(ImportError, match="read_index"):
+    monkeypatch.delattr(card, "local_root")
+    monkeypatch.setattr(registry, "_BUILTINS_REGISTERED", False)  # as in a fresh process
+    with pytest.raises(ImportError, match="local_root"):
         registry.list_datasets()
 
 

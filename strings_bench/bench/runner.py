@@ -25,8 +25,6 @@ them.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import logging
 import math
@@ -42,17 +40,15 @@ from PIL import Image
 
 from strings_bench import __version__
 from strings_bench.core.errors import OCRError, StringsBenchError
-from strings_bench.core.io import atomic_write, atomic_write_json, atomic_write_text
+from strings_bench.bench.results import iteration_label, write_results_csv
+from strings_bench.core.io import atomic_write, atomic_write_json
 from strings_bench.core.method import Method
-from strings_bench.core.results import safe_name
+from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
 from strings_bench.core.schedules import SCHEDULE_SCALES
 
 log = logging.getLogger(__name__)
 
-RESULT_FILE = "result.json"
 LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
-RUN_FILE = "run.json"
-RESULTS_CSV = "results.csv"
 DEFAULT_RUN_DIR = Path("runs") / "default"
 
 # Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
@@ -94,11 +90,6 @@ PRESETS: dict[str, Preset] = {
 }
 
 
-def iteration_label(iteration: int) -> str:
-    """7000 -> '7K', 30000 -> '30K', 350 -> '350'."""
-    return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)
-
-
 def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise StringsBenchError(f"unknown preset {name!r}", hint=f"presets: {', '.join(PRESETS)}")
@@ -106,17 +97,6 @@ def get_preset(name: str) -> Preset:
 
 
 # ---- jobs and executors ---------------------------------------------------------------------
-@dataclass(frozen=True)
-class CellKey:
-    method: str
-    dataset: str
-    scene: str
-    iteration: int
-
-    def path(self, run_dir: Path) -> Path:
-        return Path(run_dir) / "cells" / _safe(self.method) / _safe(self.dataset) / _safe(self.scene) / str(self.iteration)
-
-
 @dataclass(frozen=True)
 class Job:
     """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel."""
@@ -185,10 +165,6 @@ def get_executor(name: str, runner: Callable[[Job], Any]) -> Executor:
 
 
 # ---- helpers ----------------------------------------------------------------------------------
-def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_.+" else "_" for c in str(name)) or "_"
-
-
 def _to_uint8(img: np.ndarray) -> np.ndarray:
     return (np.clip(np.asarray(img, dtype=np.float32), 0, 1) * 255.0 + 0.5).astype(np.uint8)
 
@@ -234,10 +210,6 @@ def versions() -> dict:
     except Exception:  # noqa: BLE001 - optional
         pass
     return out
-
-
-def is_finished(run_dir: Path, key: CellKey) -> bool:
-    return (key.path(run_dir) / RESULT_FILE).is_file()
 
 
 # ---- masks used for OCR ------------------------------------------------------------------------
@@ -292,7 +264,7 @@ class Evaluator:
             i = self.views[self.names.index(name)]
             self._gt[name] = self.scene.load_image(i, self.downscale)
             self._masks[name] = eval_mask(self.scene, i, self.downscale, self.mask_settings)
-            gt_png = self.run_dir / "gt" / _safe(self.dataset) / _safe(self.scene.name) / f"{Path(name).stem}.png"
+            gt_png = self.run_dir / "gt" / safe_name(self.dataset) / safe_name(self.scene.name) / f"{Path(name).stem}.png"
             if not gt_png.exists():
                 _write_png(gt_png, self._gt[name])
         return self._gt[name]
@@ -530,78 +502,6 @@ def _metrics_describe() -> dict:
     import strings_bench.eval.metrics as metrics
 
     return metrics.describe()
-
-
-# ---- results.csv ---------------------------------------------------------------------------------
-CSV_COLUMNS = [
-    "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
-    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
-    "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
-]
-
-
-def iter_cells(run_dir: str | Path) -> Iterable[dict]:
-    root = Path(run_dir) / "cells"
-    if not root.is_dir():
-        return
-    for p in sorted(root.glob(f"*/*/*/*/{RESULT_FILE}")):
-        try:
-            yield json.loads(p.read_text(encoding="utf-8"))
-        except ValueError as exc:
-            raise StringsBenchError(f"cell result {p} is unreadable: {exc}",
-                                    hint="delete that cell's folder and re-run to recompute it") from exc
-
-
-def _timing_columns(rec: dict) -> dict:
-    """train/preprocess/total seconds of a cell. Cells written before preprocess time was recorded
-    (no `timings.preprocess_seconds`) take STRinGS' extra["preprocess_seconds"] (masks and Algorithm
-    1, all it measured then; its Eq. 1 time was not measured) or else 0 (other methods had none)."""
-    t = rec.get("timings") or {}
-    train = t.get("train_seconds")
-    pre = t.get("preprocess_seconds")
-    if pre is None:
-        pre = (rec.get("extra") or {}).get("preprocess_seconds", 0.0)
-    total = t.get("total_seconds")
-    if total is None and train is not None:
-        total = train + pre
-    return {"train_seconds": "" if train is None else train, "preprocess_seconds": "" if pre is None else pre,
-            "total_seconds": "" if total is None else total}
-
-
-def cell_row(rec: dict) -> dict:
-    c = rec.get("cer") or {}
-    k = rec.get("cer_known")
-    ignored = c.get("ignored") or {}
-
-    def num(x):
-        return "" if x is None else x
-
-    return {
-        "method": rec["method"], "dataset": rec["dataset"], "scene": rec["scene"], "iteration": rec["iteration"],
-        "label": rec.get("label", iteration_label(rec["iteration"])),
-        "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
-        "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
-        "lpips": num(rec["metrics"].get("lpips")),
-        **_timing_columns(rec),
-        "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
-        "peak_memory_mb": num(rec.get("peak_memory_mb")),
-        "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
-        "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
-        "known_views": "" if not k else len(k.get("images") or {}),
-        "eval_seconds": num(rec["timings"].get("eval_seconds")),
-        "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
-        "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
-    }
-
-
-def write_results_csv(run_dir: str | Path) -> Path:
-    rows = [cell_row(r) for r in iter_cells(run_dir)]
-    rows.sort(key=lambda r: (r["dataset"], r["scene"], r["method"], int(r["iteration"])))
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    return atomic_write_text(Path(run_dir) / RESULTS_CSV, buf.getvalue())
 
 
 # ---- the whole run ---------------------------------------------------------------------------------

@@ -105,9 +105,9 @@ def _register_with_datasets_group() -> None:
 
 def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> list:
     """Check then register; returns the scene reports. Raises DatasetError when the check fails."""
-    from strings_bench.datasets.cards import BUILTIN_REAL_CARDS, register_local_copies
+    from strings_bench.datasets.cards import BUILTIN_REAL_CARDS
     from strings_bench.datasets.check import check_card_copy, check_path, format_reports
-    from strings_bench.datasets.registry import _REGISTRY, list_datasets, read_index, write_index
+    from strings_bench.datasets.registry import _REGISTRY, list_datasets, read_index, register_local_copies, write_index
 
     name = _valid_name(name)
     path = Path(path).expanduser()

@@ -2,8 +2,10 @@
 
 A card lists a dataset's scenes with their per-scene settings (the STRinGS text-densification cap
 N_max, REFERENCE §2), where the data comes from, its licence and the folder layout it expects.
-The data itself is never shipped: `strings-bench datasets download NAME` fetches what has a direct
-URL and prints the steps for the rest; `strings-bench datasets add NAME PATH` records a local copy.
+The cards are plain data; `strings_bench.datasets.registry` registers them, and the user's local
+copies through `local_card`. The data itself is never shipped: `strings-bench datasets download
+NAME` fetches what has a direct URL and prints the steps for the rest; `strings-bench datasets add
+NAME PATH` records a local copy.
 
 Layout of a local copy (ROOT is what `datasets add NAME ROOT` records):
 
@@ -20,7 +22,7 @@ import json
 from pathlib import Path
 
 from strings_bench.core.errors import DatasetError
-from strings_bench.datasets.registry import DatasetCard, SceneCard, _REGISTRY, local_root, read_index, register_dataset
+from strings_bench.datasets.card import LOCAL_CARD_NOTES, DatasetCard, SceneCard, local_root
 
 SCENE_MAP_FILE = "scenes.json"
 STRINGS_PROJECT_PAGE = "https://strings-official.github.io/"
@@ -66,6 +68,7 @@ def _locate_in_local_copy(dataset_id: str):
 
 STRINGS360 = DatasetCard(
     id="strings360",
+    locate=_locate_in_local_copy("strings360"),
     title="STRinGS-360 (text-rich indoor 360-degree captures, the paper's own dataset)",
     scenes=[
         SceneCard("extinguisher", {"n_max": 25}, "instructional text on a curved cylinder"),
@@ -93,6 +96,7 @@ STRINGS360 = DatasetCard(
 
 TANDT = DatasetCard(
     id="tandt",
+    locate=_locate_in_local_copy("tandt"),
     title="Tanks and Temples: Truck and Train (the 3DGS authors' COLMAP-processed copy)",
     scenes=[
         SceneCard("truck", {"n_max": 20}, "a truck with lettering, outdoor 360"),
@@ -112,6 +116,7 @@ TANDT = DatasetCard(
 
 DL3DV = DatasetCard(
     id="dl3dv",
+    locate=_locate_in_local_copy("dl3dv"),
     title="DL3DV-10K benchmark: the 7 text-bearing scenes used in the paper",
     scenes=[SceneCard(str(i), {"n_max": DL3DV_DEFAULT_N_MAX},
                       "benchmark scene index; N_max 15 is the release default (exact per-scene value not published)")
@@ -141,9 +146,6 @@ DL3DV = DatasetCard(
 )
 
 BUILTIN_REAL_CARDS = (STRINGS360, TANDT, DL3DV)
-for _card in BUILTIN_REAL_CARDS:
-    _card.locate = _locate_in_local_copy(_card.id)
-    register_dataset(_card)
 
 
 # ---- the user's own scenes (`prepare`, `datasets add NAME PATH` with a new NAME) -------------
@@ -162,25 +164,4 @@ def local_card(name: str, path: Path) -> DatasetCard:
         scenes = [SceneCard(p.name, {}, f"local scene at {p}") for p in subs]
         locate = lambda scene, _p=path: _p / scene  # noqa: E731
     return DatasetCard(id=name, title=f"local copy at {path}", scenes=scenes, source=str(path),
-                       licence="(your own data)", locate=locate, notes="registered with `datasets add` or `prepare`")
-
-
-def register_local_copies() -> list[str]:
-    """Make every index entry that is not a built-in card usable as `--datasets NAME`."""
-    builtin = {c.id for c in BUILTIN_REAL_CARDS}
-    added = []
-    for name, path in read_index().items():
-        if name in builtin:
-            continue
-        existing = _REGISTRY.get(name)
-        if existing is not None and existing.notes != "registered with `datasets add` or `prepare`":
-            continue  # never shadow a built-in card (e.g. synthetic) with an index entry
-        register_dataset(local_card(name, Path(path)))
-        added.append(name)
-    return added
-
-
-try:
-    register_local_copies()
-except DatasetError:
-    pass  # a corrupt index is reported by the command that reads it, not at import
+                       licence="(your own data)", locate=locate, notes=LOCAL_CARD_NOTES)

@@ -4,120 +4,79 @@ A spec is a registry id (`synthetic`, `synthetic/books`, `strings360/globe`) or 
 folder in the COLMAP layout. Cards describe scenes and their per-scene settings; where a card's
 data lives on disk is either built in (synthetic scenes are generated into the cache) or recorded
 by `strings-bench datasets add NAME PATH` in the user's dataset index.
+
+Registration is explicit and happens here only: the card modules (`cards.py`, `synthetic/`) define
+their cards as data and import nothing of this module; `_register_builtin_cards` registers them on
+first use (lazily, because importing the synthetic generator costs ~0.3 s).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from strings_bench.core.errors import DatasetError
-from strings_bench.core.io import atomic_write_json, cache_root
+from strings_bench.datasets.card import (LOCAL_CARD_NOTES, DatasetCard, SceneCard, SceneRef, index_path, local_root,
+                                         locate_scene, read_index, write_index)
 
-
-@dataclass(frozen=True)
-class SceneCard:
-    name: str
-    settings: dict = field(default_factory=dict)  # e.g. {"n_max": 25}
-    description: str = ""
-
-
-@dataclass
-class DatasetCard:
-    id: str
-    title: str
-    scenes: list[SceneCard]
-    source: str = ""
-    licence: str = ""
-    layout: str = "images/, sparse/0/, optional masks/"
-    # Builds or locates the scene folder for a scene name; None means "look in the user's index".
-    locate: Callable[[str], Path] | None = None
-    notes: str = ""
-    download: dict | None = None  # optional: how to obtain the data (urls, sha256, steps)
-
-    def scene(self, name: str) -> SceneCard:
-        for s in self.scenes:
-            if s.name == name:
-                return s
-        raise DatasetError(f"dataset {self.id} has no scene {name!r}",
-                           hint=f"its scenes: {', '.join(s.name for s in self.scenes)}")
-
-
-@dataclass(frozen=True)
-class SceneRef:
-    """One resolved scene: where it is and which settings apply."""
-
-    dataset: str
-    scene: str
-    path: Path
-    settings: dict = field(default_factory=dict)
-
-    @property
-    def id(self) -> str:
-        return f"{self.dataset}/{self.scene}"
-
+__all__ = ["DatasetCard", "SceneCard", "SceneRef", "get_dataset", "index_path", "list_datasets", "local_root",
+           "locate_scene", "read_index", "register_dataset", "register_local_copies", "resolve_scenes", "write_index"]
 
 _REGISTRY: dict[str, DatasetCard] = {}
+_BUILTINS_REGISTERED = False
 
 
 def register_dataset(card: DatasetCard) -> DatasetCard:
+    """Make `card` resolvable as `--datasets card.id` (replacing a card of the same id)."""
     _REGISTRY[card.id] = card
     return card
 
 
-def _load_builtin_cards() -> None:
-    # Importing the card modules registers them. cards.py needs no optional dependency, so an
-    # ImportError there is a bug and must surface (swallowing it silently removed the real datasets).
-    import strings_bench.datasets.cards as cards
-    import strings_bench.datasets.synthetic as synthetic
+def _register_builtin_cards() -> None:
+    """Register the built-in cards (the paper's real datasets, then the synthetic benchmark) and the
+    user's local copies, once. An ImportError in a card module is a bug and surfaces."""
+    global _BUILTINS_REGISTERED
+    if _BUILTINS_REGISTERED:
+        return
+    from strings_bench.datasets import cards, synthetic
+
+    for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD):
+        register_dataset(card)
+    _BUILTINS_REGISTERED = True
+    try:
+        register_local_copies()
+    except DatasetError:
+        pass  # a corrupt index is reported by the command that reads it, not when cards are loaded
+
+
+def register_local_copies() -> list[str]:
+    """Make every index entry that is not a built-in card usable as `--datasets NAME`; returns the
+    names registered."""
+    _register_builtin_cards()  # built-in cards first, so that no index entry can shadow one
+    from strings_bench.datasets.cards import local_card
+
+    added = []
+    for name, path in read_index().items():
+        existing = _REGISTRY.get(name)
+        if existing is not None and existing.notes != LOCAL_CARD_NOTES:
+            continue  # never shadow a built-in card (strings360, synthetic, ...) with an index entry
+        register_dataset(local_card(name, Path(path)))
+        added.append(name)
+    return added
 
 
 def list_datasets() -> list[DatasetCard]:
-    _load_builtin_cards()
+    """Every registered card: the built-in ones, the user's local copies, and any registered in code."""
+    _register_builtin_cards()
     return list(_REGISTRY.values())
 
 
 def get_dataset(dataset_id: str) -> DatasetCard:
-    _load_builtin_cards()
+    """The card registered as `dataset_id`; DatasetError naming the known ids when there is none."""
+    _register_builtin_cards()
     if dataset_id not in _REGISTRY:
         raise DatasetError(f"unknown dataset {dataset_id!r}",
                            hint=f"known: {', '.join(sorted(_REGISTRY))}; or pass a path to a scene folder")
     return _REGISTRY[dataset_id]
-
-
-# ---- the user's index of local copies (`datasets add`) ---------------------------------------
-def index_path() -> Path:
-    return cache_root() / "datasets.json"
-
-
-def read_index() -> dict[str, str]:
-    p = index_path()
-    if not p.exists():
-        return {}
-    try:
-        return dict(json.loads(p.read_text()))
-    except ValueError as exc:
-        raise DatasetError(f"the dataset index {p} is corrupt: {exc}", hint="delete it and re-run `strings-bench datasets add`") from exc
-
-
-def write_index(index: dict[str, str]) -> None:
-    atomic_write_json(index_path(), index)
-
-
-def local_root(dataset_id: str) -> Path:
-    index = read_index()
-    if dataset_id not in index:
-        raise DatasetError(f"dataset {dataset_id!r} has no local copy registered",
-                           hint=f"download it, then `strings-bench datasets add {dataset_id} PATH`")
-    return Path(index[dataset_id])
-
-
-def locate_scene(card: DatasetCard, scene: str) -> Path:
-    if card.locate is not None:
-        return card.locate(scene)
-    return local_root(card.id) / scene
 
 
 def resolve_scenes(specs: list[str]) -> list[SceneRef]:

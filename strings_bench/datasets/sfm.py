@@ -269,13 +269,11 @@ def prepare_scene(
         pycolmap.logging.minloglevel = old_log_level
 
     if register:
-        from strings_bench.datasets.registry import read_index, write_index
+        from strings_bench.datasets.registry import read_index, register_local_copies, write_index
 
         index = read_index()
         index[name] = str(scene_dir)
         write_index(index)
-        from strings_bench.datasets.cards import register_local_copies
-
         register_local_copies()
     return result
 

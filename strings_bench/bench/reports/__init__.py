@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from strings_bench.bench.results import RESULTS_CSV, RUN_FILE, write_results_csv
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 
@@ -19,7 +20,6 @@ __all__ = ["write_report"]
 
 
 def write_report(run_dir: str | Path) -> Path:
-    from strings_bench.bench.runner import RESULTS_CSV, RUN_FILE, write_results_csv
     from strings_bench.bench.reports.figures import write_figures
     from strings_bench.bench.reports.tables import load_results, write_tables
 

@@ -3,7 +3,6 @@ qualitative grid of text crops with the OCR strings under each crop."""
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from pathlib import Path
@@ -11,8 +10,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from strings_bench.core.io import atomic_write
 from strings_bench.bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title, with_total_seconds
+from strings_bench.bench.results import read_cell
+from strings_bench.core.io import atomic_write
+from strings_bench.core.results import CellKey, safe_name
 
 CROP_PAD = 0.25  # fraction of the text box added on every side of a crop
 
@@ -120,10 +121,7 @@ def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
 
 # ---- qualitative ---------------------------------------------------------------------------------
 def _read_cell(run_dir: Path, method: str, dataset: str, scene: str, iteration: int) -> dict | None:
-    from strings_bench.bench.runner import CellKey, RESULT_FILE
-
-    p = CellKey(method, dataset, scene, int(iteration)).path(run_dir) / RESULT_FILE
-    return json.loads(p.read_text(encoding="utf-8")) if p.exists() else None
+    return read_cell(run_dir, CellKey(method, dataset, scene, int(iteration)))
 
 
 def _words_text(words: list | None) -> str:
@@ -203,11 +201,9 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     plt = _plt()
     ncols = len(methods) + 1
     fig, axes = plt.subplots(len(rows), ncols, figsize=(2.6 * ncols, 2.2 * len(rows)), squeeze=False)
-    from strings_bench.bench.runner import _safe
-
     for ri, (d, s, (view, words), recs) in enumerate(rows):
         stem = Path(view).stem
-        gt_path = run_dir / "gt" / _safe(d) / _safe(s) / f"{stem}.png"
+        gt_path = run_dir / "gt" / safe_name(d) / safe_name(s) / f"{stem}.png"
         gt = np.asarray(Image.open(gt_path).convert("RGB")) if gt_path.exists() else None
         shape = gt.shape[:2] if gt is not None else (10**6, 10**6)
         box = _crop_box(words, shape)
@@ -226,8 +222,6 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                 rec = recs.get(m)
                 img, caption, title = None, "(not run)", method_title(m)
                 if rec is not None:
-                    from strings_bench.bench.runner import CellKey
-
                     p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / f"{stem}.png"
                     img = np.asarray(Image.open(p).convert("RGB")) if p.exists() else None
                     v = rec["ocr"]["views"].get(view, {})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from strings_bench.datasets.registry import DatasetCard, SceneCard, register_dataset
+from strings_bench.datasets.card import DatasetCard, SceneCard
 from strings_bench.datasets.synthetic.generate import (GENERATOR_VERSION, SCENE_NAMES, SyntheticSettings, build_scene, is_built, read_meta,
                        scene_dir, settings_with)
 
@@ -29,7 +29,8 @@ def _locate(scene: str) -> Path:
     return build_scene(scene, SyntheticSettings(), progress=True)
 
 
-CARD = register_dataset(DatasetCard(
+# Registered by strings_bench.datasets.registry (this package imports nothing of the registry).
+CARD = DatasetCard(
     id="synthetic",
     title="Synthetic STRinGS-360-like scenes (generated, ray-traced, SfM points from pycolmap)",
     scenes=[SceneCard(name, settings={"n_max": 15}, description=DESCRIPTIONS[name]) for name in SCENE_NAMES],
@@ -38,4 +39,4 @@ CARD = register_dataset(DatasetCard(
     layout="images/, sparse/0/, masks/ (GT text), text_annotations.json, scene_meta.json",
     locate=_locate,
     notes="built on first use into the cache; `strings-bench datasets prepare synthetic --all` builds all five",
-))
+)

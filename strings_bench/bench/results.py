@@ -1,0 +1,109 @@
+"""The run folder's cell schema and its `results.csv`: read cells, turn a cell into a CSV row, write the CSV.
+
+The runner writes cells (`cells/<method>/<dataset>/<scene>/<iteration>/result.json`); the reports
+and benchmark scripts read them back through this module. It imports nothing of the runner or the
+reports, so both can depend on it (docs/architecture.md). The path and file names of a cell live in
+`strings_bench.core.results` (CellKey, RESULT_FILE, RUN_FILE, RESULTS_CSV) and are re-exported here.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Iterable
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.io import atomic_write_text
+from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
+
+__all__ = [
+    "CSV_COLUMNS", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
+    "iteration_label", "read_cell", "safe_name", "timing_columns", "write_results_csv",
+]
+
+CSV_COLUMNS = [
+    "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
+    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
+]
+
+
+def iteration_label(iteration: int) -> str:
+    """7000 -> '7K', 30000 -> '30K', 350 -> '350'."""
+    return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)
+
+
+def iter_cells(run_dir: str | Path) -> Iterable[dict]:
+    """Every finished cell's result.json under RUN_DIR/cells, parsed, in path order."""
+    root = Path(run_dir) / "cells"
+    if not root.is_dir():
+        return
+    for p in sorted(root.glob(f"*/*/*/*/{RESULT_FILE}")):
+        try:
+            yield json.loads(p.read_text(encoding="utf-8"))
+        except ValueError as exc:
+            raise StringsBenchError(f"cell result {p} is unreadable: {exc}",
+                                    hint="delete that cell's folder and re-run to recompute it") from exc
+
+
+def read_cell(run_dir: str | Path, key: CellKey) -> dict | None:
+    """One cell's result.json, or None when the cell is not finished."""
+    p = key.path(Path(run_dir)) / RESULT_FILE
+    return json.loads(p.read_text(encoding="utf-8")) if p.exists() else None
+
+
+def timing_columns(rec: dict) -> dict:
+    """train/preprocess/total seconds of a cell. Cells written before preprocess time was recorded
+    (no `timings.preprocess_seconds`) take STRinGS' extra["preprocess_seconds"] (masks and Algorithm
+    1, all it measured then; its Eq. 1 time was not measured) or else 0 (other methods had none)."""
+    t = rec.get("timings") or {}
+    train = t.get("train_seconds")
+    pre = t.get("preprocess_seconds")
+    if pre is None:
+        pre = (rec.get("extra") or {}).get("preprocess_seconds", 0.0)
+    total = t.get("total_seconds")
+    if total is None and train is not None:
+        total = train + pre
+    return {"train_seconds": "" if train is None else train, "preprocess_seconds": "" if pre is None else pre,
+            "total_seconds": "" if total is None else total}
+
+
+def cell_row(rec: dict) -> dict:
+    """A cell's result.json as one results.csv row (keys: CSV_COLUMNS; missing values are "")."""
+    c = rec.get("cer") or {}
+    k = rec.get("cer_known")
+    ignored = c.get("ignored") or {}
+
+    def num(x):
+        return "" if x is None else x
+
+    return {
+        "method": rec["method"], "dataset": rec["dataset"], "scene": rec["scene"], "iteration": rec["iteration"],
+        "label": rec.get("label", iteration_label(rec["iteration"])),
+        "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
+        "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
+        "lpips": num(rec["metrics"].get("lpips")),
+        **timing_columns(rec),
+        "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
+        "peak_memory_mb": num(rec.get("peak_memory_mb")),
+        "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
+        "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
+        "known_views": "" if not k else len(k.get("images") or {}),
+        "eval_seconds": num(rec["timings"].get("eval_seconds")),
+        "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
+        "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+    }
+
+
+def write_results_csv(run_dir: str | Path) -> Path:
+    """Rebuild RUN_DIR/results.csv from the cell files (atomically); one row per cell, sorted by
+    dataset, scene, method, iteration. Returns the CSV's path."""
+    rows = [cell_row(r) for r in iter_cells(run_dir)]
+    rows.sort(key=lambda r: (r["dataset"], r["scene"], r["method"], int(r["iteration"])))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return atomic_write_text(Path(run_dir) / RESULTS_CSV, buf.getvalue())
