@@ -9,7 +9,8 @@ again from the start; checkpoints already evaluated are passed over (never rewri
 Run folder (see docs/running.md):
 
     RUN_DIR/
-      run.json                          the run's settings (preset, downscale, OCR, masks); a re-run must match
+      run.json                          the run's settings (preset, steps scale, checkpoints, downscale, OCR,
+                                        --set values); a re-run must match
       results.csv                       one row per cell, rebuilt after every cell
       cells/<method>/<dataset>/<scene>/<iteration>/
           result.json                   everything about the cell (config, timings, metrics, OCR words, CER)
@@ -30,10 +31,11 @@ import io
 import json
 import logging
 import math
+import numbers
 import platform
 import time
 from concurrent.futures import Future
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Protocol
 
@@ -52,6 +54,9 @@ LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or a
 RUN_FILE = "run.json"
 RESULTS_CSV = "results.csv"
 DEFAULT_RUN_DIR = Path("runs") / "default"
+# Key of `method_overrides` whose settings apply to every method of a run (`--set KEY=VALUE`, no
+# method named); a method's own entry wins over it, key by key.
+ALL_METHODS = "*"
 
 # Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
 # trained is round(paper_iteration * steps_scale). "quick" is the default of `strings-bench run`.
@@ -101,6 +106,29 @@ def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise StringsBenchError(f"unknown preset {name!r}", hint=f"presets: {', '.join(PRESETS)}")
     return PRESETS[name]
+
+
+def schedule(preset: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None) -> Preset:
+    """The run's schedule: preset `preset` with `run --steps-scale` and `--checkpoints` applied.
+
+    steps_scale replaces the preset's scale (every method is then scaled by it); checkpoints are
+    paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale). The name
+    stays the preset's: methods still take their own preset of that name, with the scale replaced.
+    """
+    p = get_preset(preset)
+    if steps_scale is not None:
+        if not (isinstance(steps_scale, (int, float)) and math.isfinite(steps_scale) and steps_scale > 0):
+            raise StringsBenchError(f"steps scale must be a number > 0, got {steps_scale!r}",
+                                    hint="e.g. --steps-scale 0.2 (7K = 1400 steps); 1 is the paper's schedule")
+        p = replace(p, steps_scale=float(steps_scale), description=f"{p.description} [--steps-scale {steps_scale:g}]")
+    if checkpoints is not None:
+        given = list(checkpoints)
+        if not given or not all(isinstance(c, numbers.Integral) and not isinstance(c, bool) and c >= 1 for c in given):
+            raise StringsBenchError(f"checkpoints must be paper iterations (integers >= 1), got {given!r}",
+                                    hint="e.g. --checkpoints 3000,7000")
+        its = tuple(sorted({int(c) for c in given}))
+        p = replace(p, paper_checkpoints=its, description=f"{p.description} [--checkpoints {','.join(map(str, its))}]")
+    return p
 
 
 # ---- jobs and executors ---------------------------------------------------------------------
@@ -587,14 +615,20 @@ class RunPlan:
 
 def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
              ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None,
-             cer_profile: str = "paper") -> RunPlan:
+             cer_profile: str = "paper", steps_scale: float | None = None,
+             checkpoints: Iterable[int] | None = None) -> RunPlan:
+    """Plan the jobs of a run: one per (method, scene), with its checkpoints and settings.
+
+    method_overrides maps a method name, or ALL_METHODS for every method, to settings over its
+    preset. steps_scale / checkpoints (paper iterations) replace the preset's schedule (see `schedule`).
+    """
     from strings_bench.eval.cer import get_profile
     from strings_bench.datasets.registry import resolve_scenes
     from strings_bench.methods.registry import get_method
 
     if not methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
-    p = get_preset(preset)
+    p = schedule(preset, steps_scale, checkpoints)
     get_profile(cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
     refs = resolve_scenes(datasets)
@@ -604,29 +638,48 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     run_dir = Path(run_dir)
     overrides = dict(method_overrides or {})
     jobs = []
+    given: dict[str, dict] = {}  # each method's --set values, the all-methods ones included
     for m in methods:
         spec = specs[m]
-        m_over = dict(overrides.get(m, {}))
-        if preset not in spec.presets and "steps_scale" in spec.defaults and "steps_scale" not in m_over:
-            m_over["steps_scale"] = p.steps_scale  # the method has no such preset: scale it like the run
+        # For now every method takes the all-methods settings; a method that has no such setting fails when its job starts.
+        m_over = {**overrides.get(ALL_METHODS, {}), **overrides.get(m, {})}
+        given[m] = dict(m_over)
+        if "steps_scale" in spec.defaults and "steps_scale" not in m_over and (
+                steps_scale is not None or preset not in spec.presets):
+            # --steps-scale replaces the scale of the method's preset; a method without that preset is
+            # scaled like the run. A --set steps_scale given for the method wins.
+            m_over["steps_scale"] = p.steps_scale
         adapter = spec.build(preset=preset if preset in spec.presets else None, **m_over)
         # A method may carry its own schedule scale (its preset), else the run preset's applies.
-        steps_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
-        checkpoints = p.checkpoints(steps_scale)
+        m_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
+        steps = p.checkpoints(m_scale)
         fixed = getattr(adapter, "fixed_checkpoints", None)
         if callable(fixed) and fixed():
-            checkpoints = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
-        labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
+            steps = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
+        labels = {c: p.label_of(c, m_scale) for c in steps}
         for ref in refs:
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings),
-                            tuple(checkpoints), labels, preset, ds, ocr, m_over, cer_profile))
+                            tuple(steps), labels, preset, ds, ocr, m_over, cer_profile))
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": cer_profile,
-        "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
+        # --steps-scale / --checkpoints as given (None: the preset's); `preset` above holds the schedule in effect.
+        "steps_scale": None if steps_scale is None else p.steps_scale,
+        "checkpoints": None if checkpoints is None else list(p.paper_checkpoints),
+        "method_overrides": {m: _jsonable(given[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
         "datasets": datasets,
     }
     return RunPlan(run_dir, jobs, manifest)
+
+
+def _as_list(x):
+    return list(x) if isinstance(x, (list, tuple)) else x
+
+
+def _fmt_schedule(x) -> str:
+    if x is None:
+        return "(not recorded)"
+    return ",".join(str(c) for c in x) if isinstance(x, (list, tuple)) else f"{x:g}"
 
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
@@ -655,6 +708,18 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
         raise StringsBenchError(
             f"{run_dir} holds results of preset {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same preset to resume")
+    # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
+    # run gave the option; folders made without it keep resuming as before.
+    for k, field_name, option in (("steps_scale", "steps_scale", "--steps-scale"),
+                                  ("checkpoints", "paper_checkpoints", "--checkpoints")):
+        if old.get(k) is None and manifest.get(k) is None:
+            continue
+        was = (old.get("preset") or {}).get(field_name)
+        now = manifest["preset"].get(field_name)
+        if _as_list(was) != _as_list(now):
+            raise StringsBenchError(
+                f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",
+                hint=f"use another --out folder, or the same {option} to resume")
     # A finished cell is skipped on resume, so cells trained with other --set values must not be
     # taken for this run's (folders made before overrides were recorded carry no such entry).
     old_over = old.get("method_overrides")
@@ -722,8 +787,11 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
         progress: bool = True, write_report: bool = True, ocr_backend=None,
-        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper") -> Path:
-    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset."""
-    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile)
+        method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper",
+        steps_scale: float | None = None, checkpoints: Iterable[int] | None = None) -> Path:
+    """Plan and execute a run; `method_overrides` maps a method name (or ALL_METHODS) to settings
+    overriding its preset; steps_scale and checkpoints (paper iterations) replace the preset's schedule."""
+    plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
+                    steps_scale=steps_scale, checkpoints=checkpoints)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
                    write_report=write_report, lpips_at=lpips_at)
