@@ -47,46 +47,39 @@ def main(argv=None) -> int:
     ap.add_argument("--downscale", type=float, default=None)
     ap.add_argument("--steps-scale", type=float, default=None,
                     help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the preset's")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="setting for every method, e.g. lr_means=8e-4 (values parsed as JSON when possible); "
-                         "a run folder holds one set of settings, so give these runs their own --out")
+    ap.add_argument("--set", nargs="*", default=[], metavar="[METHOD.]KEY=VALUE",
+                    help="settings as `strings-bench run --set`: KEY=VALUE for every method (e.g. lr_means=8e-4), "
+                         "METHOD.KEY=VALUE for one (values parsed as JSON when possible); a run folder holds one set "
+                         "of settings, so give these runs their own --out")
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
     from strings_bench.bench.results import cell_row, iter_cells
+    from strings_bench.cli.run import parse_checkpoints, parse_settings
 
     methods = args.methods.split(",")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    run_dir = Path(args.out) / args.preset
-    preset = args.preset
-    if args.steps_scale is not None:
-        from dataclasses import replace
-
-        preset = f"x{args.steps_scale:g}"
-        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, steps_scale=args.steps_scale)
-        run_dir = run_dir.with_name(preset)
-        args.preset = preset
+    # The schedule options are the runner's (`run --steps-scale/--checkpoints`); the folder is named after them.
+    name = args.preset if args.steps_scale is None else f"x{args.steps_scale:g}"
     if args.only_7k and args.checkpoints is None:
         args.checkpoints = "7000"
+    paper_its = None
     if args.checkpoints is not None:
-        # A run preset with the same schedule and only these checkpoints; methods scale like the run.
-        from dataclasses import replace
-
-        paper_its = tuple(sorted({int(c) for c in args.checkpoints.split(",")}))
-        preset = f"{args.preset}-{'-'.join(f'{c // 1000}k' if c % 1000 == 0 else str(c) for c in paper_its)}"
-        runner.PRESETS[preset] = replace(runner.get_preset(args.preset), name=preset, paper_checkpoints=paper_its)
-        run_dir = run_dir.with_name(preset)
-    from strings_bench.cli.run import parse_settings
-
-    overrides = parse_settings([f"{m}.{kv}" for m in methods for kv in args.set])  # the CLI's --set parsing
-    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=preset, ocr=args.ocr,
-               with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None)
+        paper_its = sorted(set(parse_checkpoints(args.checkpoints)))
+        name += "-" + "-".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in paper_its)
+    run_dir = Path(args.out) / name
+    overrides = parse_settings(args.set)  # the CLI's --set parsing
+    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=args.preset, ocr=args.ocr,
+               with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None,
+               steps_scale=args.steps_scale, checkpoints=paper_its)
+    preset = args.preset + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (
+        "" if paper_its is None else f" at {','.join(map(str, paper_its))}")
 
     rows = [cell_row(r) for r in iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
     rows.sort(key=lambda r: (scenes.index(r["scene"]), int(r["iteration"]), methods.index(r["method"])))
     print(f"\nSTRinGS vs 3DGS, preset {preset}, OCR {args.ocr} (run folder {run_dir})\n")
-    print(f"| scene | ckpt | method | known-text CER | paper CER | PSNR | train s | total s | Gaussians |")
+    print("| scene | ckpt | method | known-text CER | paper CER | PSNR | train s | total s | Gaussians |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {r['label']} | {r['method']} | {_f(r['cer_known'])} | {_f(r['cer'])} | "

@@ -619,10 +619,10 @@ def test_random_images_match_the_authors_rules_exactly():
 
 # --------------------------------------------------------------------------- CLI
 def _run_cli(argv, capsys):
-    from strings_bench.cli.cer import add_cli
+    from strings_bench.cli.cer import add_parser
 
     parser = argparse.ArgumentParser(prog="strings-bench")
-    add_cli(parser.add_subparsers(dest="command"))
+    add_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(argv)
     try:
         rc = args.func(args)
@@ -636,7 +636,7 @@ def _run_cli(argv, capsys):
 def test_cli_module_is_registered():
     import strings_bench.cli as cli
 
-    assert "strings_bench.cli.cer" in cli.COMMAND_MODULES
+    assert cli.COMMANDS["cer"].module == "strings_bench.cli.cer"
 
 
 def _words(*items):

@@ -82,7 +82,7 @@ def _messages(reports, level=None):
 
 # ---- a good copy registers and loads with no code changes --------------------------------------
 def test_strings360_style_copy_registers_and_loads(scene_copy):
-    from strings_bench.cli.prepare import add_local_copy
+    from strings_bench.cli.datasets import add_local_copy
     from strings_bench.datasets.registry import read_index, resolve_scenes
 
     root = scene_copy.parent
@@ -117,7 +117,7 @@ def test_strings360_style_copy_registers_and_loads(scene_copy):
 
 def test_own_scene_under_a_new_name(scene_copy):
     from strings_bench.datasets.check import SceneReport  # noqa: F401
-    from strings_bench.cli.prepare import add_local_copy
+    from strings_bench.cli.datasets import add_local_copy
     from strings_bench.datasets.registry import resolve_scenes
 
     add_local_copy("my_mouse", scene_copy, echo=lambda s: None)
@@ -129,7 +129,7 @@ def test_own_scene_under_a_new_name(scene_copy):
 
 
 def test_add_refuses_a_broken_copy_unless_forced(scene_copy):
-    from strings_bench.cli.prepare import add_local_copy
+    from strings_bench.cli.datasets import add_local_copy
     from strings_bench.datasets.registry import read_index
 
     shutil.rmtree(scene_copy / "sparse")
@@ -245,7 +245,7 @@ def test_check_empty_images_folder(scene_copy):
 def test_check_cli_exit_codes(scene_copy, capsys):
     import argparse
 
-    from strings_bench.cli.prepare import add_dataset_subcommands
+    from strings_bench.cli.datasets import add_dataset_subcommands
 
     parser = argparse.ArgumentParser()
     add_dataset_subcommands(parser.add_subparsers())

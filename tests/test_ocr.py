@@ -302,10 +302,12 @@ def test_tesseract_reads_sample():
 
 # --------------------------------------------------------------------------- ocr check / read CLI
 def _run_cli(argv, capsys):
-    from strings_bench.cli.cer import add_cli
+    from strings_bench.cli import cer, ocr
 
     parser = argparse.ArgumentParser(prog="strings-bench")
-    add_cli(parser.add_subparsers(dest="command"))
+    sub = parser.add_subparsers(dest="command")
+    ocr.add_parser(sub)
+    cer.add_parser(sub)
     args = parser.parse_args(argv)
     try:
         rc = args.func(args)

@@ -235,10 +235,10 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
 
 
 def test_methods_list_cli(capsys):
-    import strings_bench.cli.run as run_cli
+    import strings_bench.cli.methods as methods_cli
 
     rf.register_fakes()
-    run_cli._methods_list(None)
+    methods_cli.cmd_list(None)
     out = capsys.readouterr().out
     assert "fake-a" in out and "paper: Test'25" in out and "presets: tiny" in out
 
@@ -300,8 +300,113 @@ def test_parse_settings():
 
     assert parse_settings(["ply.ply_path=/m/{scene}.ply", "strings.n_max=25", "x.flag=true"]) == {
         "ply": {"ply_path": "/m/{scene}.ply"}, "strings": {"n_max": 25}, "x": {"flag": True}}
-    with pytest.raises(StringsBenchError):
-        parse_settings(["nodot=1"])
+    # No '.' before the '=': every method of the run; dots in the value do not count.
+    assert parse_settings(["lr_means=1.6e-3", "strings.n_max=25", "tag=a.b"]) == {
+        runner.ALL_METHODS: {"lr_means": 1.6e-3, "tag": "a.b"}, "strings": {"n_max": 25}}
+    for bad in ["noequals", "=1", ".n_max=1", "strings.=1", "strings.n_max"]:
+        with pytest.raises(StringsBenchError, match="KEY=VALUE"):
+            parse_settings([bad])
+
+
+def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
+    """`--set KEY=VALUE` applies to every method; METHOD.KEY=VALUE wins for its method; both are recorded."""
+    from strings_bench.cli.run import parse_settings
+
+    over = parse_settings(["floor=0.05", "fake-b.floor=0.1", "fake-b.extra=1"])
+    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], tmp_path / "run", "tiny", "fake",
+                           method_overrides=over)
+    by = {j.method: j for j in plan.jobs}
+    assert by["fake-a"].method_overrides == {"floor": 0.05}
+    assert by["fake-b"].method_overrides == {"floor": 0.1, "extra": 1}
+    assert plan.manifest["method_overrides"] == {"fake-a": {"floor": 0.05}, "fake-b": {"floor": 0.1, "extra": 1}}
+    # The settings reach the built method: fake-a trains with floor 0.05.
+    adapter = runner._build_method(by["fake-a"])
+    assert adapter.settings["floor"] == 0.05
+    # Resuming: the same settings, given per method instead of for all, are the same run; others are refused.
+    _run(tmp_path / "run2", scene_dir, methods=["fake-a"], write_report=False, method_overrides=parse_settings(["floor=0.05"]))
+    n_train = len(rf.CALLS["train"])
+    _run(tmp_path / "run2", scene_dir, methods=["fake-a"], write_report=False,
+         method_overrides=parse_settings(["fake-a.floor=0.05"]))
+    assert len(rf.CALLS["train"]) == n_train
+    with pytest.raises(StringsBenchError, match="floor"):
+        _run(tmp_path / "run2", scene_dir, methods=["fake-a"], write_report=False,
+             method_overrides=parse_settings(["floor=0.06"]))
+
+
+def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
+    """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
+    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+                               presets={"tiny": {"steps_scale": 0.005, "floor": 0.2}}))
+    plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], tmp_path, "tiny", "fake",
+                           steps_scale=0.02, checkpoints=[7000, 3000])
+    by = {j.method: j for j in plan.jobs}
+    # 3000 x 0.02 = 60, 7000 x 0.02 = 140; the method's own tiny preset keeps its other settings.
+    assert by["fake-scaled"].checkpoints == (60, 140) and by["fake-scaled"].labels == {60: "3K", 140: "7K"}
+    assert by["fake-scaled"].method_overrides == {"steps_scale": 0.02}
+    built = runner._build_method(by["fake-scaled"])
+    assert built.settings["steps_scale"] == 0.02 and built.settings["floor"] == 0.2
+    # A method without a steps_scale setting follows the run's scale.
+    assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_overrides == {}
+    assert plan.manifest["steps_scale"] == 0.02 and plan.manifest["checkpoints"] == [3000, 7000]
+    assert plan.manifest["preset"]["name"] == "tiny" and plan.manifest["preset"]["steps_scale"] == 0.02
+    assert runner.PRESETS["tiny"].steps_scale == 0.005  # nothing global was changed
+    # Each option alone; a --set steps_scale for a method wins over --steps-scale.
+    only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", steps_scale=0.1)
+    assert only_scale.jobs[0].checkpoints == (300, 700, 3000)
+    only_its = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", checkpoints=[3000])
+    assert only_its.jobs[0].checkpoints == (15,) and only_its.jobs[0].labels == {15: "3K"}
+    mine = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", steps_scale=0.1,
+                           method_overrides={"fake-scaled": {"steps_scale": 0.01}})
+    assert mine.jobs[0].checkpoints == (30, 70, 300)
+    for bad in ({"steps_scale": 0}, {"steps_scale": float("nan")}, {"checkpoints": []}, {"checkpoints": [0]}):
+        with pytest.raises(StringsBenchError):
+            runner.plan_run(["fake-a"], [str(scene_dir)], tmp_path, "tiny", "fake", **bad)
+
+
+def test_steps_scale_and_checkpoints_recorded_and_kept_on_resume(tmp_path, scene_dir):
+    out = tmp_path / "run"
+    _run(out, scene_dir, methods=["fake-a"], write_report=False, steps_scale=0.002, checkpoints=[7000, 30000])
+    manifest = json.loads((out / "run.json").read_text())
+    assert manifest["steps_scale"] == 0.002 and manifest["checkpoints"] == [7000, 30000]
+    assert [int(r["iteration"]) for r in _rows(out)] == [14, 60] and [r["label"] for r in _rows(out)] == ["7K", "30K"]
+    n_train = len(rf.CALLS["train"])
+    _run(out, scene_dir, methods=["fake-a"], write_report=False, steps_scale=0.002, checkpoints=[7000, 30000])
+    assert len(rf.CALLS["train"]) == n_train  # the same options resume
+    with pytest.raises(StringsBenchError, match="--steps-scale"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, checkpoints=[7000, 30000])
+    with pytest.raises(StringsBenchError, match="--steps-scale"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, steps_scale=0.003, checkpoints=[7000, 30000])
+    with pytest.raises(StringsBenchError, match="--checkpoints"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, steps_scale=0.002, checkpoints=[7000])
+    # Giving the preset's own values is the same run as giving none.
+    plain = tmp_path / "plain"
+    _run(plain, scene_dir, methods=["fake-a"], write_report=False)
+    n_train = len(rf.CALLS["train"])
+    _run(plain, scene_dir, methods=["fake-a"], write_report=False, steps_scale=runner.PRESETS["tiny"].steps_scale,
+         checkpoints=list(runner.PRESETS["tiny"].paper_checkpoints))
+    assert len(rf.CALLS["train"]) == n_train
+
+
+def test_run_cli_schedule_and_set_options(monkeypatch):
+    """The command line hands --steps-scale, --checkpoints and --set to the runner."""
+    import strings_bench.bench.runner as runner_mod
+    from strings_bench.cli import main
+
+    seen = {}
+
+    def fake_run(methods, datasets, **kw):
+        seen.update(kw, methods=methods, datasets=datasets)
+        return Path("out")
+
+    monkeypatch.setattr(runner_mod, "run", fake_run)
+    assert main(["run", "--methods", "a,b", "--steps-scale", "0.2", "--checkpoints", "3K,7000",
+                 "--set", "lr_means=1e-3", "--set", "a.n_max=25", "--no-progress"]) == 0
+    assert seen["steps_scale"] == 0.2 and seen["checkpoints"] == [3000, 7000] and seen["methods"] == ["a", "b"]
+    assert seen["method_overrides"] == {"*": {"lr_means": 1e-3}, "a": {"n_max": 25}}
+    assert main(["run", "--no-progress"]) == 0
+    assert seen["steps_scale"] is None and seen["checkpoints"] is None and seen["method_overrides"] == {}
+    with pytest.raises(SystemExit):
+        main(["run", "--checkpoints", "7000,x"])
 
 
 # ---- the PLY adapter ---------------------------------------------------------------------------------

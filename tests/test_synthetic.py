@@ -249,7 +249,7 @@ def test_cli_extension_hook():
                              lambda p: p.set_defaults(func=lambda args: seen.append(args) or 0))
     try:
         parser = argparse.ArgumentParser()
-        dcli.add_cli(parser.add_subparsers())
+        dcli.add_parser(parser.add_subparsers())
         args = parser.parse_args(["datasets", "demo-check"])
         assert args.func(args) == 0 and seen
     finally:

@@ -9,7 +9,8 @@ again from the start; checkpoints already evaluated are passed over (never rewri
 Run folder (see docs/running.md):
 
     RUN_DIR/
-      run.json                          the run's settings (preset, downscale, OCR, masks); a re-run must match
+      run.json                          the run's settings (preset, steps scale, checkpoints, downscale, OCR,
+                                        --set values); a re-run must match
       results.csv                       one row per cell, rebuilt after every cell
       cells/<method>/<dataset>/<scene>/<iteration>/
           result.json                   everything about the cell (config, timings, metrics, OCR words, CER)
@@ -28,10 +29,11 @@ from __future__ import annotations
 import json
 import logging
 import math
+import numbers
 import platform
 import time
 from concurrent.futures import Future
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Protocol
 
@@ -50,6 +52,9 @@ log = logging.getLogger(__name__)
 
 LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
 DEFAULT_RUN_DIR = Path("runs") / "default"
+# Key of `method_overrides` whose settings apply to every method of a run (`--set KEY=VALUE`, no
+# method named); a method's own entry wins over it, key by key.
+ALL_METHODS = "*"
 
 # Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
 # trained is round(paper_iteration * steps_scale). "quick" is the default of `strings-bench run`.
@@ -94,6 +99,29 @@ def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise StringsBenchError(f"unknown preset {name!r}", hint=f"presets: {', '.join(PRESETS)}")
     return PRESETS[name]
+
+
+def schedule(preset: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None) -> Preset:
+    """The run's schedule: preset `preset` with `run --steps-scale` and `--checkpoints` applied.
+
+    steps_scale replaces the preset's scale (every method is then scaled by it); checkpoints are
+    paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale). The name
+    stays the preset's: methods still take their own preset of that name, with the scale replaced.
+    """
+    p = get_preset(preset)
+    if steps_scale is not None:
+        if not (isinstance(steps_scale, (int, float)) and math.isfinite(steps_scale) and steps_scale > 0):
+            raise StringsBenchError(f"steps scale must be a number > 0, got {steps_scale!r}",
+                                    hint="e.g. --steps-scale 0.2 (7K = 1400 steps); 1 is the paper's schedule")
+        p = replace(p, steps_scale=float(steps_scale), description=f"{p.description} [--steps-scale {steps_scale:g}]")
+    if checkpoints is not None:
+        given = list(checkpoints)
+        if not given or not all(isinstance(c, numbers.Integral) and not isinstance(c, bool) and c >= 1 for c in given):
+            raise StringsBenchError(f"checkpoints must be paper iterations (integers >= 1), got {given!r}",
+                                    hint="e.g. --checkpoints 3000,7000")
+        its = tuple(sorted({int(c) for c in given}))
+        p = replace(p, paper_checkpoints=its, description=f"{p.description} [--checkpoints {','.join(map(str, its))}]")
+    return p
 
 
 # ---- jobs and executors ---------------------------------------------------------------------
@@ -518,10 +546,16 @@ class RunPlan:
 
 def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_RUN_DIR, preset: str = "quick",
              ocr: str = "rapidocr", downscale: float | None = None, method_overrides: dict | None = None,
-             cer_profile: str = "paper", device: str = "auto", save_every: str = "10",
+             cer_profile: str = "paper", steps_scale: float | None = None,
+             checkpoints: Iterable[int] | None = None, device: str = "auto", save_every: str = "10",
              keep_models: bool = False) -> RunPlan:
-    """The jobs of a run. Methods and their settings are checked before any scene is built or
-    generated: an unknown method or `--set` key fails at once, naming the valid ones."""
+    """Plan the jobs of a run: one per (method, scene), with its checkpoints and settings.
+
+    method_overrides maps a method name, or ALL_METHODS for every method, to settings over its
+    preset. steps_scale / checkpoints (paper iterations) replace the preset's schedule (see `schedule`).
+    Methods and their settings are checked before any scene is built or generated: an unknown
+    method or `--set` key fails at once, naming the valid ones.
+    """
     from strings_bench.engine.trainer import SaveEvery, check_device_name
     from strings_bench.eval.cer import get_profile
     from strings_bench.datasets.registry import resolve_scenes
@@ -529,7 +563,7 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
 
     if not methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
-    p = get_preset(preset)
+    p = schedule(preset, steps_scale, checkpoints)
     get_profile(cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
     check_device_name(device)
@@ -537,38 +571,65 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     ds = float(downscale if downscale is not None else p.downscale)
     run_dir = Path(run_dir)
     overrides = dict(method_overrides or {})
-    unknown = sorted(k for k in set(overrides) - set(methods) if k not in ("", "*"))
+    unknown = sorted(k for k in set(overrides) - set(methods) if k != ALL_METHODS)
     if unknown:
         raise StringsBenchError(f"--set names method(s) {', '.join(unknown)} that this run does not train",
                                 hint=f"methods of this run: {', '.join(methods)}")
+    for_all = dict(overrides.get(ALL_METHODS, {}))
+    taken: set[str] = set()
     planned = []
+    given: dict[str, dict] = {}  # each method's --set values, the all-methods ones included
     for m in methods:
         spec = specs[m]
-        m_over = dict(overrides.get(m, {}))
-        if preset not in spec.presets and "steps_scale" in spec.defaults and "steps_scale" not in m_over:
-            m_over["steps_scale"] = p.steps_scale  # the method has no such preset: scale it like the run
+        # An all-methods setting goes to every method that has it (a method without a settings schema takes all).
+        schema = spec.settings()
+        mine = for_all if schema is None else {k: v for k, v in for_all.items() if k in {s.name for s in schema}}
+        taken |= set(mine)
+        m_over = {**mine, **overrides.get(m, {})}
+        given[m] = dict(m_over)
+        if "steps_scale" in spec.defaults and "steps_scale" not in m_over and (
+                steps_scale is not None or preset not in spec.presets):
+            # --steps-scale replaces the scale of the method's preset; a method without that preset is
+            # scaled like the run. A --set steps_scale given for the method wins.
+            m_over["steps_scale"] = p.steps_scale
         adapter = spec.build(preset=preset if preset in spec.presets else None, **m_over)
         # A method may carry its own schedule scale (its preset), else the run preset's applies.
-        steps_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
-        checkpoints = p.checkpoints(steps_scale)
+        m_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
+        steps = p.checkpoints(m_scale)
         fixed = getattr(adapter, "fixed_checkpoints", None)
         if callable(fixed) and fixed():
-            checkpoints = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
-        labels = {c: p.label_of(c, steps_scale) for c in checkpoints}
-        planned.append((m, m_over, checkpoints, labels))
+            steps = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
+        labels = {c: p.label_of(c, m_scale) for c in steps}
+        planned.append((m, m_over, steps, labels))
+    if set(for_all) - taken:
+        raise StringsBenchError(f"no method of this run has the setting(s) {', '.join(sorted(set(for_all) - taken))}",
+                                hint="see `strings-bench methods show METHOD` for each method's settings")
     refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
     if not refs:
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
-    jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(checkpoints), labels,
+    jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps), labels,
                 preset, ds, ocr, m_over, cer_profile, device, str(save_every), bool(keep_models))
-            for m, m_over, checkpoints, labels in planned for ref in refs]
+            for m, m_over, steps, labels in planned for ref in refs]
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": cer_profile,
-        "method_overrides": {m: _jsonable(dict(overrides.get(m, {}))) for m in methods},
+        # --steps-scale / --checkpoints as given (None: the preset's); `preset` above holds the schedule in effect.
+        "steps_scale": None if steps_scale is None else p.steps_scale,
+        "checkpoints": None if checkpoints is None else list(p.paper_checkpoints),
+        "method_overrides": {m: _jsonable(given[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
         "datasets": datasets,
     }
     return RunPlan(run_dir, jobs, manifest)
+
+
+def _as_list(x):
+    return list(x) if isinstance(x, (list, tuple)) else x
+
+
+def _fmt_schedule(x) -> str:
+    if x is None:
+        return "(not recorded)"
+    return ",".join(str(c) for c in x) if isinstance(x, (list, tuple)) else f"{x:g}"
 
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
@@ -597,6 +658,18 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
         raise StringsBenchError(
             f"{run_dir} holds results of preset {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same preset to resume")
+    # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
+    # run gave the option; folders made without it keep resuming as before.
+    for k, field_name, option in (("steps_scale", "steps_scale", "--steps-scale"),
+                                  ("checkpoints", "paper_checkpoints", "--checkpoints")):
+        if old.get(k) is None and manifest.get(k) is None:
+            continue
+        was = (old.get("preset") or {}).get(field_name)
+        now = manifest["preset"].get(field_name)
+        if _as_list(was) != _as_list(now):
+            raise StringsBenchError(
+                f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",
+                hint=f"use another --out folder, or the same {option} to resume")
     # A finished cell is skipped on resume, so cells trained with other --set values must not be
     # taken for this run's (folders made before overrides were recorded carry no such entry).
     old_over = old.get("method_overrides")
@@ -665,12 +738,15 @@ def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_R
         ocr: str = "rapidocr", downscale: float | None = None, executor: str = "local", with_lpips: bool = True,
         progress: bool = True, write_report: bool = True, ocr_backend=None,
         method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper",
-        device: str = "auto", save_every: str = "10", keep_models: bool = False) -> Path:
-    """Plan and execute a run; `method_overrides` maps a method name to settings overriding its preset.
+        steps_scale: float | None = None, checkpoints: Iterable[int] | None = None, device: str = "auto",
+        save_every: str = "10", keep_models: bool = False) -> Path:
+    """Plan and execute a run; `method_overrides` maps a method name (or ALL_METHODS) to settings
+    overriding its preset; steps_scale and checkpoints (paper iterations) replace the preset's schedule.
     `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
     training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
     `keep_models` writes each cell's model.ply."""
     plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
-                    device=device, save_every=save_every, keep_models=keep_models)
+                    steps_scale=steps_scale, checkpoints=checkpoints, device=device, save_every=save_every,
+                    keep_models=keep_models)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
                    write_report=write_report, lpips_at=lpips_at)

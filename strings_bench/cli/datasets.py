@@ -1,22 +1,33 @@
-"""`strings-bench datasets ...`: list datasets and prepare (build or locate) their scenes.
+"""CLI: `strings-bench datasets list|prepare|add|check|download`: the dataset registry, synthetic
+scenes, and local copies of real datasets.
 
-Extending this command group (for other modules, e.g. `datasets add` / `datasets check`):
-call `register_subcommand(name, help, setup_fn)` at import time of your module, and add your module's
-dotted name to `EXTRA_SUBCOMMAND_MODULES` below (one line). `setup_fn(parser)` receives the new
-subcommand's argparse parser; it adds arguments and must set `parser.set_defaults(func=...)` where
-func(args) returns an exit code. Registered subcommands appear after `list` and `prepare`.
+Another package can add a subcommand to this group: `register_subcommand(name, help, setup_fn)`
+before the parser is built; `setup_fn(parser)` adds the arguments and must set
+`parser.set_defaults(func=...)`, func(args) returning an exit code. Registered subcommands come
+after the built-in ones.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import re
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
-# Modules imported before the `datasets` parser is built; each calls register_subcommand().
-EXTRA_SUBCOMMAND_MODULES: list[str] = ["strings_bench.cli.prepare"]
+from strings_bench.cli import command_help
+from strings_bench.core.errors import DatasetError
+
+NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def valid_name(name: str) -> str:
+    """`name` if it can name a dataset (letters, digits, '_', '-', '.'), else a DatasetError."""
+    if not NAME_RE.match(name):
+        raise DatasetError(f"dataset name {name!r} may only hold letters, digits, '_', '-' and '.'",
+                           hint="'/' separates dataset and scene in --datasets, so it cannot be part of a name")
+    return name
 
 
 @dataclass(frozen=True)
@@ -35,11 +46,11 @@ def register_subcommand(name: str, help: str, setup_fn: Callable[[argparse.Argum
     EXTRA_SUBCOMMANDS.append(Subcommand(name, help, setup_fn))
 
 
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser("datasets", help="list datasets, prepare scenes (build synthetic ones)",
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("datasets", help=command_help("datasets"),
                               description="Dataset registry: synthetic scenes are generated into the cache; "
                                           "real datasets are located through their cards and your dataset index.")
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    p.set_defaults(func=run, command_parser=p)
     sub = p.add_subparsers(dest="datasets_command", metavar="SUBCOMMAND")
 
     lp = sub.add_parser("list", help="dataset ids, their scenes, and whether local copies/caches exist")
@@ -58,10 +69,16 @@ def add_cli(subparsers) -> None:
     g.add_argument("--supersample", type=int, help="s x s rays per pixel (default 2)")
     pp.set_defaults(func=cmd_prepare)
 
-    for module in EXTRA_SUBCOMMAND_MODULES:
-        importlib.import_module(module)
+    add_dataset_subcommands(sub)
     for extra in EXTRA_SUBCOMMANDS:
         extra.setup(sub.add_parser(extra.name, help=extra.help))
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """`strings-bench datasets` without a subcommand prints its help (exit status 2)."""
+    args.command_parser.print_help()
+    return 2
 
 
 # ---- list ----------------------------------------------------------------------------------------
@@ -150,3 +167,111 @@ def _format(row: dict) -> str:
     warn = f"  WARNING: fallback point cloud ({row['fallback']})" if row["fallback"] else ""
     return (f"{row['id']}: {row['path']}\n  views {row['views']}, points {row['points']}, points in text masks {text}, "
             f"{row['seconds']:.1f} s{build}{warn}")
+
+
+# ---- add / check / download ----------------------------------------------------------------
+def _setup_add(p: argparse.ArgumentParser) -> None:
+    p.description = ("Check PATH (read-only) and record it in the dataset index. NAME is a built-in dataset id "
+                     "(strings360, tandt, dl3dv: PATH holds its scene folders) or a new name for your own scene "
+                     "folder or folder of scenes.")
+    p.add_argument("name")
+    p.add_argument("path", type=Path)
+    p.add_argument("--force", action="store_true", help="register even if the check finds errors")
+    p.set_defaults(func=_run_add)
+
+
+def _setup_check(p: argparse.ArgumentParser) -> None:
+    p.description = "Validate scenes without modifying any file; exit status 1 when a scene has errors."
+    p.add_argument("target", nargs="?", default=None,
+                   help="registered NAME (or NAME/SCENE) or a PATH; default: every registered local copy")
+    p.set_defaults(func=_run_check)
+
+
+def _setup_download(p: argparse.ArgumentParser) -> None:
+    p.description = ("Download a dataset that has a direct URL (resumable, hash printed or verified, safe "
+                     "unpacking), then check and register it; for the others print the exact steps.")
+    p.add_argument("name")
+    p.add_argument("--dest", type=Path, default=None, help="where to unpack (default: CACHE/datasets/NAME)")
+    p.set_defaults(func=_run_download)
+
+
+SUBCOMMANDS = (
+    ("add", "validate a local copy of a dataset or scene and register it under NAME", _setup_add),
+    ("check", "validate a registered dataset or a scene folder (never modifies files)", _setup_check),
+    ("download", "download a dataset with a direct URL, or print the steps to get it", _setup_download),
+)
+
+
+def add_dataset_subcommands(sub) -> None:
+    """Add `add`, `check` and `download` to a `datasets` subparsers object (tests, other front ends)."""
+    for name, help_text, setup in SUBCOMMANDS:
+        setup(sub.add_parser(name, help=help_text))
+
+
+def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> list:
+    """Check then register; returns the scene reports. Raises DatasetError when the check fails."""
+    from strings_bench.datasets.cards import BUILTIN_REAL_CARDS
+    from strings_bench.datasets.registry import register_local_copies
+    from strings_bench.datasets.check import check_card_copy, check_path, format_reports
+    from strings_bench.datasets.registry import _REGISTRY, list_datasets, read_index, write_index
+
+    name = valid_name(name)
+    path = Path(path).expanduser()
+    if not path.is_dir():
+        raise DatasetError(f"{path} does not exist or is not a folder", hint="pass the folder of your local copy")
+    path = path.resolve()
+    builtin_real = {c.id for c in BUILTIN_REAL_CARDS}
+    list_datasets()  # load every built-in card
+    if name in builtin_real:
+        reports = check_card_copy(name, path)
+        present = [r for r in reports if r.found]
+        if not present:
+            raise DatasetError(f"none of the scenes of {name} are in {path}",
+                               hint=f"PATH must hold the scene folders ({', '.join(s.name for s in _REGISTRY[name].scenes)})")
+        missing = len(reports) - len(present)
+        reports = present
+        if missing:
+            echo(f"note: {missing} scene(s) of {name} are not in {path}; the others are checked")
+    else:
+        existing = _REGISTRY.get(name)
+        if existing is not None and existing.notes != "registered with `datasets add` or `prepare`":
+            raise DatasetError(f"{name!r} is a built-in dataset that is not stored on disk by the user",
+                               hint="choose another name for your copy")
+        reports = check_path(path)
+    echo(format_reports(reports))
+    if not all(r.ok for r in reports) and not force:
+        raise DatasetError(f"{path} has errors (above); not registered as {name!r}",
+                           hint="fix them and re-run, or pass --force to register anyway")
+    index = read_index()
+    index[name] = str(path)
+    write_index(index)
+    register_local_copies()
+    echo(f"registered {name!r} -> {path}")
+    return reports
+
+
+def _run_add(args: argparse.Namespace) -> int:
+    add_local_copy(args.name, args.path, force=args.force)
+    return 0
+
+
+def _run_check(args: argparse.Namespace) -> int:
+    from strings_bench.datasets.check import check_target, format_reports
+    from strings_bench.datasets.registry import read_index
+
+    targets = [args.target] if args.target else list(read_index())
+    if not targets:
+        print("no local copies registered; `strings-bench datasets add NAME PATH` registers one")
+        return 0
+    reports = []
+    for t in targets:
+        reports.extend(check_target(t))
+    print(format_reports(reports))
+    return 0 if all(r.ok for r in reports) else 1
+
+
+def _run_download(args: argparse.Namespace) -> int:
+    from strings_bench.datasets.download import download_dataset
+
+    download_dataset(args.name, dest=args.dest)
+    return 0

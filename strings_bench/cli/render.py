@@ -8,13 +8,14 @@ import argparse
 import io
 from pathlib import Path
 
+from strings_bench.cli import command_help
 from strings_bench.core.errors import StringsBenchError
 
 
-def add_cli(subparsers) -> None:
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "render",
-        help="render a 3DGS PLY at a scene's cameras (one PNG per view)",
+        help=command_help("render"),
         description="Render a Gaussian-splat PLY (3DGS layout) at the cameras of a COLMAP scene folder and "
         "write one PNG per view, named after the image.",
     )
@@ -27,7 +28,8 @@ def add_cli(subparsers) -> None:
                    help="background colour in [0, 1] (default black, as 3DGS)")
     p.add_argument("--sh-degree", type=int, default=None, help="SH degree to render with (default: the file's)")
     p.add_argument("--backend", default="auto", help="rasterizer backend (default auto)")
-    p.set_defaults(func=_run_render)
+    p.set_defaults(func=run)
+    return p
 
 
 def render_ply(ply: Path, scene_dir: Path, out: Path, split: str = "test", downscale: float = 1,
@@ -60,7 +62,8 @@ def render_ply(ply: Path, scene_dir: Path, out: Path, split: str = "test", downs
     return written
 
 
-def _run_render(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """`strings-bench render`: write the PNGs and say how many."""
     written = render_ply(args.ply, args.scene, args.out, args.split, args.downscale, tuple(args.background),
                          args.sh_degree, args.backend)
     print(f"wrote {len(written)} image(s) to {args.out}")

@@ -1,23 +1,27 @@
-"""CLI: `strings-bench run`, `strings-bench report RUN_DIR`, `strings-bench methods list`."""
+"""CLI: `strings-bench run`: train and evaluate methods on scenes, write results.csv and a report."""
 
 from __future__ import annotations
 
 import argparse
 
+from strings_bench.cli import command_help
+from strings_bench.core.errors import StringsBenchError
+
 DEFAULT_METHODS = "strings,3dgs"
 DEFAULT_DATASETS = "synthetic"
+ALL_METHODS = "*"  # = strings_bench.bench.runner.ALL_METHODS (not imported here: the runner is heavy)
 
 
 def _split(s: str) -> list[str]:
     return [x.strip() for x in s.split(",") if x.strip()]
 
 
-def add_cli(sub: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from strings_bench.bench.runner import DEFAULT_RUN_DIR, EXECUTORS, PRESETS
 
-    p = sub.add_parser("run", help="train and evaluate methods on scenes, write results.csv and a report",
-                       description="Runs every method x scene x checkpoint not already finished in the run folder "
-                                   "(re-running the same command resumes), then writes the report.")
+    p = subparsers.add_parser("run", help=command_help("run"),
+                              description="Runs every method x scene x checkpoint not already finished in the run folder "
+                                          "(re-running the same command resumes), then writes the report.")
     p.add_argument("--methods", default=DEFAULT_METHODS, help=f"comma-separated method names (default {DEFAULT_METHODS}); "
                                                               "see `strings-bench methods list`")
     p.add_argument("--datasets", default=DEFAULT_DATASETS,
@@ -26,6 +30,12 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
                    help="schedule: paper = 30K iterations (3K/7K/30K); standard = x0.05 (350/1500 steps); "
                         "quick (default) = x0.01 (70/300 steps, ~10 min for the default run on 2 cores); tiny = smoke test")
+    p.add_argument("--steps-scale", type=float, default=None, metavar="S",
+                   help="replace the preset's schedule scale for every method (e.g. 0.2: 7K = 1400 steps; 1 = the paper's); "
+                        "recorded in run.json, a run folder holds one scale")
+    p.add_argument("--checkpoints", type=parse_checkpoints, default=None, metavar="ITERS",
+                   help="paper iterations to evaluate, e.g. 3000,7000 or 3K,7K (each trained as round(it x scale)); "
+                        "default: the preset's; recorded in run.json")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
     p.add_argument("--ocr", default="rapidocr", help="OCR backend for OCR-CER (rapidocr, tesseract, gcv)")
@@ -34,8 +44,9 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS), help="where jobs run (default local)")
     p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the preset's, 1)")
-    p.add_argument("--set", dest="settings", action="append", default=[], metavar="METHOD.KEY=VALUE",
-                   help="override a method setting (VALUE parsed as JSON when it can be), e.g. "
+    p.add_argument("--set", dest="settings", action="append", default=[], metavar="[METHOD.]KEY=VALUE",
+                   help="override a method setting (VALUE parsed as JSON when it can be): KEY=VALUE for every method of "
+                        "the run, METHOD.KEY=VALUE for one (it wins over the former), e.g. --set lr_means=1e-3 "
                         "--set ply.ply_path=/models/{scene}/point_cloud.ply; repeatable")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
     p.add_argument("--lpips-at", default="last", choices=["last", "all"],
@@ -48,72 +59,65 @@ def add_cli(sub: argparse._SubParsersAction) -> None:
                         "('500steps'), or 'off'; it is also saved at every checkpoint. A killed run continues from it")
     p.add_argument("--keep-models", action="store_true",
                    help="write each cell's model (model.ply, 3DGS layout) next to its result.json")
-    p.set_defaults(func=_run)
-
-    r = sub.add_parser("report", help="(re)write the tables and figures of a run folder")
-    r.add_argument("run_dir", help="a folder made by `strings-bench run`")
-    r.set_defaults(func=_report)
-
-    m = sub.add_parser("methods", help="methods available to `run`")
-    msub = m.add_subparsers(dest="methods_command", metavar="SUBCOMMAND")
-    ml = msub.add_parser("list", help="names, papers, presets and descriptions")
-    ml.set_defaults(func=_methods_list)
-    m.set_defaults(func=_methods_list)
+    p.set_defaults(func=run)
+    return p
 
 
-def _run(args) -> int:
-    from strings_bench.bench.runner import run
+def run(args: argparse.Namespace) -> int:
+    """`strings-bench run`: plan and execute the run, print where its results and report are."""
+    from strings_bench.bench.runner import run as run_bench
 
-    out = run(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
-              downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-              progress=not args.no_progress, method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
-              cer_profile=args.cer_profile, device=args.device, save_every=args.save_every,
-              keep_models=args.keep_models)
+    out = run_bench(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
+                    downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
+                    progress=not args.no_progress, method_overrides=parse_settings(args.settings),
+                    lpips_at=args.lpips_at, cer_profile=args.cer_profile, steps_scale=args.steps_scale,
+                    checkpoints=args.checkpoints, device=args.device, save_every=args.save_every,
+                    keep_models=args.keep_models)
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     return 0
 
 
-def parse_settings(items: list[str]) -> dict[str, dict]:
-    """['ply.ply_path=/x', 'strings.n_max=25'] -> {'ply': {'ply_path': '/x'}, 'strings': {'n_max': 25}}."""
-    import json
+def parse_checkpoints(text: str) -> list[int]:
+    """'3000,7000' or '3K,7k' -> [3000, 7000] (paper iterations; argparse type of --checkpoints)."""
+    its = []
+    for item in _split(text):
+        digits, mult = (item[:-1], 1000) if item[-1:] in ("k", "K") else (item, 1)
+        try:
+            value = int(digits) * mult
+        except ValueError:
+            value = 0
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"{item!r} is not a paper iteration (an integer >= 1, e.g. 7000 or 7K)")
+        its.append(value)
+    if not its:
+        raise argparse.ArgumentTypeError("no checkpoints given (e.g. 3000,7000)")
+    return its
 
-    from strings_bench.core.errors import StringsBenchError
+
+def parse_settings(items: list[str]) -> dict[str, dict]:
+    """Parse `--set` values into runner method overrides.
+
+    `METHOD.KEY=VALUE` sets KEY for METHOD only; `KEY=VALUE` (no '.' before the '=') sets it for every
+    method of the run, under the key ALL_METHODS ('*'). VALUE is parsed as JSON when it can be, else
+    kept as a string. Example:
+    ['lr_means=1e-3', 'strings.n_max=25', 'ply.ply_path=/x.ply']
+        -> {'*': {'lr_means': 0.001}, 'strings': {'n_max': 25}, 'ply': {'ply_path': '/x.ply'}}
+    """
+    import json
 
     out: dict[str, dict] = {}
     for item in items:
         key, eq, value = item.partition("=")
-        method, dot, name = key.partition(".")
-        if not eq or not dot or not method or not name:
-            raise StringsBenchError(f"--set {item!r} is not METHOD.KEY=VALUE", hint="e.g. --set strings.n_max=25")
+        method, dot, name = key.strip().partition(".")
+        if not dot:
+            method, name = ALL_METHODS, method
+        if not eq or not method or not name:
+            raise StringsBenchError(f"--set {item!r} is not KEY=VALUE or METHOD.KEY=VALUE",
+                                    hint="e.g. --set lr_means=1e-3 (every method) or --set strings.n_max=25 (one)")
         try:
             parsed = json.loads(value)
         except ValueError:
             parsed = value
         out.setdefault(method, {})[name] = parsed
     return out
-
-
-def _report(args) -> int:
-    from strings_bench.bench.reports import write_report
-
-    path = write_report(args.run_dir)
-    print(f"report: {path}")
-    return 0
-
-
-def _methods_list(args) -> int:
-    from strings_bench.methods.registry import list_methods
-
-    specs = sorted(list_methods(), key=lambda s: s.name)
-    if not specs:
-        print("no methods registered")
-        return 1
-    for s in specs:
-        presets = ", ".join(s.presets) or "-"
-        print(f"{s.name:20s} presets: {presets}")
-        if s.description:
-            print(f"{'':20s} {s.description}")
-        if s.paper:
-            print(f"{'':20s} paper: {s.paper}")
-    return 0

@@ -1,0 +1,99 @@
+"""Method specs as data: lazy implementations, every setting listed, --set checked before any scene is built."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import pytest
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.engine.optim import LearningRates
+from strings_bench.engine.splatting import TrainConfig
+from strings_bench.engine.strategies.default import DefaultStrategy
+from strings_bench.methods.registry import BUILTIN_SPECS, get_method, show_method
+from strings_bench.methods.strings.method import StringsSettings
+
+
+def test_registry_imports_no_implementation():
+    """Listing methods must not import a method module (implementations are "module:Class" strings)."""
+    code = ("import sys; from strings_bench.methods.registry import list_methods; list_methods(); "
+            "print(sorted(m for m in sys.modules if m.startswith('strings_bench.methods.') "
+            "or m.startswith('strings_bench.engine')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['strings_bench.methods.registry']"
+
+
+def test_every_builtin_implementation_loads_under_its_name():
+    for spec in BUILTIN_SPECS:
+        impl = spec.load()
+        assert isinstance(impl, type), spec.name
+        obj = spec.build(preset="tiny" if "tiny" in spec.presets else None)
+        assert obj.name == spec.name
+
+
+def test_show_lists_every_setting_with_default_and_meaning():
+    text = show_method("strings")
+    expected = ([f.name for f in dataclasses.fields(TrainConfig) if f.name != "lrs"]
+                + [f"lr_{f.name}" for f in dataclasses.fields(LearningRates)]
+                + [f.name for f in dataclasses.fields(DefaultStrategy)]
+                + [f.name for f in dataclasses.fields(StringsSettings)])
+    lines = {line.split()[0]: line for line in text.splitlines() if line.startswith("  ")}
+    missing = [k for k in expected if k not in lines]
+    assert not missing, missing
+    undocumented = [k for k in expected if len(lines[k].split(None, 2)) < 3]
+    assert not undocumented, f"settings without a meaning: {undocumented}"
+    assert "gamma  " in text and "15000" in lines["gamma"] and "paper" in lines["gamma"]
+    # the paper's published figures (REFERENCE §5) travel with the spec
+    assert "strings360: cer 7K 0.177, 30K 0.106; minutes 7K 1.9, 30K 12.6" in text
+    assert "release" in text and "gamma_counter" in text
+
+
+def test_spec_defaults_show_as_the_methods_defaults():
+    lines = {ln.split()[0]: ln for ln in show_method("edc-absgs").splitlines() if ln.startswith("  ")}
+    assert lines["lr_means"].split()[1] == "4e-05"  # the spec's default, not 3DGS' 1.6e-4
+
+
+def test_unknown_setting_names_the_valid_ones():
+    with pytest.raises(StringsBenchError, match=r"(?s)mcmc has no setting\(s\) cap_maxx.*valid settings:.*cap_max"):
+        get_method("mcmc").build(cap_maxx=3)
+
+
+def test_bad_set_is_refused_before_any_scene_is_built(monkeypatch, tmp_path):
+    import strings_bench.datasets.registry as datasets
+    from strings_bench.bench import runner
+
+    def no_scenes(*a, **k):
+        raise AssertionError("scenes were resolved before the settings were checked")
+
+    monkeypatch.setattr(datasets, "resolve_scenes", no_scenes)
+    with pytest.raises(StringsBenchError, match="strings has no setting.*n_maxx"):
+        runner.plan_run(["strings", "3dgs"], ["synthetic"], tmp_path, method_overrides={"strings": {"n_maxx": 3}})
+    with pytest.raises(StringsBenchError, match="no method of this run has the setting.*n_maxx"):
+        runner.plan_run(["strings", "3dgs"], ["synthetic"], tmp_path, method_overrides={runner.ALL_METHODS: {"n_maxx": 3}})
+    with pytest.raises(StringsBenchError, match="does not train"):
+        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, method_overrides={"strngs": {"n_max": 3}})
+    with pytest.raises(StringsBenchError, match="device"):
+        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, device="tpu")
+    with pytest.raises(StringsBenchError, match="save-every"):
+        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, save_every="often")
+
+
+def test_all_methods_setting_goes_to_the_methods_that_have_it(tmp_path):
+    from strings_bench.bench import runner
+
+    plan = runner.plan_run(["strings", "ply"], ["synthetic/books"], tmp_path,
+                           method_overrides={runner.ALL_METHODS: {"n_max": 20, "iteration": 7000}})
+    by = {j.method: j.method_overrides for j in plan.jobs}
+    assert by["strings"]["n_max"] == 20 and "iteration" not in by["strings"]
+    assert by["ply"]["iteration"] == 7000 and "n_max" not in by["ply"]
+
+
+def test_methods_show_cli(capsys):
+    from strings_bench.cli import main
+
+    assert main(["methods", "show", "3dgs"]) == 0
+    out = capsys.readouterr().out
+    assert "grow_grad2d" in out and "0.0002" in out and "densify when" in out
+    assert main(["methods", "show", "no-such-method"]) == 1
