@@ -190,6 +190,164 @@ def test_sh_basis_is_orthonormal():
     assert torch.allclose(gram, torch.eye(16, dtype=torch.float64), atol=1e-4)
 
 
+# ---- the alpha clamp: 3DGS' backward (dL/dalpha passes to opacity and shape as if alpha = o G) -------
+
+OPAQUE_LOGIT = math.log(0.999 / 0.001)  # o = 0.999
+
+
+N_OPAQUE = 7
+
+
+def clamp_scene(seed=20):
+    """N_OPAQUE opaque Gaussians (o = 0.999 and o ~ 1, sigma 4-8 px) on a grid of screen positions,
+    at depths in front of and behind 30 random ones of mixed opacity; the first two share a screen
+    position (two clamped splats on one pixel: T = 1e-4, then the early stop). Where G > 0.991 (within
+    ~0.14 sigma of the centre) o G > 0.99: clamped."""
+    cam = make_camera()
+    g = torch.Generator().manual_seed(seed)
+    uv = torch.tensor([[0.0, 0.0], [0.0, 0.0], [20.0, 9.0], [31.0, 11.0], [8.0, 23.0], [21.0, 22.0], [32.0, 21.0]])
+    z = torch.tensor([2.0, 2.1, 4.0, 2.6, 3.8, 2.4, 4.2])
+    uv[2:] += torch.rand(N_OPAQUE - 2, 2, generator=g) - 0.5
+    uv[:2] = torch.tensor([9.5, 10.5])  # a pixel centre: G = 1 there for both
+    means = torch.stack([(uv[:, 0] - cam.cx) * z / cam.fx, (uv[:, 1] - cam.cy) * z / cam.fy, z], dim=1)
+    log_scales = torch.log(torch.rand(N_OPAQUE, 3, generator=g) * 0.3 + 0.5)
+    quats = torch.randn(N_OPAQUE, 4, generator=g)
+    logits = torch.tensor([OPAQUE_LOGIT, 12.0] * 4)[:N_OPAQUE]
+    sh = torch.randn(N_OPAQUE, 16, 3, generator=g) * 0.3
+    rest = random_scene(n=30, seed=seed + 1, opacity_mean=0.0, opacity_std=1.5)
+    return [torch.cat([a, b]) for a, b in zip([means, quats, log_scales, logits, sh], rest[:5])] + [rest[5]]
+
+
+def test_clamped_splats_match_the_reference_with_the_3dgs_rule():
+    params = clamp_scene()
+    cam = make_camera()
+    errs, out, ref = compare(params, cam)  # reference default: clamp_grad="pass"
+    bad = {k: v for k, v in errs.items() if not v <= TOL}
+    assert not bad, f"relative errors above {TOL}: {bad}"
+    assert out.alpha.max() > 0.9998  # pixels where two clamped splats overlap: 1 - 0.01^2, then the early stop
+    # The scene does exercise the clamp: under the torch.clamp rule (zero gradient where clamped,
+    # what this backend did before) the opaque Gaussians' gradients differ from the 3DGS rule's by far
+    # more than TOL, so the comparison above would fail with the old backward.
+    zref, zleaves = run_reference_rule(params, cam, "zero")
+    pref, pleaves = run_reference_rule(params, cam, "pass")
+    k = N_OPAQUE
+    for j in range(4):  # means, quats, log_scales, opacity logits
+        assert rel(zleaves[j].grad[:k], pleaves[j].grad[:k]) > 50 * TOL, NAMES[j]
+    assert rel(zref["means2d"].grad[:k], pref["means2d"].grad[:k]) > 50 * TOL
+    for i in range(k):  # every opaque Gaussian, the second of the stacked pair included
+        assert rel(zleaves[3].grad[i], pleaves[3].grad[i]) > 100 * TOL, i
+    # colours and the background see only forward values: identical under both rules
+    assert rel(zleaves[4].grad, pleaves[4].grad) < 1e-12 and rel(zleaves[5].grad, pleaves[5].grad) < 1e-12
+
+
+def run_reference_rule(params, cam, rule):
+    leaves = [p.clone().double().requires_grad_() for p in params]
+    ref = rasterize_reference(*leaves[:5], cam, leaves[5], clamp_grad=rule)
+    ref["means2d"].retain_grad()
+    weighted_loss(ref["color"], ref["alpha"], ref["depth"], output_weights(cam.height, cam.width)).backward()
+    return ref, leaves
+
+
+def test_clamped_splats_match_the_reference_torch_preprocess_and_mip():
+    params = clamp_scene(seed=23)
+    for kw in (dict(preprocess="torch"), dict(mip=True)):
+        errs, _, _ = compare(params, make_camera(), **kw)
+        assert max(errs.values()) <= TOL, (kw, errs)
+
+
+def test_reference_rejects_unknown_clamp_rule():
+    params = random_scene(n=3)
+    with pytest.raises(RasterInputError, match="clamp_grad"):
+        rasterize_reference(*params[:5], make_camera(), params[5], clamp_grad="straight")
+
+
+def _one_pixel_hand(gaussians, bg, wts, f=2.0):
+    """Hand derivation for a 1x1 image, camera at the origin looking down +z, fx = fy = f,
+    principal point at the pixel centre (0.5, 0.5); Gaussians at (x, 0, z), isotropic scale s,
+    identity rotation, SH degree 0, listed front to back.
+
+    Projection: u = f x / z + 0.5, so the offset to the pixel centre is d = f x / z (v: 0).
+    EWA: J = [[f/z, 0, -f x / z^2], [0, f/z, 0]], Sigma3 = s^2 I, so
+        Sigma2 = s^2 (f/z)^2 [[1 + (x/z)^2, 0], [0, 1]] + 0.3 I   (diagonal),
+        G = exp(-d^2 / (2 Sigma_xx)),  alpha_i = min(0.99, o_i G_i).
+    Colour c_i = 0.28209479 sh_i + 0.5. With L = sum_ch w_ch colour_ch and
+        colour = sum_i alpha_i T_i c_i + T_N bg,  T_i = prod_{j<i} (1 - alpha_j),
+    3DGS' backward: dL/dalpha_i = T_i w.(c_i - S_i) - T_N / (1 - alpha_i) w.bg, S_i the colour
+    blended behind i normalised by T_{i+1} (sum_{j>i} alpha_j T_j c_j / T_{i+1}); every factor uses
+    the clamped alpha. Then, as if alpha = o G:
+        dL/dlogit_i = dL/dalpha_i G_i o_i (1 - o_i)            (do/dlogit = o (1 - o))
+        dL/du_i     = dL/dalpha_i o_i dG/du = dL/dalpha_i o_i G_i (-d_i / Sigma_xx,i)
+        dL/dsh_i    = 0.28209479 alpha_i T_i w                   (forward value, clamped)
+    Returns per Gaussian (dL/dlogit, dL/du, dL/dsh (3,), o G) and dL/dbg."""
+    out = []
+    T = 1.0
+    rows = []
+    for x, z, s, logit, sh in gaussians:
+        o = 1.0 / (1.0 + math.exp(-logit))
+        d = f * x / z
+        sxx = s * s * (f / z) ** 2 * (1 + (x / z) ** 2) + 0.3
+        G = math.exp(-d * d / (2 * sxx))
+        a = min(0.99, o * G)
+        c = [0.28209479177387814 * v + 0.5 for v in sh]
+        rows.append((o, d, sxx, G, a, c, T))
+        T *= 1 - a
+    T_N = T
+    wbg = sum(w * b for w, b in zip(wts, bg))
+    for i, (o, d, sxx, G, a, c, Ti) in enumerate(rows):
+        behind = [0.0, 0.0, 0.0]  # sum_{j>i} alpha_j T_j c_j
+        for (_, _, _, _, aj, cj, Tj) in rows[i + 1:]:
+            behind = [b + aj * Tj * cv for b, cv in zip(behind, cj)]
+        T_next = Ti * (1 - a)
+        S = [b / T_next for b in behind]
+        dL_da = Ti * sum(w * (cv - sv) for w, cv, sv in zip(wts, c, S)) - T_N / (1 - a) * wbg
+        out.append((dL_da * G * o * (1 - o), dL_da * o * G * (-d / sxx),
+                    [0.28209479177387814 * a * Ti * w for w in wts], o * G))
+    return out, [T_N * w for w in wts]
+
+
+@pytest.mark.parametrize("case", ["single", "clamped_in_front", "clamped_behind"])
+def test_clamped_opacity_gradient_matches_hand_derivation(case):
+    # (x, z, s, logit, sh0 rgb), front to back
+    clamped = (0.05, 2.0, 1.0, 8.0, (0.9, -0.3, 0.4))  # o = 0.99966, G = 0.99904: o G = 0.9987 > 0.99
+    other = (-0.04, 3.0, 1.2, 0.4, (-0.5, 0.7, 0.2))  # o = 0.599: unclamped
+    gs = {"single": [clamped], "clamped_in_front": [clamped, other], "clamped_behind": [other, clamped]}[case]
+    if case == "clamped_behind":
+        gs[1] = (0.05, 3.5, 1.0, 8.0, (0.9, -0.3, 0.4))
+    bg, wts = (0.2, 0.6, 0.1), (1.0, -0.7, 0.5)
+    hand, hand_bg = _one_pixel_hand(gs, bg, wts)
+    assert any(h[3] > 0.99 for h in hand)  # the case has a clamped splat
+    cam = Camera(fx=2.0, fy=2.0, cx=0.5, cy=0.5, width=1, height=1, R=np.eye(3), t=np.zeros(3))
+    n = len(gs)
+    params = [torch.tensor([[x, 0.0, z] for x, z, _, _, _ in gs]), torch.tensor([[1.0, 0, 0, 0]] * n),
+              torch.log(torch.tensor([[s] * 3 for _, _, s, _, _ in gs])), torch.tensor([g[3] for g in gs]),
+              torch.tensor([[g[4]] for g in gs]), torch.tensor(bg)]
+    w = torch.tensor(wts, dtype=torch.float64)
+    leaves = [p.clone().float().requires_grad_() for p in params]
+    out = rasterize(*leaves[:5], cam, leaves[5], backend="cpu")
+    out.means2d.retain_grad()
+    (out.color[0, 0].double() * w).sum().backward()
+    rleaves = [p.clone().double().requires_grad_() for p in params]
+    ref = rasterize_reference(*rleaves[:5], cam, rleaves[5])
+    ref["means2d"].retain_grad()
+    (ref["color"][0, 0] * w).sum().backward()
+    exp_logit = torch.tensor([h[0] for h in hand], dtype=torch.float64)
+    exp_u = torch.tensor([h[1] for h in hand], dtype=torch.float64)
+    exp_sh = torch.tensor([h[2] for h in hand], dtype=torch.float64)
+    for name, got_logit, got_m2d, got_sh, got_bg in (
+            ("cpu", leaves[3].grad, out.means2d.grad, leaves[4].grad, leaves[5].grad),
+            ("reference", rleaves[3].grad, ref["means2d"].grad, rleaves[4].grad, rleaves[5].grad)):
+        assert rel(got_logit, exp_logit) <= TOL, (name, got_logit, exp_logit)
+        assert rel(got_m2d[:, 0], exp_u) <= TOL, (name, got_m2d, exp_u)
+        assert got_m2d[:, 1].abs().max() <= 1e-6 * exp_u.abs().max()  # v offset 0 and a diagonal conic
+        assert rel(got_sh[:, 0], exp_sh) <= TOL, name
+        assert rel(got_bg, torch.tensor(hand_bg, dtype=torch.float64)) <= TOL, name
+    # the clamped splat's own opacity gradient is far from 0 (the old backward gave exactly 0)
+    for i, h in enumerate(hand):
+        if h[3] > 0.99:
+            assert abs(leaves[3].grad[i].item()) > 0.5 * abs(h[0]) > 0
+            assert abs(out.means2d.grad[i, 0].item()) > 0.5 * abs(h[1]) > 0
+
+
 # ---- extremes ------------------------------------------------------------------------------
 
 def _finite_render(params, cam, **kw):

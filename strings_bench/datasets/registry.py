@@ -37,7 +37,8 @@ def _register_builtin_cards() -> None:
     global _BUILTINS_REGISTERED
     if _BUILTINS_REGISTERED:
         return
-    from strings_bench.datasets import cards, synthetic
+    import strings_bench.datasets.cards as cards
+    import strings_bench.datasets.synthetic as synthetic
 
     for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD):
         register_dataset(card)

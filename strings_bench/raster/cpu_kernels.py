@@ -9,7 +9,9 @@ Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel st
 accumulated features, done flag) kept in small per-tile arrays.
 
 The backward pass walks each tile's list back to front (as 3DGS does per pixel), re-deriving the
-transmittance by division, and writes the gradient summed over the tile's pixels into the row of a
+transmittance by division; at the alpha clamp it follows 3DGS: dL/dalpha is computed with the
+clamped alpha of the forward and passed to opacity and G as if alpha = o G (dalpha/do = G,
+dalpha/dG = o, no zeroing where o G > 0.99). It writes the gradient summed over the tile's pixels into the row of a
 per-intersection buffer; a second parallel pass sums each Gaussian's rows. No two threads write the
 same memory, results do not depend on the thread count, and memory scales with the number of
 tile-Gaussian intersections.
@@ -247,8 +249,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     if power > 0.0:
                         continue
                     G = math.exp(power)
-                    a_unclamped = op * G
-                    alpha = min(a_unclamped, ALPHA_MAX)
+                    alpha = min(op * G, ALPHA_MAX)
                     if alpha < ALPHA_MIN:
                         continue
                     one_m = 1.0 - alpha
@@ -266,8 +267,8 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     dL_da *= T[p]
                     last_a[p] = alpha
                     dL_da += Tfin[p] / one_m * ga[p]
-                    if a_unclamped > ALPHA_MAX:
-                        continue  # alpha clamped: no gradient to opacity or shape
+                    # 3DGS: dL/dalpha (built above with the clamped alpha) reaches opacity and G as if
+                    # alpha = o G, also where the 0.99 clamp is active (no zeroing there).
                     dL_dG = op * dL_da
                     g_op += G * dL_da
                     gdx = G * dx

@@ -10,9 +10,17 @@ composited here (color + (1 - alpha) bg). mip_filter -> rasterize_mode="antialia
 (gsplat's compensation sqrt(det Sigma / det(Sigma + eps2d I)) is the Mip-Splatting 2D filter);
 otherwise eps2d=0.3 (3DGS dilation). packed=False.
 
-Differences from the CPU backend (both follow 3DGS; see docs/raster.md): gsplat lets a Gaussian
-touch every pixel of the tiles its radius overlaps (the CPU backend only pixels in its radius box),
-clamps alpha at 0.999 instead of 0.99 in some versions, and keeps Gaussians exactly on the near plane.
+Differences from the CPU backend (see docs/raster.md): gsplat lets a Gaussian touch every pixel of
+the tiles its radius overlaps (the CPU backend only pixels in its radius box), keeps Gaussians exactly
+on the near plane, and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):
+- the forward clamps alpha at 0.999 in the releases v1.3.0 - v1.5.3 (`min(0.999f, opac * vis)`), at
+  0.99 (`MAX_ALPHA`) on its main branch since commit c5ff586b (2026-02-04, not in a release tag);
+- the backward computes dL/dalpha with the clamped alpha, as 3DGS, but adds the conic, means2d
+  (and absgrad) and opacity gradients only `if (opac * vis <= 0.999f)` (main: `<= MAX_ALPHA`): where
+  the clamp is active they are zero (torch.clamp's rule; the colour gradient still flows). 3DGS and
+  the CPU backend pass them through as if alpha = o G. On this backend opaque splats therefore feed
+  neither the densification statistic nor their opacity at their clamped pixels. gsplat's own CUDA
+  code cannot be changed from here.
 
 means2d: gsplat returns (C=1, N, 2); we expose an (N, 2) leaf whose .grad is filled by a hook on
 gsplat's tensor during backward (retain_grad() on it is harmless), so callers see the same shape

@@ -8,6 +8,12 @@ splat that would take transmittance below 1e-4, and a Gaussian touches only the 
 lie in its square box |centre - mean2d| <= radius, radius = ceil(3 sqrt(lambda_max)). Tiles do not
 appear: in the fast path they only organise the work.
 
+Gradient at the alpha clamp (`clamp_grad`): "pass" (default, the 3DGS backward) is a straight-through
+clamp: the value is min(0.99, o G) but the gradient flows as if alpha = o G, so a clamped splat still
+passes dL/dalpha (built with the clamped value) to opacity and shape. "zero" is torch.clamp's own
+autograd (no gradient where clamped): the true derivative of the forward, kept for gradcheck-style
+tests and for comparing with backends that zero there (gsplat, see docs/raster.md).
+
 Memory is O(pixels x Gaussians); use it on small images only.
 """
 
@@ -16,6 +22,9 @@ from __future__ import annotations
 import torch
 
 from strings_bench.raster.sh import sh_to_color
+from strings_bench.raster.types import RasterInputError
+
+CLAMP_GRAD_RULES = ("pass", "zero")
 
 
 def _rotmat(q):
@@ -27,9 +36,21 @@ def _rotmat(q):
     return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
 
 
+def _clamp_alpha(a, rule):
+    if rule == "zero":
+        return torch.clamp(a, max=0.99)
+    # value exactly min(0.99, a) (a - a.detach() is exactly 0), gradient d/da = 1 everywhere (3DGS)
+    return torch.where(a > 0.99, a - a.detach() + 0.99, a)
+
+
 def rasterize_reference(means, quats, log_scales, opacity_logits, sh, camera, background, sh_degree=None,
-                        mip_filter=False, near=0.01, far=1e10):
-    """Returns dict(color (H,W,3), alpha (H,W), depth (H,W), means2d (N,2), radii (N,)) in float64."""
+                        mip_filter=False, near=0.01, far=1e10, clamp_grad="pass"):
+    """Returns dict(color (H,W,3), alpha (H,W), depth (H,W), means2d (N,2), radii (N,)) in float64.
+
+    clamp_grad: "pass" (3DGS, default) or "zero" (torch.clamp autograd); see the module docstring."""
+    if clamp_grad not in CLAMP_GRAD_RULES:
+        raise RasterInputError(f"rasterize_reference: unknown clamp_grad {clamp_grad!r}",
+                               hint=f"use one of {', '.join(CLAMP_GRAD_RULES)}")
     dt = torch.float64
     means, quats, log_scales = means.to(dt), quats.to(dt), log_scales.to(dt)
     opacity_logits, sh, background = opacity_logits.to(dt).reshape(-1), sh.to(dt), torch.as_tensor(background).to(dt)
@@ -86,7 +107,7 @@ def rasterize_reference(means, quats, log_scales, opacity_logits, sh, camera, ba
         visible = in_box.any(0)
     power = -0.5 * (inv[None, :, 0, 0] * d[..., 0] ** 2 + inv[None, :, 1, 1] * d[..., 1] ** 2) \
         - inv[None, :, 0, 1] * d[..., 0] * d[..., 1]
-    alpha = torch.clamp(opac[None] * torch.exp(power), max=0.99)
+    alpha = _clamp_alpha(opac[None] * torch.exp(power), clamp_grad)
     use = in_box & (power <= 0) & (alpha >= 1 / 255)
     alpha = torch.where(use, alpha, torch.zeros_like(alpha))
 
