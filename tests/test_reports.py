@@ -135,3 +135,18 @@ def test_short_venue():
     assert tables.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
     assert tables.short_venue("CVPR'24") == "CVPR'24"
     assert tables.short_venue("no venue here") == ""
+
+
+def test_paper_figures_next_to_measured_only_where_published(tmp_path):
+    """The specs carry the paper's CER (REFERENCE §5): the report sets it beside the measured CER for the
+    datasets the paper reports, and has no such table for the synthetic scenes."""
+    df = _frame({"3dgs": 0.5, "strings": 0.25}, {"3dgs": 0.2, "strings": 0.1}, datasets=("strings360", "synthetic"))
+    written = tables.write_tables(df, tmp_path)
+    csv = pd.read_csv(written["paper_comparison"]["csv"]).set_index("method")
+    # REFERENCE §5, STRinGS-360: 3DGS .736 / .148, STRinGS .177 / .106
+    assert csv.loc["3dgs", "STRinGS-360 7K paper"] == pytest.approx(0.736)
+    assert csv.loc["strings", "STRinGS-360 30K paper"] == pytest.approx(0.106)
+    assert csv.loc["strings", "STRinGS-360 7K measured"] == pytest.approx(0.25)
+    assert not any(c.startswith("Synthetic") for c in csv.columns)
+    only_synthetic = tables.write_tables(_frame({"3dgs": 0.5}, {"3dgs": 0.2}), tmp_path / "syn")
+    assert "paper_comparison" not in only_synthetic

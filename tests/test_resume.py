@@ -147,7 +147,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
     (result.json records resumed_from_step) and writes the metrics of an uninterrupted run."""
     import runner_fakes as rf
 
-    def run_cli(out: Path, kill_at: int | None) -> subprocess.CompletedProcess:
+    def run_cli(out: Path, kill_at: int | None, keep_models: bool = False) -> subprocess.CompletedProcess:
         code = textwrap.dedent(f"""
             import os, signal, sys
             sys.path.insert(0, {str(Path(__file__).parent)!r})
@@ -164,6 +164,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
             GaussianSplatting.train_step = train_step
             runner.run(["3dgs"], [{str(text_scene)!r}], run_dir={str(out)!r}, preset="tiny", ocr_backend=rf.FakeOCR(),
                        with_lpips=False, progress=False, write_report=False, save_every="4steps",
+                       keep_models={keep_models!r},
                        method_overrides={{"3dgs": {{"sh_degree": 0}}}})
         """)
         env = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -176,7 +177,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
     assert run_cli(killed, kill_at=None).returncode == 0
     assert not list(killed.glob("state/**/training_state.pt"))  # removed once every cell is written
     whole = tmp_path / "whole"
-    assert run_cli(whole, kill_at=None).returncode == 0
+    assert run_cli(whole, kill_at=None, keep_models=True).returncode == 0
     recs = {p.parent.name: json.loads(p.read_text()) for p in killed.glob("cells/**/result.json")}
     refs = {p.parent.name: json.loads(p.read_text()) for p in whole.glob("cells/**/result.json")}
     assert sorted(recs) == sorted(refs) == ["15", "150", "35"]  # tiny preset: 3K, 30K, 7K
@@ -185,4 +186,11 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
         assert recs[it]["resumed_from_step"] == (0 if it == "15" else 20) and refs[it]["resumed_from_step"] == 0
         assert recs[it]["metrics"]["psnr"] == pytest.approx(refs[it]["metrics"]["psnr"], abs=1e-5)
         assert recs[it]["gaussians"] == refs[it]["gaussians"]
+    # --keep-models: each cell of the uninterrupted run holds its model, which reads back at that size
+    from strings_bench.scene.ply import read_ply
+
+    for it, rec in refs.items():
+        ply = next(whole.glob(f"cells/**/{it}/model.ply"))
+        assert len(read_ply(ply)) == rec["gaussians"] and rec["extra"]["ply"] == str(ply)
+    assert not list(killed.glob("cells/**/model.ply"))  # not asked for there
     assert rf  # the fake OCR came from the test helpers

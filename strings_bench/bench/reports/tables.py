@@ -304,10 +304,49 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
             "CER of the OCR of rendered views against the known strings of the scene (synthetic scenes only)."
             + RANK_NOTE + note, True, ".3f"))
     tables.append(metrics_table(df, note))
+    paper = paper_comparison_table(df, note)
+    if paper is not None:
+        tables.append(paper)
     abl = ablation_table(df, note)
     if abl is not None:
         tables.append(abl)
     return tables
+
+
+def paper_results(method: str) -> dict:
+    """The published figures of a method's spec ({dataset: {"cer": {iteration: v}, ...}}), {} if none."""
+    from strings_bench.core.errors import StringsBenchError
+    from strings_bench.methods.registry import get_method
+
+    try:
+        return get_method(method).paper_results or {}
+    except StringsBenchError:  # a method of an old run folder that is no longer registered
+        return {}
+
+
+def paper_comparison_table(df: pd.DataFrame, note: str = "") -> Table | None:
+    """Measured OCR-CER next to the paper's (REFERENCE §5) for the datasets the paper reports; None when
+    the run has no such dataset (e.g. the synthetic scenes)."""
+    means = dataset_means(df, "cer")
+    methods = method_order(m for m in df["method"] if m not in ABLATION_METHODS)
+    published = {m: paper_results(m) for m in methods}
+    cols = []
+    for d in dict.fromkeys(df["dataset"]):
+        for label in main_labels(df):
+            paper_vals = {m: published[m].get(d, {}).get("cer", {}).get(int(label_value(label))) for m in methods}
+            paper_vals = {m: v for m, v in paper_vals.items() if v is not None}
+            if not paper_vals:
+                continue
+            sel = means[(means["dataset"] == d) & (means["label"] == label)]
+            cols.append(Column(dataset_title(d), f"{label} ours", f"{label} measured", True, ".3f",
+                               {r.method: r.cer for r in sel.itertuples()}))
+            cols.append(Column(dataset_title(d), f"{label} paper", f"{label} paper", True, ".3f", paper_vals))
+    if not cols:
+        return None
+    return Table("paper_comparison", r"OCR-CER $\downarrow$", "OCR-CER, measured and published",
+                 cols, methods, "OCR-CER measured in this run next to the figures published in the STRinGS paper "
+                 "(RTX 3090 Ti, Google Cloud Vision OCR; REFERENCE.md section 5), mean over the scenes of each "
+                 "dataset. The paper's scenes, OCR engine and schedule may differ from this run's." + RANK_NOTE + note)
 
 
 def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
