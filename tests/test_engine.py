@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene, train  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError, TrainingError  # noqa: E402
-from strings_bench.engine.gaussians import SH_C0, GaussianModel  # noqa: E402
+from strings_bench.engine.gaussians import GaussianModel  # noqa: E402
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr  # noqa: E402
 from strings_bench.engine.strategies import DefaultStrategy, Strategy, ops  # noqa: E402
 from strings_bench.engine.splatting import GaussianSplatting, TrainConfig  # noqa: E402
@@ -58,7 +58,7 @@ def test_from_points_matches_3dgs_init():
     np.testing.assert_allclose(m.params["log_scales"].detach().numpy(), np.repeat(expected[:, None], 3, 1), rtol=1e-5)
     np.testing.assert_allclose(m.opacities.detach().numpy(), 0.1, rtol=1e-5)
     np.testing.assert_array_equal(m.params["quats"].detach().numpy(), np.tile([1, 0, 0, 0], (30, 1)))
-    np.testing.assert_allclose(m.params["sh0"].detach().numpy()[:, 0], (rgb / 255 - 0.5) / SH_C0, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(m.params["sh0"].detach().numpy()[:, 0], (rgb / 255 - 0.5) * 2 * math.sqrt(math.pi), rtol=1e-5, atol=1e-6)
     assert m.params["shN"].shape == (30, 15, 3) and not m.params["shN"].detach().any()
     assert len(m) == 30 and m.sh.shape == (30, 16, 3)
 

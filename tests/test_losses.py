@@ -1,12 +1,16 @@
-"""L1 / SSIM against independent references: skimage's SSIM, a float64 NumPy brute force of the
-zero-padded ('same') convention, and autograd gradcheck."""
+"""L1 / SSIM / PSNR against independent references: skimage's SSIM, a float64 brute force of the
+zero-padded ('same') convention (tests/_ssim_reference.py), hand values, and autograd gradcheck.
+These functions are also the evaluation's metrics (strings_bench.eval.metrics calls them)."""
+
+import math
 
 import numpy as np
 import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from strings_bench.engine.losses import gs_loss, l1_loss, masked_l1, ssim, ssim_map
+from _ssim_reference import brute_ssim_same
+from strings_bench.engine.losses import gs_loss, l1_loss, masked_l1, psnr, ssim, ssim_map
 
 
 def _rand(shape, seed):
@@ -20,36 +24,15 @@ def test_ssim_valid_matches_skimage(shape):
     ref = structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
                                 data_range=1.0, channel_axis=2)
     ours = float(ssim(torch.tensor(a), torch.tensor(b), padding="valid"))
-    assert abs(ours - ref) < 1e-6, (ours, ref)
+    assert abs(ours - ref) < 1e-12, (ours, ref)
     ours32 = float(ssim(torch.tensor(a, dtype=torch.float32), torch.tensor(b, dtype=torch.float32), padding="valid"))
     assert abs(ours32 - ref) < 1e-4
-
-
-def _brute_same(a, b):
-    """Zero-padded 11x11 Gaussian-window SSIM map in float64 loops (the 3DGS training convention)."""
-    x = np.arange(11) - 5
-    g = np.exp(-x ** 2 / (2 * 1.5 ** 2))
-    w = np.outer(g, g) / np.outer(g, g).sum()
-    H, W, C = a.shape
-    pa = np.pad(a, ((5, 5), (5, 5), (0, 0)))
-    pb = np.pad(b, ((5, 5), (5, 5), (0, 0)))
-    out = np.zeros_like(a)
-    for i in range(H):
-        for j in range(W):
-            wa, wb = pa[i:i + 11, j:j + 11], pb[i:i + 11, j:j + 11]
-            for c in range(C):
-                mx, my = (w * wa[..., c]).sum(), (w * wb[..., c]).sum()
-                sxx = (w * wa[..., c] ** 2).sum() - mx ** 2
-                syy = (w * wb[..., c] ** 2).sum() - my ** 2
-                sxy = (w * wa[..., c] * wb[..., c]).sum() - mx * my
-                out[i, j, c] = ((2 * mx * my + 1e-4) * (2 * sxy + 9e-4)) / ((mx ** 2 + my ** 2 + 1e-4) * (sxx + syy + 9e-4))
-    return out
 
 
 def test_ssim_same_padding_matches_brute_force():
     a, b = _rand((14, 19, 3), 3), _rand((14, 19, 3), 4)
     ours = ssim_map(torch.tensor(a), torch.tensor(b), padding="same")[0].permute(1, 2, 0).numpy()
-    np.testing.assert_allclose(ours, _brute_same(a, b), atol=1e-10)
+    np.testing.assert_allclose(ours, brute_ssim_same(a, b), atol=1e-10)
 
 
 def test_ssim_identical_is_one_and_gradcheck():
@@ -77,3 +60,13 @@ def test_l1_and_combined_loss():
 def test_ssim_rejects_mismatched_shapes():
     with pytest.raises(ValueError, match="different shapes"):
         ssim(torch.zeros(5, 5, 3), torch.zeros(5, 6, 3))
+
+
+def test_psnr_hand_values():
+    gt = torch.full((10, 12, 3), 0.5, dtype=torch.float64)
+    assert psnr(gt + 0.1, gt) == pytest.approx(20.0, abs=1e-9)  # MSE 0.01
+    one_off = gt.clone()
+    one_off[0, 0, 0] += 1.0  # MSE 1/360
+    assert psnr(one_off, gt) == pytest.approx(10 * math.log10(360), abs=1e-9)
+    assert psnr(gt, gt) == math.inf
+    assert psnr(gt.float() + 0.1, gt.float()) == pytest.approx(20.0, abs=1e-4)  # float32, as in training

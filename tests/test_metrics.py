@@ -1,9 +1,11 @@
-"""Image metrics against independent computations: analytic PSNR, skimage SSIM, brute-force SSIM."""
+"""Image metrics against independent computations: analytic PSNR, skimage SSIM, brute-force SSIM
+(tests/_ssim_reference.py)."""
 
 import math
 
 import numpy as np
 import pytest
+from _ssim_reference import brute_ssim_same
 from skimage.metrics import structural_similarity
 
 import strings_bench.eval.metrics as metrics
@@ -35,46 +37,49 @@ def test_ssim_identical_is_one_and_bounded():
     assert -1.0 <= metrics.ssim(x, y) < 0.9
 
 
-def test_ssim_interior_matches_skimage():
-    x, y = _img(2), np.clip(_img(2) + np.random.default_rng(3).normal(0, 0.05, (40, 48, 3)), 0, 1)
-    ours = metrics.ssim_map(x, y)
-    for c in range(3):
-        _, ref = structural_similarity(x[..., c], y[..., c], data_range=1.0, gaussian_weights=True, sigma=1.5,
-                                       use_sample_covariance=False, full=True)
-        # Borders differ by padding convention (zero vs reflect); the interior is the same formula.
-        np.testing.assert_allclose(ours[5:-5, 5:-5, c], ref[5:-5, 5:-5], atol=1e-10)
+@pytest.mark.parametrize("strip_rows", [None, 1, 5, 16, 100])
+def test_ssim_matches_brute_force_with_zero_padding(strip_rows):
+    # 19 rows: strips of 5 leave a short last strip; 16 splits the image in two; 100 is one strip.
+    x, y = _img(4, 19, 18), _img(5, 19, 18)
+    ref = float(brute_ssim_same(x, y).mean())
+    kw = {} if strip_rows is None else {"strip_rows": strip_rows}
+    assert metrics.ssim(x, y, **kw) == pytest.approx(ref, abs=1e-12)
+    # float32 renders (what the runner passes) are widened to float64 first.
+    x32, y32 = x.astype(np.float32), y.astype(np.float32)
+    assert metrics.ssim(x32, y32, **kw) == pytest.approx(float(brute_ssim_same(x32, y32).mean()), abs=1e-12)
 
 
-def test_ssim_matches_brute_force_with_zero_padding():
-    x, y = _img(4, 16, 18), _img(5, 16, 18)
-    g = metrics.gaussian_window_1d()
-    win = np.outer(g, g)
-    h, w = x.shape[:2]
-    ref = np.zeros((h, w, 3))
-    for c in range(3):
-        px, py = np.pad(x[..., c], 5), np.pad(y[..., c], 5)
-        for i in range(h):
-            for j in range(w):
-                a, b = px[i:i + 11, j:j + 11], py[i:i + 11, j:j + 11]
-                mx, my = (win * a).sum(), (win * b).sum()
-                vx = (win * a * a).sum() - mx**2
-                vy = (win * b * b).sum() - my**2
-                cxy = (win * a * b).sum() - mx * my
-                ref[i, j, c] = ((2 * mx * my + 1e-4) * (2 * cxy + 9e-4)) / ((mx**2 + my**2 + 1e-4) * (vx + vy + 9e-4))
-    np.testing.assert_allclose(metrics.ssim_map(x, y), ref, atol=1e-12)
+def test_ssim_large_image_matches_skimage_interior():
+    # Many strips (default 32 rows) on a larger view: away from the 5-pixel border the zero-padded map is
+    # skimage's map, so the mean over whole-image minus border-strip contributions must agree.
+    x = _img(8, 100, 90)
+    y = np.clip(x + np.random.default_rng(9).normal(0, 0.05, x.shape), 0, 1)
+    ref = structural_similarity(x, y, data_range=1.0, gaussian_weights=True, sigma=1.5,
+                                use_sample_covariance=False, channel_axis=2, full=True)[1]
+    ref[:5], ref[-5:], ref[:, :5], ref[:, -5:] = 0, 0, 0, 0
+    ref[:5] = brute_ssim_same(x[:10], y[:10])[:5]  # borders from the brute force (small slices)
+    ref[-5:] = brute_ssim_same(x[-10:], y[-10:])[-5:]
+    ref[:, :5] = brute_ssim_same(x[:, :10], y[:, :10])[:, :5]
+    ref[:, -5:] = brute_ssim_same(x[:, -10:], y[:, -10:])[:, -5:]
+    assert metrics.ssim(x, y) == pytest.approx(float(ref.mean()), abs=1e-12)
 
 
-def test_ssim_matches_engine_loss():
+def test_training_ssim_in_float32_is_close_to_the_reported_one():
     import torch
 
     import strings_bench.engine.losses as losses
 
-    x, y = _img(6), _img(7)
+    x, y = _img(6, 24, 26), _img(7, 24, 26)
+    ref = float(brute_ssim_same(x, y).mean())
     t = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
-    assert float(losses.ssim(t(x), t(y))) == pytest.approx(metrics.ssim(x, y), abs=1e-4)
+    assert float(losses.ssim(t(x), t(y))) == pytest.approx(ref, abs=1e-5)
     # The same images as (1, 3, H, W) batches.
-    assert float(losses.ssim(t(x).permute(2, 0, 1)[None], t(y).permute(2, 0, 1)[None])) == pytest.approx(
-        metrics.ssim(x, y), abs=1e-4)
+    assert float(losses.ssim(t(x).permute(2, 0, 1)[None], t(y).permute(2, 0, 1)[None])) == pytest.approx(ref, abs=1e-5)
+
+
+def test_ssim_bad_strip_rows_is_clear():
+    with pytest.raises(StringsBenchError, match="strip_rows"):
+        metrics.ssim(np.zeros((4, 4, 3)), np.zeros((4, 4, 3)), strip_rows=0)
 
 
 def test_shape_mismatch_is_clear():

@@ -22,11 +22,11 @@ import torch
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.raster.projection import quat_to_rotmat  # noqa: F401  (one definition; re-exported for strategies)
+from strings_bench.raster.sh import SH_C0  # one constant: sh0 decodes with the basis the renderer uses
 
 if TYPE_CHECKING:
     from strings_bench.scene.camera import Camera
 
-SH_C0 = 0.28209479177387814  # Y_0^0 = 1 / (2 sqrt(pi))
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 
 

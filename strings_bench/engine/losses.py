@@ -1,8 +1,16 @@
-"""Photometric losses: L1 and a differentiable SSIM (3DGS: 11x11 Gaussian window, sigma 1.5).
+"""Photometric losses and image-quality measures: L1, a differentiable SSIM (3DGS: 11x11 Gaussian
+window, sigma 1.5) and PSNR.
+
+This module holds the suite's only SSIM and PSNR. Training uses them as loss terms (float32, with
+autograd); `strings_bench.eval.metrics` calls the same functions on float64 tensors to score renders.
+They live here, in the engine, because the dependency runs one way: eval may import the engine, the
+engine never imports eval, so both can use one implementation without an import cycle. This module
+imports only torch.
 
 Images are (H, W, C) or (B, C, H, W) tensors in [0, 1]. SSIM borders:
-- padding="same" (training default, as 3DGS): the local statistics are computed with the window
-  zero-padded at the border, giving an SSIM map the size of the image; its mean is the loss term.
+- padding="same" (training default, as 3DGS, and the evaluation convention): the local statistics are
+  computed with the window zero-padded at the border, giving an SSIM map the size of the image; its
+  mean is the loss term and the reported metric.
 - padding="valid": only positions where the whole window fits; the mean over those positions equals
   skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
   data_range=1), which crops the same 5-pixel border (tests/test_losses.py checks this).
@@ -23,6 +31,7 @@ SSIM_C2 = 0.03 ** 2
 
 
 def l1_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference over every element."""
     return (pred - target).abs().mean()
 
 
@@ -53,7 +62,12 @@ def _filter(x: torch.Tensor, g: torch.Tensor, pad: int) -> torch.Tensor:
 
 def ssim_map(img1: torch.Tensor, img2: torch.Tensor, window: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA,
              padding: str = "same", c1: float = SSIM_C1, c2: float = SSIM_C2) -> torch.Tensor:
-    """Per-pixel SSIM (B, C, H', W')."""
+    """Per-pixel, per-channel SSIM map, computed in the inputs' dtype and device.
+
+    img1, img2: (H, W, C), (B, C, H, W) or (H, W) tensors of the same shape, values in [0, 1].
+    padding: "same" (zero padding, output (B, C, H, W)) or "valid" (output (B, C, H - window + 1,
+    W - window + 1)). Differentiable in both images.
+    """
     x, y = _to_bchw(img1), _to_bchw(img2)
     if x.shape != y.shape:
         raise ValueError(f"SSIM of images with different shapes {tuple(x.shape)} and {tuple(y.shape)}")
@@ -74,6 +88,7 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, window: int = SSIM_WINDOW, 
 
 
 def ssim(img1: torch.Tensor, img2: torch.Tensor, padding: str = "same", **kw) -> torch.Tensor:
+    """Mean of `ssim_map` over every pixel and channel (a 0-d tensor); `kw` goes to `ssim_map`."""
     return ssim_map(img1, img2, padding=padding, **kw).mean()
 
 
@@ -94,5 +109,6 @@ def masked_l1(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> t
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR in dB for a data range of 1: -10 log10(MSE), the MSE in the inputs' dtype; inf when equal."""
     mse = float(((pred - target) ** 2).mean())
     return float("inf") if mse == 0 else -10 * math.log10(mse)

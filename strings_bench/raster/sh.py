@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-SH_C0 = 0.28209479177387814
+SH_C0 = 0.28209479177387814  # Y_0^0 = 1 / (2 sqrt(pi)); the one definition (engine.gaussians imports it)
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
          0.5462742152960396)
