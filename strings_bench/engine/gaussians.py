@@ -63,7 +63,46 @@ def knn_mean_sq_dist(xyz: np.ndarray, k: int = 3) -> np.ndarray:
 
 
 class GaussianModel:
-    """A set of 3D Gaussians. `params` are `torch.nn.Parameter`s; `extras` plain tensors."""
+    """A set of N 3D Gaussians: raw trainable parameters, per-Gaussian extras, rendering.
+
+    `params` (dict of `torch.nn.Parameter`, float32, all on one device) holds the raw values, as
+    3DGS stores them and as `rasterize` takes them; the properties give the activated ones:
+
+        name            shape       meaning (activation: property)
+        means           (N, 3)      centres, world units (identity: `means`)
+        quats           (N, 4)      rotations, wxyz, any norm (normalised: `quats`)
+        log_scales      (N, 3)      log standard deviations along the own axes, world units (exp: `scales`)
+        opacity_logits  (N,)        opacity (sigmoid: `opacities`)
+        sh0             (N, 1, 3)   degree-0 SH colour; colour = SH_C0 * sh0 + 0.5 (`sh0_to_rgb`)
+        shN             (N, K, 3)   higher SH orders, K = (sh_degree + 1)^2 - 1 (15 for degree 3, 0 for 0)
+
+    `sh` is sh0 and shN joined, (N, K + 1, 3). `extras` (dict of plain tensors, first dimension N,
+    not optimised) carries per-Gaussian tags such as STRinGS' "is_text" (bool) or Mip-Splatting's
+    "mip_filter3d"; every op of `strategies/ops.py` keeps them aligned (new rows copy their parent).
+
+    Args:
+        params: mapping with the six names above (tensors are copied into new Parameters unless
+            they already are Parameters).
+        extras: optional mapping name -> tensor with first dimension N.
+        sh_degree: the active SH degree; None = the degree shN holds.
+
+    Raises:
+        StringsBenchError: a missing parameter, a shape that disagrees with N, shN's K not
+            (d + 1)^2 - 1 for any d, or an extra with another number of rows.
+
+    Example:
+        >>> import torch
+        >>> from strings_bench.engine.gaussians import GaussianModel
+        >>> n = 4
+        >>> model = GaussianModel({"means": torch.zeros(n, 3), "quats": torch.tensor([[2.0, 0, 0, 0]]).repeat(n, 1),
+        ...                        "log_scales": torch.zeros(n, 3), "opacity_logits": torch.zeros(n),
+        ...                        "sh0": torch.zeros(n, 1, 3), "shN": torch.zeros(n, 3, 3)},
+        ...                       extras={"is_text": torch.tensor([True, False, False, True])})
+        >>> len(model), model.sh_degree, model.quats[0].tolist(), model.opacities[0].item()
+        (4, 1, [1.0, 0.0, 0.0, 0.0], 0.5)
+        >>> model.subset(model.extras["is_text"]).extras["is_text"].tolist()
+        [True, True]
+    """
 
     def __init__(self, params: Mapping[str, torch.Tensor], extras: Mapping[str, torch.Tensor] | None = None,
                  sh_degree: int | None = None):
@@ -88,10 +127,40 @@ class GaussianModel:
     def from_points(cls, xyz, rgb, sh_degree: int = 3, init_opacity: float = 0.1,
                     extras: Mapping[str, torch.Tensor] | None = None, device: str | torch.device = "cpu",
                     min_sq_dist: float = 1e-7) -> "GaussianModel":
-        """3DGS initialisation from SfM points: colour from the point (uint8 or [0,1] floats), opacity
-        `init_opacity`, isotropic scale sqrt(max(mean squared distance to the 3 nearest neighbours,
-        min_sq_dist)), identity rotation, higher SH orders zero. 3DGS clamps the squared distance at
-        1e-7 before the square root (so the smallest scale is sqrt(1e-7) ~ 3.16e-4)."""
+        """3DGS initialisation from SfM points: one Gaussian per point.
+
+        Colour from the point, opacity `init_opacity`, isotropic scale sqrt(max(mean squared
+        distance to the 3 nearest neighbours, min_sq_dist)), identity rotation, higher SH orders
+        zero. 3DGS clamps the squared distance at 1e-7 before the square root (so the smallest
+        scale is sqrt(1e-7) ~ 3.16e-4).
+
+        Args:
+            xyz: (P, 3) array-like, point positions in world units.
+            rgb: (P, 3) colours: uint8 in 0..255, or floats in [0, 1].
+            sh_degree: highest SH degree (0..3); shN gets (sh_degree + 1)^2 - 1 zero coefficients.
+            init_opacity: opacity of every Gaussian, in (0, 1) (stored as its logit).
+            extras: optional per-point extras (first dimension P).
+            device: torch device of the parameters.
+            min_sq_dist: lower clamp of the squared neighbour distance (world units squared).
+
+        Returns:
+            GaussianModel with P Gaussians (float32).
+
+        Raises:
+            StringsBenchError: colours of another shape than the positions, or no points.
+
+        Example:
+            >>> import numpy as np
+            >>> from strings_bench.engine.gaussians import GaussianModel
+            >>> xyz = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [1.0, 1.0, 0]])
+            >>> model = GaussianModel.from_points(xyz, np.full((4, 3), 255, np.uint8), sh_degree=3)
+            >>> {k: tuple(v.shape) for k, v in model.params.items()}
+            {'means': (4, 3), 'quats': (4, 4), 'log_scales': (4, 3), 'opacity_logits': (4,), 'sh0': (4, 1, 3), 'shN': (4, 15, 3)}
+            >>> round(model.opacities[0].item(), 6)
+            0.1
+            >>> [round(x, 4) for x in model.scales[0].tolist()]   # sqrt((1 + 1 + 2) / 3): neighbours at 1, 1, sqrt(2)
+            [1.1547, 1.1547, 1.1547]
+        """
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         rgb = np.asarray(rgb)
         if rgb.shape != xyz.shape:
@@ -115,8 +184,13 @@ class GaussianModel:
 
     @classmethod
     def concat(cls, models: list["GaussianModel"]) -> "GaussianModel":
-        """Join models (e.g. text and non-text Gaussians). Extras present in only some models are
-        filled with zeros (False) for the others."""
+        """Join models (e.g. text and non-text Gaussians) into a new one (detached copies).
+
+        Args:
+            models: non-empty list of GaussianModels on one device. Extras present in only some
+                models are filled with zeros (False) for the others; the SH degree is the largest
+                (all must hold the same number of shN coefficients).
+        """
         if not models:
             raise StringsBenchError("nothing to concatenate")
         names = sorted({k for m in models for k in m.extras})
@@ -130,16 +204,22 @@ class GaussianModel:
         return cls(params, extras=extras, sh_degree=max(m.sh_degree for m in models))
 
     def subset(self, mask_or_index) -> "GaussianModel":
-        """A detached copy of some Gaussians (bool mask or index tensor)."""
+        """A detached copy of some Gaussians, extras included.
+
+        Args:
+            mask_or_index: (N,) bool mask or an index tensor / sequence.
+        """
         sel = torch.as_tensor(mask_or_index, device=self.device)
         return GaussianModel({k: v.detach()[sel].clone() for k, v in self.params.items()},
                              extras={k: v[sel].clone() for k, v in self.extras.items()}, sh_degree=self.sh_degree)
 
     def copy(self) -> "GaussianModel":
+        """A detached copy of the whole model."""
         return self.subset(torch.arange(len(self), device=self.device))
 
     # ---- checks / shapes ------------------------------------------------------------------
     def check(self) -> None:
+        """Raise StringsBenchError unless every parameter and extra has N rows and its layout's shape."""
         n = len(self)
         shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh0": (n, 1, 3)}
         for k, shape in shapes.items():
@@ -156,28 +236,34 @@ class GaussianModel:
 
     @property
     def device(self) -> torch.device:
+        """The device of the parameters."""
         return self.params["means"].device
 
     # ---- activations ----------------------------------------------------------------------
     @property
     def means(self) -> torch.Tensor:
+        """(N, 3) centres, world units (the parameter itself)."""
         return self.params["means"]
 
     @property
     def quats(self) -> torch.Tensor:
+        """(N, 4) unit quaternions, wxyz."""
         q = self.params["quats"]
         return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
     @property
     def scales(self) -> torch.Tensor:
+        """(N, 3) standard deviations along the own axes, world units: exp(log_scales)."""
         return torch.exp(self.params["log_scales"])
 
     @property
     def opacities(self) -> torch.Tensor:
+        """(N,) opacities in (0, 1): sigmoid(opacity_logits)."""
         return torch.sigmoid(self.params["opacity_logits"])
 
     @property
     def sh(self) -> torch.Tensor:
+        """(N, K + 1, 3) all SH coefficients, sh0 then shN (what `rasterize` takes)."""
         return torch.cat([self.params["sh0"], self.params["shN"]], dim=1)
 
     def covariances(self) -> torch.Tensor:
@@ -188,7 +274,35 @@ class GaussianModel:
 
     # ---- rendering ------------------------------------------------------------------------
     def render(self, camera: "Camera", background=(0.0, 0.0, 0.0), sh_degree: int | None = None, **raster_kwargs):
-        """Render through `strings_bench.raster.rasterize`; returns its RasterOutput."""
+        """Render the model into `camera` through `strings_bench.raster.rasterize`.
+
+        Args:
+            camera: a `strings_bench.scene.camera.Camera` (image size, intrinsics, pose).
+            background: (3,) RGB in [0, 1], tensor or sequence.
+            sh_degree: SH degree to use, capped at the model's `sh_degree`; None = the model's.
+            **raster_kwargs: passed on to `rasterize` (backend, mip_filter, compute_absgrad,
+                near, far).
+
+        Returns:
+            RasterOutput (color (H, W, 3), alpha, depth, radii, means2d, absgrad, visible, backend);
+            differentiable w.r.t. `params`.
+
+        Raises:
+            RasterInputError: see `rasterize`.
+
+        Example:
+            >>> import numpy as np
+            >>> from strings_bench.engine.gaussians import GaussianModel
+            >>> from strings_bench.scene.camera import Camera
+            >>> cam = Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))
+            >>> model = GaussianModel.from_points([[0.0, 0.0, 2.0], [0.2, 0.1, 2.0]], [[255, 0, 0], [0, 0, 255]])
+            >>> out = model.render(cam, background=(1.0, 1.0, 1.0), backend="cpu")
+            >>> out.color.shape, out.n_visible
+            (torch.Size([32, 48, 3]), 2)
+            >>> out.color.mean().backward()
+            >>> model.params["means"].grad.shape
+            torch.Size([2, 3])
+        """
         from strings_bench.raster import rasterize
 
         degree = self.sh_degree if sh_degree is None else min(int(sh_degree), self.sh_degree)
@@ -198,10 +312,17 @@ class GaussianModel:
 
     # ---- (de)serialisation ----------------------------------------------------------------
     def state_dict(self) -> dict:
+        """{"params": {name: CPU tensor}, "extras": {name: CPU tensor}, "sh_degree": int} (detached)."""
         return {"params": {k: v.detach().cpu() for k, v in self.params.items()},
                 "extras": {k: v.cpu() for k, v in self.extras.items()}, "sh_degree": self.sh_degree}
 
     @classmethod
     def from_state_dict(cls, state: dict, device="cpu") -> "GaussianModel":
+        """Rebuild a model from `state_dict()`.
+
+        Args:
+            state: a dict made by `state_dict()`.
+            device: torch device of the new parameters.
+        """
         return cls({k: v.to(device) for k, v in state["params"].items()},
                    extras={k: v.to(device) for k, v in state.get("extras", {}).items()}, sh_degree=state.get("sh_degree"))

@@ -94,6 +94,25 @@ def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_d
 
 
 def pick_backend(backend: str, device: torch.device) -> str:
+    """The backend `rasterize` uses for tensors on `device`.
+
+    Args:
+        backend: "auto", "cpu" or "gsplat". "auto" gives "gsplat" when `device` is CUDA and gsplat
+            imports, else "cpu"; the other two are returned as given.
+        device: the device of the input tensors (`means.device`).
+
+    Returns:
+        "cpu" or "gsplat".
+
+    Raises:
+        RasterInputError: `backend` is not one of the three names.
+
+    Example:
+        >>> import torch
+        >>> from strings_bench.raster import pick_backend
+        >>> pick_backend("auto", torch.device("cpu"))
+        'cpu'
+    """
     if backend not in ("auto", "cpu", "gsplat"):
         raise RasterInputError(f"rasterize: unknown backend {backend!r}", hint="use 'auto', 'cpu' or 'gsplat'")
     if backend == "auto":
@@ -108,7 +127,82 @@ def pick_backend(backend: str, device: torch.device) -> str:
 
 def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, sh_degree=None,
               backend="auto", mip_filter=False, compute_absgrad=False, near=0.01, far=1e10) -> RasterOutput:
-    """Render Gaussians into `camera`; see the module docstring and docs/raster.md."""
+    """Render N 3D Gaussians into `camera`, differentiably (3DGS splatting; rules in docs/raster.md).
+
+    Every input is a raw (pre-activation) parameter, as 3DGS stores it; all floating tensors must be
+    on one device. Units: world units for positions and scales, pixels for everything on the image.
+    Gradients flow to every floating input, `background` included.
+
+    Args:
+        means: (N, 3) float, Gaussian centres in world coordinates.
+        quats: (N, 4) float, rotations as quaternions (w, x, y, z), any norm: normalised inside; a
+            zero quaternion is the identity rotation (with zero gradient).
+        log_scales: (N, 3) float, natural log of the standard deviations along the Gaussian's own
+            axes, in world units: Sigma = R diag(exp(log_scales))^2 R^T.
+        opacity_logits: (N,) or (N, 1) float, opacity = sigmoid(opacity_logits).
+        sh: (N, K, 3) float, spherical-harmonics colour coefficients per RGB channel,
+            K = (d + 1)^2 for degree d in 0..3 (1, 4, 9 or 16), 3DGS basis and order. The colour is
+            max(SH(dir) + 0.5, 0) with dir the unit vector from the camera centre to the mean.
+        camera: a `strings_bench.scene.camera.Camera` (duck-typed: fx, fy, cx, cy, width, height,
+            R, t, center, K, viewmat): pinhole, world -> camera p = R x + t, pixel centres at
+            integer + 0.5, u = fx x / z + cx.
+        background: (3,) RGB in [0, 1], a tensor or a sequence (converted to the dtype and device
+            of `means`); composited as color + (1 - alpha) * background.
+        sh_degree: int or None. Use SH bands 0..sh_degree only (None: every band `sh` holds);
+            inactive bands get zero gradient.
+        backend: "auto" (gsplat for CUDA tensors when gsplat imports, else "cpu"), "cpu" (torch +
+            numba tile kernels with a hand-written backward) or "gsplat" (CUDA only).
+        mip_filter: bool. Mip-Splatting's 2D filter: a 0.1 px^2 dilation with opacity compensation
+            sqrt(det Sigma2D / det(Sigma2D + 0.1 I)) instead of 3DGS's plain 0.3 px^2 dilation.
+        compute_absgrad: bool. Allocate `absgrad` and fill it during backward with the AbsGS
+            statistic sum_pixels |dL_pixel / d means2d| per component (pixel units).
+        near, far: float, camera-space depth z (world units) outside of which a Gaussian is
+            culled (z <= near or z >= far). Need 0 < near < far.
+
+    Dtypes: float32 is the usual input; the CPU backend computes in float64 inside and returns the
+    input dtype. `radii` is int32.
+
+    Returns:
+        RasterOutput with
+            color: (H, W, 3), sum_i w_i c_i + (1 - alpha) * background (H, W = camera.height, width);
+            alpha: (H, W), 1 - final transmittance;
+            depth: (H, W), expected camera z, sum_i w_i z_i / alpha (0 where alpha = 0);
+            radii: (N,) int32, screen radius in pixels, 0 = culled;
+            means2d: (N, 2), projected centres (u, v) in pixels, in the autograd graph: call
+                `out.means2d.retain_grad()` before backward to read dL/d(u, v) in pixels (NDC units,
+                as the 3DGS threshold 2e-4, are grad * 0.5 * [W, H]);
+            absgrad: (N, 2) or None (None unless compute_absgrad), filled by backward;
+            visible: (N,) bool, radii > 0;
+            backend: "cpu" or "gsplat", the backend that ran.
+
+    Raises:
+        RasterInputError (a StringsBenchError with a hint): an input is not a floating torch
+            tensor; inconsistent shapes; K not in (1, 4, 9, 16); sh_degree above what `sh` holds;
+            background not of shape (3,); not 0 < near < far; an unknown backend; CPU backend
+            with non-CPU tensors; gsplat backend without gsplat or without CUDA tensors.
+
+    Example:
+        >>> import numpy as np, torch
+        >>> from strings_bench.raster import rasterize
+        >>> from strings_bench.scene.camera import Camera
+        >>> cam = Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))
+        >>> means = torch.tensor([[0.0, 0.0, 2.0], [0.5, 0.0, 2.0], [0.0, -0.25, 4.0]], requires_grad=True)
+        >>> quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(3, 1)         # identity rotations
+        >>> log_scales = torch.full((3, 3), float(np.log(0.05)))              # 5 cm standard deviation
+        >>> opacity_logits = torch.zeros(3)                                   # opacity 0.5
+        >>> sh = torch.zeros(3, 1, 3)                                         # degree 0: grey 0.5
+        >>> out = rasterize(means, quats, log_scales, opacity_logits, sh, cam, background=[1.0, 1.0, 1.0])
+        >>> out.color.shape, out.alpha.shape, out.radii.dtype, out.backend
+        (torch.Size([32, 48, 3]), torch.Size([32, 48]), torch.int32, 'cpu')
+        >>> out.means2d.tolist()                                              # u = fx x / z + cx, pixels
+        [[24.0, 16.0], [34.0, 16.0], [24.0, 13.5]]
+        >>> out.color[0, 0].tolist()                                          # no Gaussian there: background
+        [1.0, 1.0, 1.0]
+        >>> out.means2d.retain_grad()
+        >>> out.color.sum().backward()
+        >>> out.means2d.grad.shape, means.grad.shape
+        (torch.Size([3, 2]), torch.Size([3, 3]))
+    """
     background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
     deg = _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree)
     if not near > 0 or not far > near:

@@ -1,21 +1,31 @@
 """The densification-strategy interface (gsplat style).
 
-A strategy is a dataclass whose fields are its settings. The trainer calls, every step:
+A strategy is a dataclass whose fields are its settings (flat `--set` keys of the method that uses
+it). `engine.splatting.GaussianSplatting` drives it; per training step (1-based) it calls:
 
-    state = strategy.initialize_state(scene_extent, steps_scale)      # once
-    kwargs = strategy.get_raster_kwargs(step)                          # extra rasterize() arguments
-    out = model.render(camera, ..., **kwargs)
+    state = strategy.initialize_state(scene_extent, steps_scale)   # at every set_model(): the initial
+                                                                    # model, and phase switches (STRinGS)
+    # train_step(step):
+    sstep = method.strategy_step(step)                              # the step the strategy sees
+    kwargs = strategy.get_raster_kwargs(sstep)                      # extra rasterize() arguments
+    out = method.render_raster(view, sh_degree=..., **kwargs)       # -> model.render -> rasterize
     info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": W, "height": H,
-            "n_cameras": 1, "view_idx": i, "camera": camera}
-    strategy.step_pre_backward(model, optimizer, state, step, info)    # e.g. retain_grad on means2d
-    loss = trainer.loss(...) + strategy.loss_terms(model, info, step)  # extra regularisers
-    loss.backward(); optimizer.step()
-    strategy.step_post_backward(model, optimizer, state, step, info)   # statistics, grow, prune, reset
+            "n_cameras": 1, "view_idx": view, "camera": camera}
+    strategy.step_pre_backward(model, optimizer, state, sstep, info)   # e.g. means2d.retain_grad()
+    loss = method.loss(out, gt, view, step) + strategy.loss_terms(model, info, sstep)
+    loss.backward(); optimizer.step(row_scale)
+    # (the framework evaluates a checkpoint here, before any densification)
+    # refine(step):
+    strategy.step_post_backward(model, optimizer, state, sstep, info)  # gradients still in .grad:
+    optimizer.zero_grad()                                                # statistics, grow, prune, reset
 
 Iteration numbers in settings are nominal (for a 30 000-step run); `self.at(state, n)` gives the
-actual step for the run's `steps_scale`, `self.every(state, n)` the actual interval (>= 1).
-Strategies change the Gaussians only through `strategies.ops`, which keeps the optimizer state,
-`model.extras` and the tensors of `state` in step.
+actual step for the run's `steps_scale`, `self.every(state, n)` the actual interval (with floors in
+scaled-down runs, see MIN_SCALED_INTERVAL). Strategies change the Gaussians only through
+`strategies.ops`, which keeps the optimizer state, `model.extras` and the tensors of `state` in step.
+`state` is part of the resumable training state (saved with torch.save): anything picklable;
+tensors and torch generators in it, also inside dicts and lists, are moved to the CPU to be saved
+and back to the method's device on resume.
 """
 
 from __future__ import annotations
@@ -54,37 +64,180 @@ def scaled_interval(nominal: float, steps_scale: float, floor: int = MIN_SCALED_
 
 @dataclass
 class Strategy:
-    """Base strategy: no densification. Subclasses override what they need."""
+    """Base strategy: no densification, no extra loss. Subclasses override what they need.
+
+    Subclass it as a dataclass; each field is a setting, and the comment beside the field is the
+    meaning `strings-bench methods show` prints. A method picks its strategy with the class
+    attribute `strategy_cls` (`engine.splatting.GaussianSplatting`).
+
+    The `info` dict (built by the method for every step; read-only for the strategy):
+        raster: the step's `RasterOutput` (`out.absgrad` after backward when get_raster_kwargs
+            asked for compute_absgrad).
+        means2d: (N, 2) `out.means2d`, projected centres in pixels, in the autograd graph; its
+            `.grad` is dL/d(u, v) in pixels after backward if `retain_grad()` was called.
+        radii: (N,) int32 `out.radii`, screen radius in pixels, 0 = not visible in this view.
+        width, height: int, the training image size in pixels (for NDC conversion: x W/2, H/2).
+        n_cameras: int, views in the batch (always 1 here; gsplat's convention).
+        view_idx: int, the scene view index trained on.
+        camera: the view's `Camera` at the training resolution.
+
+    The `state` dict (created by `initialize_state`, owned by the strategy, saved with the
+    training state):
+        scene_extent: float, the scene's extent in world units (1.1 x the largest distance of a
+            training camera from their mean); size thresholds are fractions of it.
+        steps_scale: float, the run's schedule scale (read by `at`, `every`, `reset_interval`).
+        ...: the subclass's own entries. A tensor whose first dimension is N (the number of
+            Gaussians) is resized by every op of `strategies.ops` (new rows copy their parent or
+            are zero), so per-Gaussian statistics stay aligned with the model.
+
+    Example (a strategy that prunes Gaussians no view has seen since its last round):
+        >>> from dataclasses import dataclass
+        >>> import numpy as np, torch
+        >>> import strings_bench.engine.strategies.ops as ops
+        >>> from strings_bench.engine.gaussians import GaussianModel
+        >>> from strings_bench.engine.optim import GaussianAdam, LearningRates
+        >>> from strings_bench.engine.strategies import Strategy
+        >>> from strings_bench.scene.camera import Camera
+        >>> @dataclass
+        ... class PruneUnseen(Strategy):
+        ...     prune_every: int = 100  # nominal interval between rounds
+        ...
+        ...     def initialize_state(self, scene_extent, steps_scale=1.0):
+        ...         state = super().initialize_state(scene_extent, steps_scale)
+        ...         state["seen"] = None  # (N,) bool once the first step ran
+        ...         return state
+        ...
+        ...     def step_post_backward(self, model, optimizer, state, step, info):
+        ...         if state["seen"] is None:
+        ...             state["seen"] = torch.zeros(len(model), dtype=torch.bool)
+        ...         state["seen"] |= info["radii"] > 0
+        ...         if step % self.every(state, self.prune_every) == 0:
+        ...             ops.remove(model, optimizer, ~state["seen"], state=state)
+        ...             state["seen"] = None
+        >>> cam = Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))
+        >>> xyz = np.array([[0.0, 0.0, 2.0], [0.3, 0.1, 2.5], [0.0, 0.0, -2.0]])  # the last is behind the camera
+        >>> model = GaussianModel.from_points(xyz, np.full((3, 3), 128, np.uint8), sh_degree=0)
+        >>> optimizer = GaussianAdam(model.params, LearningRates().group_lrs(extent=1.0))
+        >>> strategy = PruneUnseen()
+        >>> state = strategy.initialize_state(scene_extent=1.0)
+        >>> step = 100
+        >>> out = model.render(cam, **strategy.get_raster_kwargs(step))
+        >>> info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": cam.width,
+        ...         "height": cam.height, "n_cameras": 1, "view_idx": 0, "camera": cam}
+        >>> strategy.step_pre_backward(model, optimizer, state, step, info)
+        >>> loss = out.color.mean() + strategy.loss_terms(model, info, step)
+        >>> loss.backward(); optimizer.step()
+        >>> strategy.step_post_backward(model, optimizer, state, step, info)
+        >>> len(model)
+        2
+    """
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
+        """A fresh state for a new model (called at every `set_model`, so a phase switch resets it).
+
+        Args:
+            scene_extent: the scene's extent in world units (`scene.extent`).
+            steps_scale: the run's schedule scale (1.0 = the paper's 30 000 steps).
+
+        Returns:
+            dict with "scene_extent" and "steps_scale" (floats); subclasses add their entries.
+        """
         return {"scene_extent": float(scene_extent), "steps_scale": float(steps_scale)}
 
     def get_raster_kwargs(self, step: int) -> dict:
+        """Extra keyword arguments for this step's `rasterize` call, e.g. {"compute_absgrad": True}
+        (AbsGS) or {"mip_filter": True} (Mip-Splatting). Default: a copy of `raster_kwargs`.
+
+        Args:
+            step: the step the strategy sees (`method.strategy_step(step)`, 1-based).
+
+        Returns:
+            dict of `rasterize` keyword arguments (sh_degree and backend are the method's).
+        """
         return dict(getattr(self, "raster_kwargs", None) or {})
 
     def step_pre_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                           info: dict) -> None:
-        pass
+        """Called after the render, before the loss and backward: prepare to read gradients
+        (`info["means2d"].retain_grad()`). Must not change the model. Default: nothing.
+
+        Args:
+            model: the `GaussianModel` being trained.
+            optimizer: its `GaussianAdam`.
+            state: this strategy's state dict (see the class docstring).
+            step: the step the strategy sees (1-based).
+            info: this step's info dict (see the class docstring).
+        """
 
     def loss_terms(self, model: GaussianModel, info: dict, step: int) -> torch.Tensor | float:
+        """Regularisers added to the method's loss before backward (MCMC: opacity and scale L1).
+
+        Args:
+            model: the `GaussianModel` being trained.
+            info: this step's info dict.
+            step: the step the strategy sees (1-based).
+
+        Returns:
+            a scalar tensor in the autograd graph, or 0.0 for none (the default).
+        """
         return 0.0
 
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
-        pass
+        """Called from `method.refine(step)`, after the optimizer step and after a checkpoint of this
+        step was evaluated; the gradients are still in `.grad` (zeroed right after). Accumulate
+        statistics, then grow, prune, relocate or reset, through `strategies.ops` only.
+        Default: nothing.
+
+        Args:
+            model: the `GaussianModel` being trained (changed in place by the ops).
+            optimizer: its `GaussianAdam` (the ops keep its moments aligned).
+            state: this strategy's state dict (pass it to the ops as `state=`).
+            step: the step the strategy sees (1-based).
+            info: this step's info dict.
+        """
 
     # ---- helpers ----------------------------------------------------------------------------
     @staticmethod
     def at(state: dict, nominal: float) -> int:
+        """The actual step of nominal iteration `nominal`: round(nominal x state["steps_scale"]).
+
+        Args:
+            state: a state dict from `initialize_state` (steps_scale defaults to 1).
+            nominal: an iteration number of the paper's 30 000-step schedule.
+
+        Example:
+            >>> from strings_bench.engine.strategies import Strategy
+            >>> Strategy.at({"steps_scale": 0.01}, 15_000)
+            150
+        """
         return scaled_step(nominal, state.get("steps_scale", 1.0))
 
     @staticmethod
     def every(state: dict, nominal: float, floor: int = MIN_SCALED_INTERVAL) -> int:
+        """The actual interval of nominal interval `nominal`: scaled, but in scaled-down runs never
+        shorter than min(floor, nominal) steps; at least 1.
+
+        Args:
+            state: a state dict from `initialize_state`.
+            nominal: an interval of the paper's schedule (e.g. refine every 100).
+            floor: the shortest interval in a scaled-down run (MIN_SCALED_INTERVAL = 50).
+
+        Example:
+            >>> from strings_bench.engine.strategies import Strategy
+            >>> Strategy.every({"steps_scale": 0.01}, 100), Strategy.every({"steps_scale": 1.0}, 100)
+            (50, 100)
+        """
         return scaled_interval(nominal, state.get("steps_scale", 1.0), floor)
 
     @staticmethod
     def reset_interval(state: dict, nominal: float) -> int:
-        """Opacity-reset interval (longer floor in scaled runs, see MIN_SCALED_RESET_INTERVAL)."""
+        """Opacity-reset interval: as `every` with the longer floor MIN_SCALED_RESET_INTERVAL (200).
+
+        Args:
+            state: a state dict from `initialize_state`.
+            nominal: the nominal reset interval (3DGS: 3 000).
+        """
         return scaled_interval(nominal, state.get("steps_scale", 1.0), MIN_SCALED_RESET_INTERVAL)

@@ -26,6 +26,27 @@ from strings_bench.engine.strategies.base import Strategy
 
 @dataclass
 class DefaultStrategy(Strategy):
+    """Vanilla 3DGS adaptive density control (clone, split, prune, opacity reset); see the module
+    docstring for the rules and `Strategy` for the interface. Fields are nominal settings.
+
+    State entries added to `Strategy.initialize_state`'s:
+        grad2d: (N,) float or None, sum over steps of the screen-space mean-gradient norm (NDC);
+        count: (N,) float or None, steps in which each Gaussian was visible;
+        max_radii: (N,) float or None, largest screen radius in pixels;
+        n_refine: int, refinement rounds so far;
+        last_clone, last_split, last_prune: int, what the last round did (after the first round).
+    The statistics are None right after a refinement and re-created at the next step.
+
+    Example:
+        >>> from strings_bench.engine.strategies import DefaultStrategy
+        >>> strategy = DefaultStrategy(grow_grad2d=4e-4)
+        >>> state = strategy.initialize_state(scene_extent=2.0, steps_scale=0.01)
+        >>> sorted(state)
+        ['count', 'grad2d', 'max_radii', 'n_refine', 'scene_extent', 'steps_scale']
+        >>> strategy.at(state, strategy.refine_stop_iter), strategy.every(state, strategy.refine_every)
+        (150, 50)
+    """
+
     prune_opa: float = 0.005  # prune Gaussians below this opacity
     grow_grad2d: float = 2e-4  # densify when the mean screen-space gradient norm (NDC) exceeds this
     grow_scale3d: float = 0.01  # clone if largest scale <= this x extent, else split
@@ -46,17 +67,40 @@ class DefaultStrategy(Strategy):
     max_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
+        """`Strategy.initialize_state` plus empty statistics (grad2d, count, max_radii) and n_refine.
+
+        Args:
+            scene_extent: the scene's extent in world units.
+            steps_scale: the run's schedule scale.
+        """
         state = super().initialize_state(scene_extent, steps_scale)
         state.update(grad2d=None, count=None, max_radii=None, n_refine=0)
         return state
 
     # ---- hooks ------------------------------------------------------------------------------
     def step_pre_backward(self, model, optimizer, state, step, info) -> None:
+        """Keep the gradient of `info["means2d"]` (when it is in the graph) for `update_state`.
+
+        Args:
+            model, optimizer, state: unused.
+            step: unused.
+            info: this step's info dict.
+        """
         if info["means2d"].requires_grad:
             info["means2d"].retain_grad()
 
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
+        """Before `refine_stop_iter`: accumulate statistics; every `refine_every` steps after
+        `refine_start_iter` refine; every `reset_every` steps reset opacities.
+
+        Args:
+            model: the model (changed in place).
+            optimizer: its optimizer (kept in step by the ops).
+            state: this strategy's state.
+            step: the step the strategy sees.
+            info: this step's info dict.
+        """
         if step >= self.at(state, self.refine_stop_iter):
             return
         self.update_state(model, state, info)
@@ -67,11 +111,24 @@ class DefaultStrategy(Strategy):
 
     # ---- pieces (overridable) --------------------------------------------------------------
     def screen_grad(self, info: dict) -> torch.Tensor | None:
-        """(N, 2) gradient w.r.t. the projected centres, in pixels, or None (no backward through it)."""
+        """(N, 2) gradient w.r.t. the projected centres, in pixels, or None (no backward through it).
+        AbsGS-style strategies return `info["raster"].absgrad` instead.
+
+        Args:
+            info: this step's info dict.
+        """
         return info["means2d"].grad
 
     @torch.no_grad()
     def update_state(self, model: GaussianModel, state: dict, info: dict) -> None:
+        """Add this step's statistics: for Gaussians with radius > 0, the norm of `screen_grad`
+        converted to NDC (x W/2, x H/2), one to count, and the running maximum radius.
+
+        Args:
+            model: the model (only its size and device are read).
+            state: this strategy's state (grad2d, count, max_radii are created if missing).
+            info: this step's info dict.
+        """
         n = len(model)
         if state["grad2d"] is None or state["grad2d"].shape[0] != n:
             state["grad2d"] = torch.zeros(n, device=model.device)
@@ -91,6 +148,18 @@ class DefaultStrategy(Strategy):
 
     @torch.no_grad()
     def refine(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
+        """One densification round: clone small and split large Gaussians whose mean gradient is
+        >= grow_grad2d, prune (opacity, and after screen_prune_after size), clear the statistics.
+
+        Args:
+            model: the model (changed in place).
+            optimizer: its optimizer.
+            state: this strategy's state.
+            step: the step the strategy sees (for the prune schedule and messages).
+
+        Raises:
+            TrainingError: growth past `max_gaussians`, or a prune that would remove every Gaussian.
+        """
         extent = state["scene_extent"]
         if state["grad2d"] is not None:
             grads = state["grad2d"] / state["count"].clamp_min(1)
