@@ -2,9 +2,10 @@
 
 One *cell* is (method, dataset, scene, checkpoint iteration). A cell is finished when its
 `result.json` exists; that file is written last and atomically, so a killed run loses at most the
-cell in progress. Re-running the same command skips finished cells. Because training yields its
-checkpoints in order, a (method, scene) with some but not all checkpoints finished is trained
-again from the start; checkpoints already evaluated are passed over (never rewritten).
+cell in progress. Re-running the same command skips finished cells. A trained method's training
+state is saved at every checkpoint and every `--save-every` (engine.trainer), so a (method, scene)
+killed mid-training continues from its last saved state (`resumed_from_step` in result.json);
+checkpoints already evaluated are passed over (never rewritten).
 
 Run folder (see docs/running.md):
 
@@ -15,6 +16,9 @@ Run folder (see docs/running.md):
       cells/<method>/<dataset>/<scene>/<iteration>/
           result.json                   everything about the cell (config, timings, metrics, OCR words, CER)
           renders/<view stem>.png       the method's test-view renders
+          model.ply                     the model at this checkpoint (--keep-models)
+      state/<method>/<dataset>/<scene>/training_state.pt
+                                        the resumable training state; removed when the (method, scene) is done
       gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
       report/                           tables and figures (strings_bench.bench.reports.write_report)
 

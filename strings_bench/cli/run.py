@@ -55,7 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--device", default="auto",
                    help="where methods train: auto (CUDA when torch sees a GPU, else cpu; default), cpu, cuda, cuda:N")
     p.add_argument("--save-every", default="10", metavar="MINUTES|Nsteps",
-                   help="save the resumable training state every MINUTES of training (default 10), every N steps "
+                   help="save the resumable training state every MINUTES of wall time (default 10), every N steps "
                         "('500steps'), or 'off'; it is also saved at every checkpoint. A killed run continues from it")
     p.add_argument("--keep-models", action="store_true",
                    help="write each cell's model (model.ply, 3DGS layout) next to its result.json")
