@@ -6,7 +6,7 @@ Two kinds of method:
   the step loop, the device, the timing, checkpoint evaluation and the resumable training state;
   the method provides only what makes it different. The loop calls, in this order::
 
-      method.setup(scene, downscale=..., device=...)     # once; timed as preprocess_seconds
+      method.setup(scene, downscale=..., device=..., seed=...)  # once; timed as preprocess_seconds
       for step in 1..last checkpoint:                      # steps are 1-based, as in 3DGS
           loss = method.train_step(step)                   # render, loss, backward, optimizer step
           if step is a checkpoint:
@@ -40,8 +40,12 @@ __all__ = ["CheckpointResult", "Method", "MethodAdapter"]
 class Method(ABC):
     """A method trained by the framework's loop (see the module docstring for the call order).
 
-    Subclasses set `name` and `paper`. Settings are given to the constructor (the method spec
-    builds the object from its defaults, the preset and `--set`)."""
+    Subclasses set `name` and `paper`. The method spec (`methods.registry.MethodSpec`) builds the
+    object from its defaults, the preset and `--set`: with `cls.from_settings(**settings)` when the
+    class has it (`GaussianSplatting` does), else `cls(**settings)`; the spec then sets `name` to its
+    own. A class may describe its settings with `settings_schema()` (a list of `core.settings.Setting`):
+    `strings-bench methods show` prints it, and `--set` keys are checked against it before a run
+    starts."""
 
     name: str = "method"
     paper: str = ""
@@ -93,6 +97,7 @@ class Method(ABC):
         raise NotImplementedError(f"method {self.name} cannot save its model")
 
     def describe(self) -> dict:
+        """Name, paper and settings, as stored with every cell (JSON-serialisable)."""
         return {"name": self.name, "paper": self.paper, "settings": dict(getattr(self, "settings", {}))}
 
 
@@ -104,6 +109,7 @@ class MethodAdapter(ABC):
     progress: bool = True  # whether it may show progress bars (the runner sets it from --no-progress)
 
     def __init__(self, **settings):
+        """Keep the flat settings (`--set` values over the spec's defaults and preset)."""
         self.settings = dict(settings)
 
     @abstractmethod
@@ -112,4 +118,5 @@ class MethodAdapter(ABC):
         `scene.test_idx` views at `downscale`."""
 
     def describe(self) -> dict:
+        """Name, paper and settings, as stored with every cell."""
         return {"name": self.name, "paper": self.paper, "settings": self.settings}
