@@ -162,3 +162,22 @@ def test_unknown_device_is_refused():
 
     with pytest.raises(StringsBenchError, match="unknown device"):
         runner.run(["3dgs"], ["synthetic/books"], device="gpu0", progress=False)
+
+
+def test_scene_given_as_a_path_is_labelled_by_its_folder(tmp_path):
+    """`run --datasets ../data/watch_clock`: the scene folder's name labels it, not its parent's ("data")."""
+    from strings_bench.datasets.registry import resolve_scenes
+
+    scene_dir = rf.make_scene(tmp_path / "scenes", name="watch_clock")
+    relative = Path("..") / scene_dir.parent.name / scene_dir.name
+    import os
+
+    here = os.getcwd()
+    os.chdir(scene_dir.parent / "..")  # a relative path with '..' in it
+    try:
+        os.makedirs("sub", exist_ok=True)
+        os.chdir("sub")
+        (ref,) = resolve_scenes([str(relative)])
+    finally:
+        os.chdir(here)
+    assert (ref.dataset, ref.scene) == ("watch_clock", "watch_clock") and ref.path == scene_dir.resolve()
