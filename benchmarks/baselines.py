@@ -34,7 +34,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--downscale", type=float, default=1)
     ap.add_argument("--small", action="store_true", help="synthetic scenes at 160x120 with 24 views")
     ap.add_argument("--seed", type=int, default=None, help="trainer seed (default 0; for mcmc also its sampling RNG)")
-    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--device", default="auto", help="auto (CUDA when torch sees a GPU; default), cpu, cuda, cuda:N")
     ap.add_argument("--paper-checkpoints", nargs="+", type=int, default=[7000, 30000],
                     help="paper iterations to evaluate (scaled by the preset's steps_scale)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
@@ -60,9 +60,11 @@ def build(method: str, preset: str, paper_checkpoints, **settings):
 
 def run(args) -> int:
     from strings_bench.core.io import atomic_write_json
+    from strings_bench.engine.trainer import Trainer, resolve_device
     from strings_bench.eval.metrics import psnr
     from strings_bench.scene.scene import Scene
 
+    args.device = resolve_device(args.device)  # a missing GPU is refused before the scene is built
     if args.small and args.scene.startswith("synthetic/"):
         from strings_bench.datasets.synthetic import build_scene, settings_with
 
@@ -86,10 +88,10 @@ def run(args) -> int:
     rows = []
     seed = {} if args.seed is None else {"seed": args.seed}
     for method in args.methods:
-        adapter, s, checkpoints = build(method, args.preset, args.paper_checkpoints, device=args.device,
-                                        **seed, **overrides)
+        adapter, s, checkpoints = build(method, args.preset, args.paper_checkpoints, **seed, **overrides)
         t0 = time.perf_counter()
-        for res in adapter.train(scene, checkpoints, args.downscale):
+        for res in Trainer(adapter, scene, checkpoints, downscale=args.downscale, device=args.device,
+                           progress=False).train():
             vals = [psnr(img, gts[name]) for name, img in res.renders.items()]
             rows.append({"method": method, "iteration": res.iteration, "psnr": float(np.mean(vals)),
                          "train_seconds": res.train_seconds, "preprocess_seconds": res.preprocess_seconds,
@@ -98,12 +100,14 @@ def run(args) -> int:
             r = rows[-1]
             print(f"{method:14s} it {r['iteration']:6d}  PSNR {r['psnr']:6.2f} dB  train {r['train_seconds']:7.1f} s  "
                   f"Gaussians {r['gaussians']:7d}", flush=True)
-    print(f"\n{scene.name}, preset {args.preset} (steps x {s}), {len(gts)} test views, downscale {args.downscale}")
+    print(f"\n{scene.name}, preset {args.preset} (steps x {s}), {len(gts)} test views, downscale {args.downscale}, "
+          f"device {args.device}")
     print(f"{'method':14s} {'iter':>6s} {'PSNR':>7s} {'train s':>8s} {'Gaussians':>10s}")
     for r in rows:
         print(f"{r['method']:14s} {r['iteration']:6d} {r['psnr']:7.2f} {r['train_seconds']:8.1f} {r['gaussians']:10d}")
     if args.json:
         atomic_write_json(args.json, {"scene": scene.name, "preset": args.preset, "downscale": args.downscale,
+                                      "device": args.device,
                                       "seed": args.seed, "rows": rows})
     return 0
 

@@ -51,6 +51,7 @@ def main(argv=None) -> int:
                     help="settings as `strings-bench run --set`: KEY=VALUE for every method (e.g. lr_means=8e-4), "
                          "METHOD.KEY=VALUE for one (values parsed as JSON when possible); a run folder holds one set "
                          "of settings, so give these runs their own --out")
+    ap.add_argument("--device", default="auto", help="auto (CUDA when torch sees a GPU; default), cpu, cuda, cuda:N")
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
     overrides = parse_settings(args.set)  # the CLI's --set parsing
     runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=args.preset, ocr=args.ocr,
                with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None,
-               steps_scale=args.steps_scale, checkpoints=paper_its)
+               steps_scale=args.steps_scale, checkpoints=paper_its, device=args.device)
     preset = args.preset + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (
         "" if paper_its is None else f" at {','.join(map(str, paper_its))}")
 

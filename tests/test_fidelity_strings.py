@@ -220,12 +220,12 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
 
     # A cell written before the new columns: no preprocess/total in timings. STRinGS' old cells kept
     # their preprocessing in extra["preprocess_seconds"]; other methods had none.
-    cell = runner.CellKey("fake-pre", "toyset", "toy", 35).path(out) / "result.json"
+    cell = runner.CellKey("fake-pre", "toy", "toy", 35).path(out) / "result.json"
     rec = json.loads(cell.read_text())
     rec["timings"] = {"train_seconds": 24.0, "eval_seconds": 1.0}
     rec["extra"] = {"preprocess_seconds": 7.0}
     cell.write_text(json.dumps(rec))
-    cell_a = runner.CellKey("fake-a", "toyset", "toy", 35).path(out) / "result.json"
+    cell_a = runner.CellKey("fake-a", "toy", "toy", 35).path(out) / "result.json"
     rec = json.loads(cell_a.read_text())
     rec["timings"] = {"train_seconds": 24.0, "eval_seconds": 1.0}
     cell_a.write_text(json.dumps(rec))
@@ -303,7 +303,10 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     trainer = get_method("mcmc").build("tiny", **over["mcmc"])
     assert trainer.config.seed == 11 and trainer.strategy.seed == 11
     state = trainer.strategy.initialize_state(1.0, 0.005)
-    assert state["generator"] is not None and state["generator"].initial_seed() == 11
+    # made at first use, on the model's device (a CPU generator cannot sample CUDA tensors)
+    gen = trainer.strategy.generator(state, torch.device("cpu"))
+    assert gen is not None and gen.initial_seed() == 11 and gen.device.type == "cpu"
+    assert trainer.strategy.generator(state, torch.device("cpu")) is gen  # one stream for the whole run
     # Without a seed MCMC samples from torch's global RNG (seeded by the trainer's default 0), as documented.
     plain = get_method("mcmc").build("tiny")
     assert plain.config.seed == 0 and plain.strategy.seed is None

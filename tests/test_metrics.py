@@ -90,7 +90,7 @@ def test_shape_mismatch_is_clear():
 def test_lpips_nan_without_weights(monkeypatch, tmp_path):
     import strings_bench.eval.lpips_net as lpips_net
 
-    monkeypatch.setattr(lpips_net, "_shared", None)
+    monkeypatch.setattr(lpips_net, "_shared", {})
     monkeypatch.setenv("STRINGS_BENCH_LPIPS_VGG", str(tmp_path / "missing.ckpt"))
     monkeypatch.setenv("STRINGS_BENCH_LPIPS_LIN", str(tmp_path / "missing.pth"))
     assert not lpips_net.available()

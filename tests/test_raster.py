@@ -503,15 +503,53 @@ def test_compiled_kernels_are_cached_under_the_suite_cache(tmp_path):
 @pytest.mark.gpu
 def test_gsplat_backend_agrees_with_cpu():
     if not torch.cuda.is_available():
-        pytest.skip("needs CUDA")
+        pytest.skip("no CUDA")
     pytest.importorskip("gsplat")
     params = random_scene(n=50, seed=17, scale=(0.01, 0.05))
     cam = make_camera(W=64, H=48)
     cpu = rasterize(*params[:5], cam, params[5], backend="cpu")
-    gpu = rasterize(*[p.cuda() for p in params[:5]], cam, params[5].cuda(), backend="gsplat", compute_absgrad=True)
+    # leaves that require grad: gsplat's means2d (and so ours) only requires grad when its inputs do
+    leaves = [p.detach().cuda().requires_grad_() for p in params[:5]]
+    gpu = rasterize(*leaves, cam, params[5].cuda(), backend="gsplat", compute_absgrad=True)
     # tile-level vs box-level support and alpha clamp differ slightly between the two
-    assert rel(gpu.color.cpu(), cpu.color) < 1e-2
-    gpu.means2d.retain_grad()
+    assert rel(gpu.color.detach().cpu(), cpu.color.detach()) < 1e-2
+    assert gpu.means2d.requires_grad
+    gpu.means2d.retain_grad()  # harmless on our leaf (its .grad is filled by the backend's hook)
     gpu.color.sum().backward()
     assert gpu.means2d.grad is not None and gpu.means2d.grad.shape == (50, 2)
     assert gpu.absgrad is not None and gpu.absgrad.abs().sum() > 0
+
+
+def test_gsplat_means2d_hook_frees_each_steps_graph():
+    """200 steps through the gsplat backend's hook wiring (expose_means2d) with a stand-in for gsplat's
+    (1, N, 2) output: a step's tensors must be freed when the step ends, by reference counting alone
+    (the collector is off). The closure that held gsplat's tensor made a cycle that kept every
+    step's graph alive (70 GiB at 3K steps of 1280x960 on an H100)."""
+    import gc
+    import weakref
+
+    from strings_bench.raster.gsplat_backend import expose_means2d
+
+    n = 64
+    leaf = torch.randn(n, 2, dtype=torch.float64, requires_grad=True)
+    previous: list[weakref.ref] = []
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        for step in range(200):
+            m2d_gs = (leaf * (1.0 + step))[None]  # non-leaf, part of a graph, as gsplat's meta["means2d"]
+            m2d_gs.absgrad = torch.full((1, n, 2), float(step), dtype=torch.float64)  # gsplat sets it in backward
+            means2d, absgrad = expose_means2d(m2d_gs, compute_absgrad=True)
+            loss = (m2d_gs ** 2).sum()
+            loss.backward()
+            # the hook delivered the gradient and the absolute gradient (d/dm of m^2 = 2m)
+            assert torch.allclose(means2d.grad, 2 * m2d_gs.detach()[0])
+            assert torch.equal(absgrad, torch.full((n, 2), float(step), dtype=torch.float64))
+            leaf.grad = None
+            assert all(r() is None for r in previous), f"step {step - 1}'s tensors are still alive at step {step}"
+            previous = [weakref.ref(m2d_gs), weakref.ref(means2d), weakref.ref(loss)]
+            del m2d_gs, means2d, absgrad, loss
+    finally:
+        if was_enabled:
+            gc.enable()
+    assert all(r() is None for r in previous)

@@ -70,7 +70,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     assert float(by[("fake-b", 15)]["cer_known"]) == pytest.approx(0.2)
     assert int(by[("fake-b", 15)]["gaussians"]) == 1000
     # Cell contents: config, OCR words for GT and render, renders on disk.
-    cell = runner.CellKey("fake-b", "toyset", "toy", 15).path(out)
+    cell = runner.CellKey("fake-b", "toy", "toy", 15).path(out)
     rec = json.loads((cell / "result.json").read_text())
     assert rec["config"]["preset"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
     v = rec["ocr"]["views"]["view_00.png"]
@@ -78,7 +78,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     assert v["mask"] == "dilated text mask"
     assert rec["ocr"]["backend"]["name"] == "fake"
     assert sorted(p.name for p in (cell / "renders").iterdir()) == ["view_00.png", "view_08.png"]
-    assert (out / "gt" / "toyset" / "toy" / "view_00.png").exists()
+    assert (out / "gt" / "toy" / "toy" / "view_00.png").exists()
     # PSNR in the cell equals an independent computation from the saved render and GT images.
     from PIL import Image
 
@@ -99,8 +99,8 @@ def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):
         _run(out, scene_dir)
     rows = _rows(out)
     assert {(r["method"], r["iteration"]) for r in rows} == {("fake-a", "15"), ("fake-a", "35"), ("fake-a", "150"), ("fake-b", "15")}
-    first_b = runner.CellKey("fake-b", "toyset", "toy", 15).path(out) / "result.json"
-    a_cells = [runner.CellKey("fake-a", "toyset", "toy", i).path(out) / "result.json" for i in (15, 35, 150)]
+    first_b = runner.CellKey("fake-b", "toy", "toy", 15).path(out) / "result.json"
+    a_cells = [runner.CellKey("fake-a", "toy", "toy", i).path(out) / "result.json" for i in (15, 35, 150)]
     mtimes = {p: p.stat().st_mtime_ns for p in [first_b, *a_cells]}
     content_b = first_b.read_text()
 
@@ -204,7 +204,7 @@ def test_scene_without_masks_uses_whole_image(tmp_path):
     (scene / "text_annotations.json").unlink()
     out = tmp_path / "run"
     _run(out, scene, methods=["fake-a"], write_report=False)
-    rec = json.loads((runner.CellKey("fake-a", "set2", "nomask", 150).path(out) / "result.json").read_text())
+    rec = json.loads((runner.CellKey("fake-a", "nomask", "nomask", 150).path(out) / "result.json").read_text())
     assert rec["ocr"]["views"]["view_00.png"]["mask"] == "whole image"
     assert rec["cer_known"] is None
     assert _rows(out)[0]["cer_known"] == ""
@@ -486,7 +486,7 @@ def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
     _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
     assert json.loads((out_paper / "run.json").read_text())["cer_profile"] == "paper"  # the default
     assert json.loads((out_robust / "run.json").read_text())["cer_profile"] == "robust"
-    final = runner.CellKey("fake-a", "toyset", "toy", 150)
+    final = runner.CellKey("fake-a", "toy", "toy", 150)
     rec_p = json.loads((final.path(out_paper) / "result.json").read_text())
     rec_r = json.loads((final.path(out_robust) / "result.json").read_text())
     assert rec_p["config"]["cer_profile"] == "paper" and rec_p["cer"]["profile"]["polygons"] == "strict"

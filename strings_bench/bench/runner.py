@@ -244,6 +244,17 @@ def versions() -> dict:
     return out
 
 
+def device_info(device: str) -> dict:
+    """The device a job ran on, as recorded in result.json and run.json: {"device", "gpu"} (the GPU's
+    name from torch.cuda.get_device_name on CUDA, else None)."""
+    import torch
+
+    gpu = None
+    if str(device).startswith("cuda") and torch.cuda.is_available():
+        gpu = torch.cuda.get_device_name(torch.device(device))
+    return {"device": str(device), "gpu": gpu}
+
+
 # ---- masks used for OCR ------------------------------------------------------------------------
 def eval_mask_settings(scene) -> dict | None:
     """Mask settings for OCR-CER: the scene's `eval_masks` setting, else its masks/ folder, else
@@ -274,8 +285,9 @@ class Evaluator:
     """Computes everything about one checkpoint of one scene. GT-side work is done once per scene."""
 
     def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True,
-                 cer_profile: str = "paper"):
+                 cer_profile: str = "paper", device: str = "cpu"):
         self.scene = scene
+        self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
         self.ocr = ocr_backend
         self.downscale = downscale
@@ -340,7 +352,7 @@ class Evaluator:
         import strings_bench.eval.metrics as metrics
 
         if name not in self._lpips_ref:
-            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name))
+            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name), device=self.device)
         return self._lpips_ref[name]
 
     def evaluate(self, method: str, renders: dict, with_lpips: bool | None = None) -> dict:
@@ -358,7 +370,8 @@ class Evaluator:
             gt = self.gt(name)
             r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
             per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
-                                                   gt_reference=self.lpips_ref(name) if with_lpips else None)
+                                                   gt_reference=self.lpips_ref(name) if with_lpips else None,
+                                                   device=self.device)
             gt_words = self.gt_words(name)
             render_words, render_err = self._read(r, self.mask(name))
             pairs[name] = (gt_words, render_words)
@@ -439,8 +452,11 @@ class Runner:
         adapter = _build_method(job)
         adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
         ocr = _get_ocr(self.ocr)
+        from strings_bench.engine.trainer import resolve_device
+
+        device = resolve_device(job.device)  # checked here, where the job runs
         evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips,
-                              cer_profile=job.cer_profile)
+                              cer_profile=job.cer_profile, device=device)
         wanted = set(job.checkpoints)
         written: list[CellKey] = []
         seen: set[int] = set()
@@ -512,6 +528,7 @@ class Runner:
             },
             "resumed_from_step": int(getattr(result, "resumed_from_step", 0)),
             "device": result.extra.get("device", ""),  # as resolved by the training loop ("" for adapters)
+            "gpu": device_info(result.extra["device"])["gpu"] if result.extra.get("device") else None,
             "timings": {"train_seconds": result.train_seconds,
                         "preprocess_seconds": _preprocess_seconds(result),
                         "total_seconds": result.train_seconds + _preprocess_seconds(result),
@@ -622,6 +639,7 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
         "method_overrides": {m: _jsonable(given[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
         "datasets": datasets,
+        "device": device,  # as asked; execute() adds where it resolved to on this machine
     }
     return RunPlan(run_dir, jobs, manifest)
 
@@ -695,7 +713,13 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(run_dir / RUN_FILE, _jsonable({**check_manifest(run_dir, plan.manifest), "versions": versions()}))
+    from strings_bench.engine.trainer import resolve_device
+
+    # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
+    # workers resolve their own and record it in each result.json.
+    resolved = device_info(resolve_device(plan.manifest.get("device", "auto")))
+    atomic_write_json(run_dir / RUN_FILE, _jsonable({**check_manifest(run_dir, plan.manifest), "versions": versions(),
+                                                     "resolved_device": resolved}))
     cells = plan.cells
     done = sum(is_finished(run_dir, k) for k in cells)
     bar = None
@@ -749,6 +773,10 @@ def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_R
     `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
     training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
     `keep_models` writes each cell's model.ply."""
+    if executor == "local":  # jobs run here: a missing GPU is refused before any scene is built
+        from strings_bench.engine.trainer import resolve_device
+
+        resolve_device(device)
     plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
                     steps_scale=steps_scale, checkpoints=checkpoints, device=device, save_every=save_every,
                     keep_models=keep_models)

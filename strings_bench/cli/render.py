@@ -28,25 +28,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="background colour in [0, 1] (default black, as 3DGS)")
     p.add_argument("--sh-degree", type=int, default=None, help="SH degree to render with (default: the file's)")
     p.add_argument("--backend", default="auto", help="rasterizer backend (default auto)")
+    p.add_argument("--device", default="auto",
+                   help="where to render: auto (CUDA when torch sees a GPU, else cpu; default), cpu, cuda, cuda:N")
     p.set_defaults(func=run)
     return p
 
 
 def render_ply(ply: Path, scene_dir: Path, out: Path, split: str = "test", downscale: float = 1,
                background=(0.0, 0.0, 0.0), sh_degree: int | None = None, backend: str = "auto",
-               progress: bool = True) -> list[Path]:
+               progress: bool = True, device: str = "auto") -> list[Path]:
+    """Render the PLY `ply` at the `split` views of `scene_dir` into `out` (PNGs named after the images),
+    on `device` (auto, cpu, cuda, cuda:N); returns the written paths."""
     import numpy as np
     import torch
     from PIL import Image
     from tqdm.auto import tqdm
 
     from strings_bench.core.io import atomic_write_bytes
+    from strings_bench.engine.trainer import resolve_device
     from strings_bench.scene.ply import read_ply
     from strings_bench.scene.scene import Scene
 
     if downscale <= 0:
         raise StringsBenchError(f"--downscale must be > 0, got {downscale}")
-    model = read_ply(ply)
+    device = resolve_device(device)  # before any file is read: a missing GPU is a clear error
+    model = read_ply(ply, device=device)
     scene = Scene.load(scene_dir)
     views = {"test": scene.test_idx, "train": scene.train_idx, "all": list(range(scene.num_views))}[split]
     written = []
@@ -65,6 +71,6 @@ def render_ply(ply: Path, scene_dir: Path, out: Path, split: str = "test", downs
 def run(args: argparse.Namespace) -> int:
     """`strings-bench render`: write the PNGs and say how many."""
     written = render_ply(args.ply, args.scene, args.out, args.split, args.downscale, tuple(args.background),
-                         args.sh_degree, args.backend)
+                         args.sh_degree, args.backend, device=args.device)
     print(f"wrote {len(written)} image(s) to {args.out}")
     return 0

@@ -88,7 +88,9 @@ def resolve_scenes(specs: list[str]) -> list[SceneRef]:
         if path.is_dir():
             # A scene folder, or a folder of scene folders.
             if (path / "sparse").exists() or (path / "images").exists():
-                refs.append(SceneRef(dataset=path.parent.name or "local", scene=path.name, path=path.resolve()))
+                # Labelled by the scene folder itself: its parent is often a generic folder ("scenes", "data").
+                here = path.resolve()
+                refs.append(SceneRef(dataset=here.name or "local", scene=here.name, path=here))
             else:
                 subs = sorted(p for p in path.iterdir() if (p / "sparse").exists())
                 if not subs:

@@ -44,7 +44,8 @@ def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
 
 
 def logit(p: float | torch.Tensor) -> torch.Tensor:
-    p = torch.as_tensor(p, dtype=torch.float32)
+    # a Python number becomes a CPU tensor (never the default device: see docs/gpu.md)
+    p = torch.as_tensor(p, dtype=torch.float32, device=p.device if torch.is_tensor(p) else "cpu")
     return torch.log(p / (1 - p))
 
 

@@ -37,7 +37,7 @@ def l1_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 @lru_cache(maxsize=8)
 def _gaussian_1d(size: int, sigma: float, dtype: torch.dtype, device: str) -> torch.Tensor:
-    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    x = torch.arange(size, dtype=torch.float64, device="cpu") - (size - 1) / 2  # built on the CPU, then moved
     g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
     return (g / g.sum()).to(dtype=dtype, device=device)
 

@@ -214,7 +214,7 @@ class LPIPSVGG:
         return float(out[0]) if np.asarray(img0).ndim == 3 else out
 
 
-_shared: LPIPSVGG | None = None
+_shared: dict[str, LPIPSVGG] = {}  # one network per device
 _shared_lock = threading.Lock()
 
 
@@ -223,10 +223,10 @@ def available() -> bool:
     return vgg is not None
 
 
-def get_lpips() -> LPIPSVGG:
-    """One shared network per process (weights load once). Raises LPIPSUnavailable without weights."""
-    global _shared
+def get_lpips(device: str = "cpu") -> LPIPSVGG:
+    """One shared network per process and device (weights load once). Raises LPIPSUnavailable without weights."""
+    key = str(torch.device(device))
     with _shared_lock:
-        if _shared is None:
-            _shared = LPIPSVGG()
-        return _shared
+        if key not in _shared:
+            _shared[key] = LPIPSVGG(device=key)
+        return _shared[key]

@@ -73,16 +73,17 @@ def ssim(img: np.ndarray, gt: np.ndarray, strip_rows: int = SSIM_STRIP_ROWS) -> 
     return total / a.size
 
 
-def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None) -> float:
+def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None, device: str = "cpu") -> float:
     """LPIPS-VGG, or NaN when the weights are not installed (logged once).
 
-    `gt_reference` (from `lpips_reference(gt)`) skips recomputing the ground truth's features.
+    `gt_reference` (from `lpips_reference(gt, device)`) skips recomputing the ground truth's features;
+    `device` is where the network runs (cpu, cuda, cuda:N).
     """
     import strings_bench.eval.lpips_net as lpips_net
 
     _check_pair(img, gt)
     try:
-        net = lpips_net.get_lpips()
+        net = lpips_net.get_lpips(device)
     except lpips_net.LPIPSUnavailable as exc:
         _warn_lpips_once(exc)
         return math.nan
@@ -91,12 +92,12 @@ def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None) -> float:
     return float(net(np.asarray(img, dtype=np.float32), np.asarray(gt, dtype=np.float32)))
 
 
-def lpips_reference(gt: np.ndarray):
-    """The ground truth's LPIPS features, reused for every render of that view; None if unavailable."""
+def lpips_reference(gt: np.ndarray, device: str = "cpu"):
+    """The ground truth's LPIPS features (on `device`), reused for every render of that view; None if unavailable."""
     import strings_bench.eval.lpips_net as lpips_net
 
     try:
-        return lpips_net.get_lpips().reference(np.asarray(gt, dtype=np.float32))
+        return lpips_net.get_lpips(device).reference(np.asarray(gt, dtype=np.float32))
     except lpips_net.LPIPSUnavailable as exc:
         _warn_lpips_once(exc)
         return None
@@ -118,10 +119,12 @@ def lpips_available() -> bool:
     return lpips_net.available()
 
 
-def image_metrics(img: np.ndarray, gt: np.ndarray, with_lpips: bool = True, gt_reference=None) -> dict[str, float]:
-    """{"psnr", "ssim", "lpips"} of one view; lpips is NaN when `with_lpips` is False or unavailable."""
+def image_metrics(img: np.ndarray, gt: np.ndarray, with_lpips: bool = True, gt_reference=None,
+                  device: str = "cpu") -> dict[str, float]:
+    """{"psnr", "ssim", "lpips"} of one view; lpips is NaN when `with_lpips` is False or unavailable,
+    and runs on `device`."""
     out = {"psnr": psnr(img, gt), "ssim": ssim(img, gt)}
-    out["lpips"] = lpips(img, gt, gt_reference) if with_lpips else math.nan
+    out["lpips"] = lpips(img, gt, gt_reference, device=device) if with_lpips else math.nan
     return out
 
 

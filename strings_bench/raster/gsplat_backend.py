@@ -29,6 +29,8 @@ and pixel units as on the CPU. absgrad likewise comes from gsplat's `means2d.abs
 
 from __future__ import annotations
 
+import weakref
+
 import torch
 
 
@@ -38,6 +40,33 @@ def gsplat_available() -> bool:
     except Exception:  # ImportError, or a CUDA extension that fails to load
         return False
     return torch.cuda.is_available()
+
+
+def expose_means2d(m2d_gs: torch.Tensor, compute_absgrad: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """gsplat's (1, N, 2) projected centres as an (N, 2) leaf whose .grad a hook on `m2d_gs` fills
+    during backward, and (with compute_absgrad) an (N, 2) buffer the hook fills from `m2d_gs.absgrad`.
+
+    The hook reaches `m2d_gs` through a weak reference: a closure holding `m2d_gs` itself, stored in
+    `m2d_gs`'s own hooks, is a reference cycle through autograd that Python's collector cannot see,
+    and it kept every step's graph (and its GPU memory) alive. tests/test_raster.py checks that a
+    step's tensors are freed when the step ends.
+    """
+    n, dt, dev = m2d_gs.shape[1], m2d_gs.dtype, m2d_gs.device
+    means2d = m2d_gs.detach()[0].clone().requires_grad_(m2d_gs.requires_grad)
+    absgrad = torch.zeros((n, 2), dtype=dt, device=dev) if compute_absgrad else None
+    if m2d_gs.requires_grad:
+        source = weakref.ref(m2d_gs)
+
+        def _hook(grad):
+            g = grad[0].detach()
+            means2d.grad = g.clone() if means2d.grad is None else means2d.grad + g
+            src = source()
+            if absgrad is not None and src is not None and getattr(src, "absgrad", None) is not None:
+                absgrad.copy_(src.absgrad[0])
+            return grad
+
+        m2d_gs.register_hook(_hook)
+    return means2d, absgrad
 
 
 def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background, mip_filter,
@@ -53,7 +82,6 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, b
         raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
                                hint="move the tensors to a CUDA device, or use backend='cpu'")
     dev, dt = means.device, means.dtype
-    n = means.shape[0]
     viewmat = torch.as_tensor(camera.viewmat, dtype=dt, device=dev)[None]
     Ks = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]
     # gsplat normalises quaternions without a guard: a zero quaternion becomes the identity here,
@@ -74,17 +102,6 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, b
     if radii.dim() == 2:  # gsplat >= 1.5 returns per-axis radii (N, 2)
         radii = radii.max(dim=-1).values
     radii = radii.to(torch.int32)
-    m2d_gs = meta["means2d"]  # (1, N, 2)
-    means2d = m2d_gs.detach()[0].clone().requires_grad_(m2d_gs.requires_grad)
-    absgrad = torch.zeros((n, 2), dtype=dt, device=dev) if compute_absgrad else None
-    if m2d_gs.requires_grad:
-        def _hook(grad):
-            g = grad[0].detach()
-            means2d.grad = g.clone() if means2d.grad is None else means2d.grad + g
-            if absgrad is not None and getattr(m2d_gs, "absgrad", None) is not None:
-                absgrad.copy_(m2d_gs.absgrad[0])
-            return grad
-
-        m2d_gs.register_hook(_hook)
+    means2d, absgrad = expose_means2d(meta["means2d"], compute_absgrad)
     return RasterOutput(color=color, alpha=alpha, depth=depth, radii=radii, means2d=means2d,
                         absgrad=absgrad, visible=radii > 0, backend="gsplat")

@@ -46,7 +46,7 @@ N_MAX = 51  # largest n in the eq. 9 update (as the public implementations); mor
 @lru_cache(maxsize=4)
 def _binomial_table(n_max: int) -> torch.Tensor:
     """(n_max, n_max) float64 table, entry [i, k] = C(i, k) (0 for k > i)."""
-    table = torch.zeros((n_max, n_max), dtype=torch.float64)
+    table = torch.zeros((n_max, n_max), dtype=torch.float64, device="cpu")  # cached on the host, moved per call
     for i in range(n_max):
         for k in range(i + 1):
             table[i, k] = math.comb(i, k)
@@ -134,11 +134,16 @@ class MCMCStrategy(Strategy):
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
         state = super().initialize_state(scene_extent, steps_scale)
-        gen = None
-        if self.seed is not None:
-            gen = torch.Generator().manual_seed(int(self.seed))
-        state.update(cap=self.cap_max, generator=gen, n_relocated=0, n_added=0)
+        # The seeded generator is made at first use, on the model's device (a CPU generator cannot
+        # drive torch.multinomial / torch.randn on CUDA tensors).
+        state.update(cap=self.cap_max, generator=None, n_relocated=0, n_added=0)
         return state
+
+    def generator(self, state: dict, device: torch.device) -> torch.Generator | None:
+        """The sampling generator (seeded, on `device`), or None for torch's global RNG."""
+        if self.seed is not None and state.get("generator") is None:
+            state["generator"] = torch.Generator(device=device).manual_seed(int(self.seed))
+        return state.get("generator")
 
     def loss_terms(self, model: GaussianModel, info: dict, step: int):
         terms = 0.0
@@ -158,7 +163,8 @@ class MCMCStrategy(Strategy):
             state["n_added"] += self.grow(model, optimizer, state)
         lr = optimizer.lrs.get("means", 0.0)
         if lr and self.noise_lr:
-            noise = position_noise(model, lr, self.noise_lr, self.noise_k, self.noise_x0, state.get("generator"))
+            noise = position_noise(model, lr, self.noise_lr, self.noise_k, self.noise_x0,
+                                   self.generator(state, model.device))
             model.params["means"].data.add_(noise)
 
     # ---- pieces -------------------------------------------------------------------------------
@@ -178,7 +184,7 @@ class MCMCStrategy(Strategy):
         alive = (~dead).nonzero().squeeze(1)
         if n_dead == 0 or alive.numel() == 0:
             return 0
-        sources = sample_by_opacity(opacity, alive, n_dead, state.get("generator"))
+        sources = sample_by_opacity(opacity, alive, n_dead, self.generator(state, model.device))
         uniq, new_logit, new_log_scale = self._apply_eq9(model, sources)
         ops.replace_rows(model, optimizer, uniq, {"opacity_logits": new_logit, "log_scales": new_log_scale})
         # every dead row becomes a copy of its (already updated) source
@@ -197,7 +203,7 @@ class MCMCStrategy(Strategy):
         if n_new == 0:
             return 0
         sources = sample_by_opacity(model.opacities, torch.arange(n, device=model.device), n_new,
-                                    state.get("generator"))
+                                    self.generator(state, model.device))
         uniq, new_logit, new_log_scale = self._apply_eq9(model, sources)
         ops.replace_rows(model, optimizer, uniq, {"opacity_logits": new_logit, "log_scales": new_log_scale})
         # appended rows copy their source (params, extras, state rows) and start with zero moments

@@ -167,7 +167,7 @@ def replace_rows(model: GaussianModel, optimizer: GaussianAdam | None, rows, val
 @torch.no_grad()
 def reset_opacity(model: GaussianModel, optimizer: GaussianAdam | None, value: float = 0.01) -> None:
     """3DGS opacity reset: opacity <- min(opacity, value); the opacity group's moments are zeroed."""
-    cap = torch.logit(torch.tensor(value, dtype=model.params["opacity_logits"].dtype)).item()
+    cap = torch.logit(torch.tensor(value, dtype=model.params["opacity_logits"].dtype, device="cpu")).item()  # a host scalar
     old = model.params["opacity_logits"]
     model.params["opacity_logits"] = torch.nn.Parameter(old.detach().clamp_max(cap), requires_grad=old.requires_grad)
     if optimizer is not None:
