@@ -372,3 +372,43 @@ def test_vanilla_3dgs_on_synthetic_books_reaches_25db():
     scores = [psnr(torch.from_numpy(result.renders[scene.names[i]]), torch.from_numpy(np.asarray(scene.load_image(i))))
               for i in scene.test_idx]
     assert np.mean(scores) >= 25.0, scores
+
+
+def test_setup_preloads_training_images_outside_the_timed_steps(tiny_scene):
+    # Decoding happens in setup (preprocess_seconds): after it every training view's target is cached,
+    # equal to the decoded file, and a step reads no image.
+    from PIL import Image
+
+    import strings_bench.scene.scene as scene_mod
+
+    method = GaussianSplatting(TrainConfig(sh_degree=0), Strategy())
+    method.setup(tiny_scene)
+    assert sorted(method._targets) == sorted(tiny_scene.train_idx)
+    i = tiny_scene.train_idx[1]
+    with Image.open(tiny_scene.image_path(i)) as im:
+        expected = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+    assert torch.equal(method.target(i), torch.from_numpy(expected))
+    calls = []
+    orig = scene_mod._load_rgb
+    scene_mod._load_rgb = lambda *a: calls.append(a) or orig(*a)
+    try:
+        for step in range(1, 4):
+            method.train_step(step)
+            method.refine(step)
+    finally:
+        scene_mod._load_rgb = orig
+    assert calls == []
+
+
+def test_corrupt_training_image_fails_in_setup(tiny_scene, tmp_path):
+    import shutil
+
+    from strings_bench.core.errors import DatasetError
+    from strings_bench.scene.scene import Scene
+
+    root = tmp_path / "scene"
+    shutil.copytree(tiny_scene.root, root)
+    scene = Scene.load(root)
+    scene.image_path(scene.train_idx[-1]).write_bytes(b"not an image")
+    with pytest.raises(DatasetError, match="cannot read image"):
+        GaussianSplatting(TrainConfig(sh_degree=0), Strategy()).setup(scene)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -179,6 +180,7 @@ class GaussianSplatting(Method):
         self._view_stack: list[int] = []
         self._view_key: tuple | None = None
         self._targets: dict[int, torch.Tensor] = {}
+        self._cameras: dict = {}
         self._step_info: tuple | None = None
         self.step = 0
         self.last_loss = float("nan")
@@ -225,8 +227,9 @@ class GaussianSplatting(Method):
         self.extent = float(scene.extent)
         self.background = torch.tensor(self.config.background, dtype=torch.float32, device=self.device)
         self.rng = np.random.default_rng(self.config.seed)
-        self._view_stack, self._view_key, self._targets = [], None, {}
+        self._view_stack, self._view_key, self._targets, self._cameras = [], None, {}, {}
         self.step = 0
+        self.preload_targets(scene.train_idx)
         self.prepare(scene)
         self.set_model(self._given_model if self._given_model is not None else self.initial_model(scene))
 
@@ -292,13 +295,34 @@ class GaussianSplatting(Method):
         self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale)
 
     def target(self, view_idx: int) -> torch.Tensor:
+        """The ground-truth image of a view, (H, W, 3) float32 on the method's device (kept once loaded)."""
         if view_idx not in self._targets:
             img = self.scene.load_image(view_idx, self.downscale)
             self._targets[view_idx] = torch.from_numpy(np.array(img, dtype=np.float32)).to(self.device)
         return self._targets[view_idx]
 
+    def preload_targets(self, views) -> None:
+        """Decode the images of `views` into `target()`'s cache, a few at a time in threads (PIL
+        releases the GIL). `setup` preloads the training views, as the 3DGS reference loads its
+        images before training: decoding is data loading (preprocess_seconds), not an optimisation
+        step, and a quick schedule whose first epoch is its whole run would otherwise decode an
+        image in every timed step."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        todo = [int(v) for v in dict.fromkeys(views) if int(v) not in self._targets]
+        if not todo:
+            return
+        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1, len(todo)))) as pool:
+            images = list(pool.map(lambda v: self.scene.load_image(v, self.downscale), todo))
+        for v, img in zip(todo, images):
+            self._targets[v] = torch.from_numpy(np.array(img, dtype=np.float32)).to(self.device)
+
     def camera(self, view_idx: int):
-        return self.scene.camera(view_idx, self.downscale)
+        """The view's camera at the training downscale (built once: a downscaled camera is a new object)."""
+        cam = self._cameras.get(view_idx)
+        if cam is None:
+            cam = self._cameras[view_idx] = self.scene.camera(view_idx, self.downscale)
+        return cam
 
     def render_raster(self, view_idx: int, sh_degree: int | None = None, **kw):
         """The rasterizer's full output (colour, alpha, depth, radii, means2d) for a view."""
