@@ -5,20 +5,25 @@ implements the method protocol (`strings_bench.core.method.Method`); the framewo
 (`engine.trainer.Trainer`) drives it. Methods change behaviour by subclassing and overriding these
 hooks (docs/engine.md):
 
+    prepare(scene)                  -> None                          (preprocessing in setup; STRinGS: masks, Algorithm 1)
     initial_model(scene)            -> GaussianModel                 (default: 3DGS init from SfM points)
+    set_model(model)                -> None                          (start optimising a model: fresh Adam and strategy state)
+    make_optimizer(model)           -> GaussianAdam                  (default: 3DGS learning rates x extent)
     train_views()                   -> list of view indices          (default: scene.train_idx)
     views_for_step(step)            -> view index                    (default: shuffled per epoch, seeded)
     loss(out, gt, view_idx, step)   -> scalar tensor                 (default: 0.8 L1 + 0.2 (1 - SSIM))
     position_lr(step)               -> float                         (default: 3DGS exponential schedule)
     position_lr_scale(step)         -> None | float | (N,) tensor    (per-row factor on the position step)
-    sh_degree_for_step(step)        -> int                           (default: +1 every 1000 x steps_scale)
+    sh_degree_for_step(step)        -> int                           (default: +1 every 1000 x steps_scale, >= 50 steps)
     strategy_step(step)             -> int                           (step number the strategy sees)
     on_step_start(step)             -> None                          (e.g. switch phase: self.set_model(...))
+    render_raster(view, sh_degree)  -> RasterOutput                  (default: model.render; Mip: through its filter)
     checkpoint_extra(step)          -> dict                          (method stats for CheckpointResult.extra)
     extra_state() / load_extra_state(state)                          (a subclass's own resumable state)
 
 Every schedule inside (densification, opacity reset, SH degree, position-LR decay) is its nominal
-3DGS iteration number multiplied by `config.steps_scale`.
+3DGS iteration number multiplied by `config.steps_scale` (intervals keep at least 50 steps,
+opacity resets at least 200: `strategies.base.scaled_interval`).
 """
 
 from __future__ import annotations
@@ -147,10 +152,13 @@ class GaussianSplatting(Method):
         strategy: densification strategy (a `Strategy` dataclass); default `DefaultStrategy`.
         model: start from this model instead of `initial_model(scene)`.
 
-    Example::
+    Example (``scene`` is a `strings_bench.scene.scene.Scene`)::
+
+        from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
+        from strings_bench.engine.trainer import Trainer
 
         method = GaussianSplatting(TrainConfig(steps_scale=0.01))
-        for result in Trainer(method, scene, checkpoints=[70, 300]).train():
+        for result in Trainer(method, scene, checkpoints=[70, 300], device="auto").train():
             print(result.iteration, result.gaussians)
     """
 
@@ -212,13 +220,17 @@ class GaussianSplatting(Method):
 
     # ---- schedule helpers -------------------------------------------------------------------
     def at(self, nominal: float) -> int:
+        """The step actually run for nominal 3DGS iteration `nominal` (x steps_scale, at least 1)."""
         return scaled_step(nominal, self.config.steps_scale)
 
     def every(self, nominal: float) -> int:
+        """The interval actually used for a nominal 3DGS interval (x steps_scale, at least 50 steps)."""
         return scaled_interval(nominal, self.config.steps_scale)
 
     # ---- set-up --------------------------------------------------------------------------------
     def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:
+        """Prepare training on `scene` (see `Method.setup`): `prepare` (preprocessing), the training
+        images decoded once, the initial model, Adam and the strategy state, all on `device`."""
         self.scene = scene
         self.downscale = float(downscale)
         self.device = torch.device(device)
@@ -238,10 +250,12 @@ class GaussianSplatting(Method):
 
     # ---- hooks --------------------------------------------------------------------------------
     def initial_model(self, scene: "Scene") -> GaussianModel:
+        """The model training starts from: one Gaussian per SfM point (3DGS initialisation)."""
         return GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=self.config.sh_degree,
                                          init_opacity=self.config.init_opacity, device=self.device)
 
     def train_views(self) -> list[int]:
+        """The views training samples from (changing the list restarts the permutation)."""
         return list(self.scene.train_idx)
 
     def views_for_step(self, step: int) -> int:
@@ -258,23 +272,39 @@ class GaussianSplatting(Method):
         return self._view_stack.pop()
 
     def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
+        """The training loss of one step.
+
+        Args:
+            out: the rasterizer's output (`RasterOutput`; `out.color` is (H, W, 3) float32 in [0, 1]).
+            gt: the training image, (H, W, 3) float32 in [0, 1], on the method's device.
+            view_idx: the scene view rendered.
+            step: the 1-based step.
+        Returns:
+            a scalar tensor; default 3DGS' (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM).
+        """
         return gs_loss(out.color, gt, self.config.lambda_dssim)
 
     def position_lr(self, step: int) -> float:
+        """The position learning rate (world units) at `step`: 3DGS' log-linear decay x scene extent."""
         lrs = self.config.lrs
         return exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
                               self.at(self.config.position_lr_steps))
 
     def position_lr_scale(self, step: int):
+        """A factor on the position step at `step`: None (none), a float, or an (N,) tensor on the
+        model's device scaling each Gaussian's update (STRinGS: 0 in phase 1, eta_r per row in phase 2)."""
         return None
 
     def sh_degree_for_step(self, step: int) -> int:
+        """The SH degree used at `step`: +1 every `sh_increase_every` (scaled) up to `sh_degree`."""
         return min(self.config.sh_degree, step // self.every(self.config.sh_increase_every))
 
     def strategy_step(self, step: int) -> int:
+        """The step number the densification strategy sees (STRinGS restarts it in phase 2)."""
         return step
 
     def on_step_start(self, step: int) -> None:
+        """Called first in every step; a phase switch calls `self.set_model(new_model)` here."""
         pass
 
     def checkpoint_extra(self, step: int) -> dict:
@@ -283,6 +313,7 @@ class GaussianSplatting(Method):
 
     # ---- model / optimizer ---------------------------------------------------------------------
     def make_optimizer(self, model: GaussianModel) -> GaussianAdam:
+        """Adam over `model`'s parameters with the 3DGS learning rates (position LR x extent)."""
         return GaussianAdam(model.params, self.config.lrs.group_lrs(self.extent))
 
     def set_model(self, model: GaussianModel) -> None:
@@ -331,6 +362,10 @@ class GaussianSplatting(Method):
 
     # ---- the protocol ----------------------------------------------------------------------------
     def train_step(self, step: int) -> float:
+        """One optimisation step (see `Method.train_step`): render the step's view, loss plus the
+        strategy's loss terms, backward, finite checks, Adam with the position LR and its row scale.
+        Returns the loss; raises `TrainingError` naming the iteration and parameter groups on a
+        non-finite loss, gradient or parameter."""
         self.step = step
         self.on_step_start(step)
         model, opt, strategy = self.model, self.optimizer, self.strategy
@@ -375,6 +410,7 @@ class GaussianSplatting(Method):
         return value
 
     def refine(self, step: int) -> None:
+        """The strategy's post-backward work for `step` (densify, prune, reset), then zero the gradients."""
         if self._step_info is None or self._step_info[0] != step:
             return
         _, sstep, info = self._step_info
@@ -384,19 +420,25 @@ class GaussianSplatting(Method):
 
     @torch.no_grad()
     def render(self, view_idx: int) -> np.ndarray:
+        """The current model's (H, W, 3) float32 render of a view, in [0, 1], at the step's SH degree."""
         out = self.render_raster(view_idx, sh_degree=self.sh_degree_for_step(self.step))
         return out.color.detach().clamp(0, 1).cpu().numpy().astype(np.float32)
 
     def num_gaussians(self) -> int:
+        """Gaussians in the current model."""
         return len(self.model) if self.model is not None else 0
 
     def save_model(self, path) -> None:
+        """Write the model as a 3DGS PLY (atomic)."""
         from strings_bench.scene.ply import write_ply
 
         write_ply(path, self.model)
 
     # ---- resumable state -------------------------------------------------------------------------
     def state_dict(self) -> dict:
+        """Everything needed to continue bit for bit: step, model, Adam moments, strategy statistics
+        (tensors on the CPU, generators as their state), the view-order generator and stack, the last
+        loss, and `extra_state()`."""
         return {
             "step": self.step,
             "model": self.model.state_dict(),
@@ -410,6 +452,7 @@ class GaussianSplatting(Method):
         }
 
     def load_state_dict(self, state: dict) -> None:
+        """Restore `state_dict()` after `setup()` (on this method's device)."""
         model = GaussianModel.from_state_dict(state["model"], device=self.device)
         self.model = model
         self.optimizer = self.make_optimizer(model)

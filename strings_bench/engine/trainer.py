@@ -1,8 +1,8 @@
 """The framework's training loop: it owns the steps, the device, the timing, checkpoint evaluation
 and the resumable training state; the method (`strings_bench.core.method.Method`) owns the rest.
 
-    trainer = Trainer(method, scene, checkpoints=[70, 300], device="cpu",
-                      state_path=run_dir / "state.pt", save_every=SaveEvery(minutes=10))
+    trainer = Trainer(method, scene, checkpoints=[70, 300], device="auto",
+                      state_path=run_dir / "training_state.pt", save_every=SaveEvery(minutes=10))
     for result in trainer.train():      # one CheckpointResult per checkpoint, in order
         ...
 
@@ -146,7 +146,8 @@ class Trainer:
         scene: the scene; test views (`scene.test_idx`) are rendered at each checkpoint.
         checkpoints: steps actually run (already x steps_scale), e.g. [70, 300].
         downscale: image downscale factor for training and test renders.
-        device: "auto", "cpu", "cuda" or "cuda:N" (see `resolve_device`).
+        device: "auto" (default: CUDA when torch sees a GPU, else the CPU), "cpu", "cuda" or "cuda:N"
+            (see `resolve_device`).
         seed: seeds the global generators (torch, numpy, random) and the method; default the
             method's own seed setting.
         progress: show a progress bar.
@@ -159,7 +160,7 @@ class Trainer:
     """
 
     def __init__(self, method: "Method", scene: "Scene", checkpoints: Iterable[int], *, downscale: float = 1.0,
-                 device: str | None = "cpu", seed: int | None = None, progress: bool = True,
+                 device: str | None = "auto", seed: int | None = None, progress: bool = True,
                  state_path: str | Path | None = None, save_every: SaveEvery | None = None,
                  model_path: Callable[[int], Path] | None = None, render_test: bool = True, fingerprint: dict | None = None):
         steps = sorted({int(c) for c in checkpoints})
@@ -193,6 +194,8 @@ class Trainer:
 
     # ---- state -------------------------------------------------------------------------------------
     def save_state(self, step: int, train_seconds: float, preprocess_seconds: float) -> None:
+        """Write the resumable state after `step` atomically to `state_path` (torch.save of the method's
+        state_dict, the global generators, the clocks and the fingerprint)."""
         from strings_bench.core.io import atomic_write
 
         state = {"fingerprint": self._fingerprint(), "step": step, "train_seconds": train_seconds,
@@ -201,6 +204,8 @@ class Trainer:
         atomic_write(self.state_path, lambda tmp: torch.save(state, tmp))
 
     def load_state(self) -> dict | None:
+        """The saved state to continue from, or None; a state of other settings or an unreadable file is
+        a `StringsBenchError` naming the file."""
         if self.state_path is None or not self.state_path.is_file():
             return None
         try:
@@ -217,6 +222,8 @@ class Trainer:
 
     # ---- the loop ------------------------------------------------------------------------------------
     def train(self) -> Iterator[CheckpointResult]:
+        """Set the method up (or restore it from the saved state) and train to the last checkpoint,
+        yielding one `CheckpointResult` per checkpoint not yet passed, in order."""
         from tqdm.auto import tqdm
 
         seed = self.seed if self.seed is not None else getattr(getattr(self.method, "config", None), "seed", 0)
@@ -265,6 +272,7 @@ class Trainer:
 
     @torch.no_grad()
     def checkpoint(self, step: int, train_seconds: float, preprocess_seconds: float) -> CheckpointResult:
+        """Evaluate the model after `step`: test-view renders, stats, peak memory, and the PLY if asked."""
         renders = {}
         if self.render_test:
             renders = {self.scene.names[i]: self.method.render(i) for i in self.scene.test_idx}
