@@ -382,6 +382,9 @@ class SceneReadability:
         Returns {"render": summary, "gt": summary, "by_source": {source: {"render", "gt"}},
         "left_out": counts, "views": {name: [per-word records]}, "settings": describe()}.
         """
+        import time
+
+        t0 = time.perf_counter()
         per_view: dict[str, list[dict]] = {}
         pooled: dict[tuple[str, str], list[Reading]] = {}
         left_total = {"known_illegible": 0, "unusable_box": 0, "empty_text": 0, "gt_ocr_failed_views": 0}
@@ -411,4 +414,5 @@ class SceneReadability:
             "left_out": left_total,
             "views": per_view,
             "settings": self.describe(),
+            "seconds": time.perf_counter() - t0,  # wall time of this call (GT crops included when first seen)
         }
