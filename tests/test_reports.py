@@ -180,3 +180,13 @@ def test_readability_tables_and_metric_figures(tmp_path):
 
     with pytest.raises(StringsBenchError, match="unknown metric"):
         figures.write_figures(df, tmp_path, tmp_path / "h", metrics=["nope"])
+    # The CLI: strings-bench report RUN --metric text_nll
+    from strings_bench.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    df.to_csv(run / "results.csv", index=False)
+    assert main(["report", str(run), "--metric", "text_nll"]) == 0
+    report = (run / "report" / "report.md").read_text()
+    assert "text_nll_over_iterations.png" in report and "cer_over_iterations.png" not in report
+    assert "## word cer" in report and "GT view (ceiling)" in report
