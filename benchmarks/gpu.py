@@ -93,7 +93,7 @@ def main(argv=None) -> int:
                     rows.append(r)
                     print(f"  {r['method']:20s} {r['size']:>9s} {r['device']:7s} {r['steps_per_s']:8.2f} steps/s "
                           f"peak {r['peak_mb']:8.0f} MB  eval {r['eval_s']:6.1f} s", file=sys.stderr, flush=True)
-    print(f"\n| method | size | device | steps | steps/s | peak MB | Gaussians | eval s | eval share | x CPU |")
+    print("\n| method | size | device | steps | steps/s | peak MB | Gaussians | eval s | eval share | x CPU |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     cpu_rate = {(r["method"], r["size"]): r["steps_per_s"] for r in rows if r["device"] == "cpu"}
     for r in rows:

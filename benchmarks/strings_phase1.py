@@ -77,6 +77,7 @@ def main(argv=None) -> int:
 
     from strings_bench.datasets.synthetic import SyntheticSettings, build_scene
     from strings_bench.datasets.synthetic.generate import make_spec
+    from strings_bench.engine.trainer import Trainer, seed_everything
     from strings_bench.methods.registry import get_method
     from strings_bench.scene.scene import Scene
 
@@ -88,9 +89,11 @@ def main(argv=None) -> int:
     t1 = round(3000 * args.scale)
 
     # ---- geometry ------------------------------------------------------------------------------
-    probe = get_method("strings").build(steps_scale=args.scale, progress=False).build_trainer(scene, [t1], args.downscale)
-    probe.seed_everything()
-    dense = probe.initial_model(scene)
+    probe = get_method("strings").build(steps_scale=args.scale)
+    probe.progress = False
+    seed_everything(probe.config.seed)
+    probe.setup(scene, downscale=args.downscale, device="cpu")  # masks, Algorithm 1, Eq. 1
+    dense = probe.model
     is_text = probe.segmentation.is_text
     first_view = sfm.track_view[sfm.track_ptr[:-1]]
     children = dense.params["means"].detach().cpu().numpy().astype(np.float64)
@@ -114,14 +117,10 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|")
     for run in args.runs.split(","):
         method = "strings" if run == "oracle" else run
-        adapter = get_method(method).build(steps_scale=args.scale, progress=False)
-        if hasattr(adapter, "build_trainer"):
-            trainer = adapter.build_trainer(scene, [t1], args.downscale)
-            if run == "oracle":
-                trainer.initial_model = _snapped(trainer, world)
-        else:
-            trainer = adapter.make_trainer(scene, [t1], args.downscale)
-        for r in trainer.train([t1]):
+        trainer = get_method(method).build(steps_scale=args.scale)
+        if run == "oracle":
+            trainer.initial_model = _snapped(trainer, world)
+        for r in Trainer(trainer, scene, [t1], downscale=args.downscale, device="cpu", progress=False).train():
             scales = trainer.model.scales.detach().cpu().numpy()
             elongated = float(np.mean(scales.max(1) > 10 * scales.min(1)))
             print(f"| {run} | {text_psnr(scene, r.renders, args.downscale):.2f} | {r.gaussians} | {elongated:.1%} | "

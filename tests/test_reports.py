@@ -150,3 +150,43 @@ def test_paper_figures_next_to_measured_only_where_published(tmp_path):
     assert not any(c.startswith("Synthetic") for c in csv.columns)
     only_synthetic = tables.write_tables(_frame({"3dgs": 0.5}, {"3dgs": 0.2}), tmp_path / "syn")
     assert "paper_comparison" not in only_synthetic
+
+
+def test_readability_tables_and_metric_figures(tmp_path):
+    df = _frame({"3dgs": 0.9, "strings": 0.8}, {"3dgs": 0.7, "strings": 0.6})
+    df["word_cer"] = df["cer"] / 2
+    df["word_cer_gt"] = 0.05
+    df["text_nll"] = df["cer"] * 3
+    df["text_nll_gt"] = 0.2
+    for c, v in (("word_acc", 0.5), ("text_psnr", 20.0), ("text_ssim", 0.8), ("text_lpips", math.nan)):
+        df[c] = v
+    written = tables.write_tables(df, tmp_path / "t")
+    assert {"word_cer", "text_nll", "text_region"} <= set(written)
+    md = written["word_cer"]["md"].read_text()
+    ceiling = next(l for l in md.splitlines() if l.startswith("| GT view (ceiling)"))
+    assert ceiling.count("0.050") == 2 and "(1)" not in ceiling  # the ceiling row is never ranked
+    assert "0.400 **(1)**" in md  # strings' 7K word CER: the best method
+    assert "0.2" in written["text_nll"]["csv"].read_text()
+    region = written["text_region"]["md"].read_text()
+    assert "20.00" in region and "n/a" in region
+    from strings_bench.bench.reports import figures
+
+    out = figures.write_figures(df, tmp_path, tmp_path / "f", metrics=["text_nll"])
+    assert {"text_nll_vs_time_7K", "text_nll_vs_time_30K", "text_nll_over_iterations"} <= set(out)
+    assert not any(k.startswith("cer_") for k in out)
+    default = figures.write_figures(df, tmp_path, tmp_path / "g")
+    assert {"cer_vs_time_7K", "word_cer_over_iterations", "text_nll_over_iterations"} <= set(default)
+    from strings_bench.core.errors import StringsBenchError
+
+    with pytest.raises(StringsBenchError, match="unknown metric"):
+        figures.write_figures(df, tmp_path, tmp_path / "h", metrics=["nope"])
+    # The CLI: strings-bench report RUN --metric text_nll
+    from strings_bench.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    df.to_csv(run / "results.csv", index=False)
+    assert main(["report", str(run), "--metric", "text_nll"]) == 0
+    report = (run / "report" / "report.md").read_text()
+    assert "text_nll_over_iterations.png" in report and "cer_over_iterations.png" not in report
+    assert "## word cer" in report and "GT view (ceiling)" in report

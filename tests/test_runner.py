@@ -89,6 +89,20 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     mse = np.mean((r - g) ** 2)
     assert rec["metrics"]["per_view"]["view_08.png"]["psnr"] == pytest.approx(-10 * math.log10(mse), abs=0.05)
     assert (out / "report" / "report.md").exists()
+    # Word-crop readability and text-region metrics (issue 14): fake-a's last render is the GT view, so
+    # the render scores exactly its ceiling; the known word "hello" (18 px high) is the one headline word.
+    from strings_bench.bench.results import READABILITY_COLUMNS
+
+    assert set(READABILITY_COLUMNS) <= set(rows[0])
+    assert final["word_cer"] == final["word_cer_gt"] != "" and final["text_nll"] == final["text_nll_gt"] != ""
+    assert int(final["read_words"]) == 2 and int(final["read_oov_chars"]) == 0
+    assert final["text_psnr"] == "inf" or float(final["text_psnr"]) > 50
+    assert float(final["text_ssim"]) == pytest.approx(1.0, abs=1e-6)
+    faded = by[("fake-b", 15)]
+    assert float(faded["text_psnr"]) < float(faded["psnr"])  # the fade is inside the text box
+    view = rec["readability"]["views"]["view_00.png"]
+    assert [(w["text"], w["source"], w["headline"]) for w in view] == [("hello", "known", True), ("hello", "gt_ocr", False)]
+    assert set(rec["metrics"]["per_view"]["view_00.png"]) >= {"text_psnr", "text_ssim", "text_lpips"}
 
 
 def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):

@@ -19,12 +19,18 @@ from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
 
 __all__ = [
-    "CSV_COLUMNS", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
+    "CSV_COLUMNS", "READABILITY_COLUMNS", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
     "iteration_label", "read_cell", "safe_name", "timing_columns", "write_results_csv",
 ]
 
+# Word-crop readability (eval.readability) of the render, its GT-view ceiling (_gt), and the text-region image
+# metrics (eval.metrics.text_region_metrics); read_words / read_oov_chars count the reference words and the
+# reference characters outside the recogniser's dictionary.
+READABILITY_COLUMNS = ["word_cer", "word_acc", "text_nll", "text_psnr", "text_ssim", "text_lpips", "word_cer_gt",
+                       "text_nll_gt", "read_words", "read_oov_chars"]
 CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
+    *READABILITY_COLUMNS,
     "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
 ]
@@ -70,6 +76,22 @@ def timing_columns(rec: dict) -> dict:
             "total_seconds": "" if total is None else total}
 
 
+def readability_columns(rec: dict) -> dict:
+    """The READABILITY_COLUMNS of a cell ("" where the cell has none, e.g. written before they existed)."""
+    m = rec.get("metrics") or {}
+    rd = rec.get("readability") or {}
+    render, gt = rd.get("render") or {}, rd.get("gt") or {}
+
+    def num(x):
+        return "" if x is None else x
+
+    return {"word_cer": num(render.get("word_cer")), "word_acc": num(render.get("word_acc")),
+            "text_nll": num(render.get("text_nll")), "text_psnr": num(m.get("text_psnr")),
+            "text_ssim": num(m.get("text_ssim")), "text_lpips": num(m.get("text_lpips")),
+            "word_cer_gt": num(gt.get("word_cer")), "text_nll_gt": num(gt.get("text_nll")),
+            "read_words": num(render.get("words")), "read_oov_chars": num(render.get("oov_chars"))}
+
+
 def cell_row(rec: dict) -> dict:
     """A cell's result.json as one results.csv row (keys: CSV_COLUMNS; missing values are "")."""
     c = rec.get("cer") or {}
@@ -85,6 +107,7 @@ def cell_row(rec: dict) -> dict:
         "cer": num(c.get("cer")), "cer_known": "" if not k else num(k.get("cer")),
         "psnr": num(rec["metrics"].get("psnr")), "ssim": num(rec["metrics"].get("ssim")),
         "lpips": num(rec["metrics"].get("lpips")),
+        **readability_columns(rec),
         **timing_columns(rec),
         "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
         "peak_memory_mb": num(rec.get("peak_memory_mb")),

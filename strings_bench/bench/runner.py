@@ -302,6 +302,7 @@ class Evaluator:
         self._gt_ocr: dict[str, list | None] = {}
         self._gt_ocr_error: dict[str, str] = {}
         self._lpips_ref: dict[str, object] = {}
+        self._readability = None  # eval.readability.SceneReadability: GT-side word crops, made once per scene
 
     def gt(self, name: str) -> np.ndarray:
         if name not in self._gt:
@@ -355,6 +356,18 @@ class Evaluator:
             self._lpips_ref[name] = metrics.lpips_reference(self.gt(name), device=self.device)
         return self._lpips_ref[name]
 
+    def readability(self, views: dict) -> dict | None:
+        """Word-crop readability of a cell (eval.readability); None, logged, when the recogniser cannot load."""
+        import strings_bench.eval.readability as readability
+
+        if self._readability is None:
+            try:
+                self._readability = readability.SceneReadability()
+            except OCRError as exc:
+                log.warning("word-crop readability is not computed: %s", exc)
+                self._readability = False
+        return self._readability.evaluate(views) if self._readability else None
+
     def evaluate(self, method: str, renders: dict, with_lpips: bool | None = None) -> dict:
         import strings_bench.eval.cer as cer
         import strings_bench.eval.metrics as metrics
@@ -366,12 +379,15 @@ class Evaluator:
         ocr_views: dict[str, dict] = {}
         pairs: dict[str, tuple] = {}
         known_pairs: dict[str, tuple] = {}
+        read_views: dict[str, tuple] = {}  # word-crop readability inputs: (render, gt, known words, GT OCR words)
         for i, name in zip(self.views, self.names):
             gt = self.gt(name)
             r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
             per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
                                                    gt_reference=self.lpips_ref(name) if with_lpips else None,
                                                    device=self.device)
+            per_view[name].update(metrics.text_region_metrics(r, gt, self.mask(name), with_lpips=with_lpips,
+                                                              device=self.device))
             gt_words = self.gt_words(name)
             render_words, render_err = self._read(r, self.mask(name))
             pairs[name] = (gt_words, render_words)
@@ -383,6 +399,7 @@ class Evaluator:
                 "render_error": render_err,
             }
             known = self.scene.known_words(i, self.downscale)
+            read_views[name] = (r, gt, known, gt_words)
             if known:
                 known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
                 ocr_views[name]["known_words"] = [{"text": k.text, "polygon": np.asarray(k.polygon).tolist()} for k in known]
@@ -391,12 +408,16 @@ class Evaluator:
         # `legibility` records the threshold and the excluded counts. The paper-protocol CER above is untouched.
         known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
 
+        readability = self.readability(read_views)
+
         def mean(key):
             vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
             return float(np.mean(vals)) if vals else math.nan
 
         return {
-            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": mean("lpips"), "per_view": per_view},
+            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": mean("lpips"),
+                        **{k: mean(k) for k in metrics.TEXT_METRICS}, "per_view": per_view},
+            "readability": readability,
             "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
             "cer": scene_cer.to_dict(),
             "cer_known": None if known_cer is None else known_cer.to_dict(),

@@ -10,6 +10,9 @@ from strings_bench.cli import command_help
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = subparsers.add_parser("report", help=command_help("report"))
     p.add_argument("run_dir", help="a folder made by `strings-bench run`")
+    p.add_argument("--metric", action="append", default=None, metavar="NAME",
+                   help="a results.csv metric to plot against training time and over iterations (repeatable; "
+                        "e.g. text_nll, word_cer, text_psnr, cer); default: cer, word_cer and text_nll")
     p.set_defaults(func=run)
     return p
 
@@ -18,6 +21,6 @@ def run(args: argparse.Namespace) -> int:
     """Write RUN_DIR/report/ from the run folder's cells and print where."""
     from strings_bench.bench.reports import write_report
 
-    path = write_report(args.run_dir)
+    path = write_report(args.run_dir, metrics=args.metric)
     print(f"report: {path}")
     return 0

@@ -128,6 +128,92 @@ def image_metrics(img: np.ndarray, gt: np.ndarray, with_lpips: bool = True, gt_r
     return out
 
 
+# ---- text-region metrics (inside the dilated text mask) -----------------------------------------------
+LPIPS_MIN_CROP = 32  # the bounding crop is grown to at least this side (VGG16 pools it 4 times)
+
+
+def _check_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
+    m = np.asarray(mask).astype(bool)
+    if m.shape != tuple(shape[:2]):
+        raise StringsBenchError(f"text mask is {m.shape}, the image is {shape[:2]}", hint="build the mask at the evaluated size")
+    return m
+
+
+def masked_psnr(img: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR in dB (data range 1) over the mask's pixels only (all 3 channels), float64; NaN for an empty mask."""
+    a, b = _check_pair(img, gt)
+    m = _check_mask(mask, a.shape)
+    if not m.any():
+        return math.nan
+    mse = float(((a[m] - b[m]) ** 2).mean())
+    return math.inf if mse == 0 else -10 * math.log10(mse)
+
+
+def masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, strip_rows: int = SSIM_STRIP_ROWS) -> float:
+    """Masked mean of the SSIM map: the whole image's map (same convention as `ssim`, zero padding,
+    float64) averaged over the mask's pixels and the 3 channels; NaN for an empty mask."""
+    a, b = _check_pair(img, gt)
+    m = _check_mask(mask, a.shape)
+    if not m.any():
+        return math.nan
+    h = a.shape[0]
+    half = SSIM_WINDOW // 2
+    x = F.pad(torch.from_numpy(a).permute(2, 0, 1)[None], (half, half, half, half))
+    y = F.pad(torch.from_numpy(b).permute(2, 0, 1)[None], (half, half, half, half))
+    mt = torch.from_numpy(m)
+    total = 0.0
+    with torch.no_grad():
+        for r0 in range(0, h, strip_rows):
+            r1 = min(h, r0 + strip_rows)
+            rows = mt[r0:r1]
+            if not bool(rows.any()):
+                continue
+            smap = losses.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")[0]
+            total += float(smap[:, rows].sum())
+    return total / (3 * int(m.sum()))
+
+
+def mask_bbox(mask: np.ndarray, min_side: int = 0) -> tuple[int, int, int, int] | None:
+    """(y0, y1, x0, x1) of the mask's bounding box (ends exclusive), each side grown to at least
+    `min_side` (within the image); None for an empty mask."""
+    m = np.asarray(mask, dtype=bool)
+    if not m.any():
+        return None
+    ys, xs = np.nonzero(m)
+    box = []
+    for lo, hi, size in ((int(ys.min()), int(ys.max()) + 1, m.shape[0]), (int(xs.min()), int(xs.max()) + 1, m.shape[1])):
+        want = min(size, max(hi - lo, min_side))
+        lo = min(max(0, (lo + hi - want) // 2), size - want)  # centred on the mask's box, inside the image
+        hi = lo + want
+        box += [lo, hi]
+    return box[0], box[1], box[2], box[3]
+
+
+def masked_lpips(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str = "cpu") -> float:
+    """LPIPS-VGG of the mask's bounding crop (grown to >= 32 px a side); NaN for an empty mask or
+    without the weights. Pixels of the crop outside the mask are kept (context, as the SSIM window)."""
+    _check_pair(img, gt)
+    box = mask_bbox(_check_mask(mask, np.shape(img)), LPIPS_MIN_CROP)
+    if box is None:
+        return math.nan
+    y0, y1, x0, x1 = box
+    return lpips(np.asarray(img)[y0:y1, x0:x1], np.asarray(gt)[y0:y1, x0:x1], device=device)
+
+
+TEXT_METRICS = ("text_psnr", "text_ssim", "text_lpips")
+
+
+def text_region_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_lpips: bool = True,
+                        device: str = "cpu") -> dict:
+    """{"text_psnr", "text_ssim", "text_lpips"} inside the (dilated) text mask; NaN without a mask
+    (or an empty one), and text_lpips NaN when `with_lpips` is False or the weights are absent.
+    LPIPS runs on `device`."""
+    if mask is None:
+        return {k: math.nan for k in TEXT_METRICS}
+    return {"text_psnr": masked_psnr(img, gt, mask), "text_ssim": masked_ssim(img, gt, mask),
+            "text_lpips": masked_lpips(img, gt, mask, device=device) if with_lpips else math.nan}
+
+
 def describe() -> dict:
     """What the metric numbers mean: stored with every result."""
     import strings_bench.eval.lpips_net as lpips_net
@@ -138,4 +224,7 @@ def describe() -> dict:
         "ssim": f"3DGS convention: {SSIM_WINDOW}x{SSIM_WINDOW} Gaussian sigma {SSIM_SIGMA}, zero padding, mean over pixels",
         "lpips": {"net": "vgg", "version": "0.1", "available": vgg is not None,
                   "vgg_weights": str(vgg) if vgg else None, "lin_weights": str(lin) if lin else None},
+        "text_psnr": "PSNR over the dilated text mask's pixels only, per view, mean over views with a mask",
+        "text_ssim": "the SSIM map (as ssim) averaged over the dilated text mask's pixels, per view",
+        "text_lpips": f"LPIPS-VGG of the text mask's bounding crop (at least {LPIPS_MIN_CROP} px a side), per view",
     }

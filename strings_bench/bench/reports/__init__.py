@@ -19,7 +19,9 @@ from strings_bench.core.io import atomic_write_text
 __all__ = ["write_report"]
 
 
-def write_report(run_dir: str | Path) -> Path:
+def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
+    """Write RUN_DIR/report/ (tables, figures, report.md); `metrics` picks the metrics of the scatter and
+    over-iterations figures (default: OCR-CER, word CER and text NLL where the run has them)."""
     from strings_bench.bench.reports.figures import write_figures
     from strings_bench.bench.reports.tables import load_results, write_tables
 
@@ -36,7 +38,7 @@ def write_report(run_dir: str | Path) -> Path:
     df = load_results(run_dir)
     out = run_dir / "report"
     tables = write_tables(df, out / "tables", manifest)
-    figures = write_figures(df, run_dir, out / "figures")
+    figures = write_figures(df, run_dir, out / "figures", metrics)
     lines = [f"# strings-bench report: {run_dir.name}", ""]
     preset = manifest.get("preset") or {}
     if preset:
@@ -61,7 +63,7 @@ def write_report(run_dir: str | Path) -> Path:
         lines += ["## figures", ""]
         for name, p in figures.items():
             lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({p.relative_to(out)})", ""]
-            if name.startswith("cer_vs_time"):
-                lines += ["Mean OCR-CER against mean whole-run training time: preprocessing (text masks, 3D text "
+            if "_vs_time_" in name:
+                lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
     return atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

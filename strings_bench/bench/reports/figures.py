@@ -17,6 +17,28 @@ from strings_bench.core.results import CellKey, safe_name
 
 CROP_PAD = 0.25  # fraction of the text box added on every side of a crop
 
+# Metrics that the scatter and over-iterations plots can show (results.csv columns): axis name, whether
+# lower is better, and whether the axis is a rate that starts at 0 and shows at least up to 1.
+METRICS: dict[str, tuple[str, bool, bool]] = {
+    "cer": ("OCR-CER", True, True), "cer_known": ("known-text CER", True, True),
+    "word_cer": ("word CER", True, True), "word_acc": ("words read exactly", False, True),
+    "text_nll": ("text NLL (nats/char)", True, False), "text_psnr": ("text PSNR (dB)", False, False),
+    "text_ssim": ("text SSIM", False, False), "text_lpips": ("text LPIPS", True, False),
+    "psnr": ("PSNR (dB)", False, False), "ssim": ("SSIM", False, False), "lpips": ("LPIPS", True, False),
+}
+DEFAULT_METRICS = ("cer", "word_cer", "text_nll")  # plotted by default (each when the run has it)
+
+
+def check_metric(metric: str) -> None:
+    from strings_bench.core.errors import StringsBenchError
+
+    if metric not in METRICS:
+        raise StringsBenchError(f"unknown metric {metric!r} for the figures", hint=f"one of: {', '.join(METRICS)}")
+
+
+def _has(df: pd.DataFrame, metric: str) -> bool:
+    return metric in df and pd.to_numeric(df[metric], errors="coerce").notna().any()
+
 
 def _plt():
     import matplotlib
@@ -46,15 +68,23 @@ def _colors(methods: list[str]) -> dict[str, tuple]:
 
 
 def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path | None:
-    """Teaser scatter: mean OCR-CER (over all scenes) against mean whole-run training minutes
+    """Teaser scatter of OCR-CER (see `metric_vs_time`)."""
+    return metric_vs_time(df, out, label, "cer")
+
+
+def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer") -> Path | None:
+    """Teaser scatter: a metric's mean over all scenes against mean whole-run training minutes
     (total_seconds = preprocessing + optimisation) at one checkpoint."""
-    if df.empty:
+    check_metric(metric)
+    if df.empty or not _has(df, metric):
         return None
+    name, lower, rate = METRICS[metric]
     label = label or main_labels(df)[0]
     sub = with_total_seconds(df[df["label"] == label])
     if sub.empty:
         return None
-    g = sub.groupby("method").agg(cer=("cer", "mean"), minutes=("total_seconds", lambda s: s.mean() / 60)).reset_index()
+    sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"))
+    g = sub.groupby("method").agg(v=("_v", "mean"), minutes=("total_seconds", lambda s: s.mean() / 60)).reset_index()
     g = g.dropna(subset=["minutes"])
     if g.empty:
         return None
@@ -63,16 +93,18 @@ def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path |
     colors = _colors(methods)
     fig, ax = plt.subplots(figsize=(4.8, 3.6))
     for r in g.itertuples():
-        y = r.cer if not math.isnan(r.cer) else np.nan
+        y = r.v if not math.isnan(r.v) else np.nan
         ax.scatter([r.minutes], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
                    marker="*" if r.method == "strings" else "o", zorder=3, label=method_title(r.method))
         if not math.isnan(y):
             ax.annotate(method_title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
     ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
-    ax.set_ylabel(f"OCR-CER at {label} (lower is better)")
-    _cer_axis(ax, g["cer"])
+    ax.set_ylabel(f"{name} at {label} ({'lower' if lower else 'higher'} is better)", fontsize=8)
+    if rate:
+        _cer_axis(ax, g["v"])
     ax.grid(True, alpha=0.3)
-    ax.set_title(f"Readability vs training time ({label})", fontsize=10)
+    ax.set_title(f"Readability vs training time ({label})" if metric == "cer" else f"{name} vs training time ({label})",
+                 fontsize=10)
     return _save(fig, out)
 
 
@@ -83,9 +115,17 @@ def _cer_axis(ax, values) -> None:
 
 
 def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
-    """OCR-CER against the trained iteration: one panel per scene plus the mean over scenes."""
-    if df.empty:
+    """OCR-CER over iterations (see `metric_over_iterations`)."""
+    return metric_over_iterations(df, out, "cer")
+
+
+def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> Path | None:
+    """A metric against the trained iteration: one panel per scene plus the mean over scenes."""
+    check_metric(metric)
+    if df.empty or not _has(df, metric):
         return None
+    name, _lower, rate = METRICS[metric]
+    df = df.assign(**{metric: pd.to_numeric(df[metric], errors="coerce")})
     plt = _plt()
     scenes = list(dict.fromkeys(zip(df["dataset"], df["scene"])))
     methods = method_order(df["method"])
@@ -96,19 +136,20 @@ def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3 * rows), squeeze=False)
     panels = [(f"{d}/{s}", df[(df["dataset"] == d) & (df["scene"] == s)]) for d, s in scenes]
     if len(scenes) > 1:
-        mean = df.groupby(["method", "iteration"], as_index=False)["cer"].mean()
+        mean = df.groupby(["method", "iteration"], as_index=False)[metric].mean()
         panels.append(("mean over scenes", mean))
     for ax, (title, sub) in zip(axes.flat, panels):
         for m in methods:
             s = sub[sub["method"] == m].sort_values("iteration")
             if s.empty:
                 continue
-            ax.plot(s["iteration"], s["cer"], marker="o", color=colors[m], label=method_title(m),
+            ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=method_title(m),
                     linestyle="--" if m in ABLATION_METHODS else "-")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("iteration")
-        ax.set_ylabel("OCR-CER")
-        _cer_axis(ax, sub["cer"])
+        ax.set_ylabel(name)
+        if rate:
+            _cer_axis(ax, sub[metric])
         ax.grid(True, alpha=0.3)
     for ax in list(axes.flat)[len(panels):]:
         ax.axis("off")
@@ -143,6 +184,21 @@ def _in_box(words: list | None, box) -> list | None:
         if x0 <= c[0] <= x1 and y0 <= c[1] <= y1:
             out.append(w)
     return out
+
+
+def _recognised(rec: dict | None, view: str, box, side: str) -> str:
+    """What the recogniser alone read in the crop (word-crop readability), side "gt" or "render"; "" if none."""
+    if not rec:
+        return ""
+    words = ((rec.get("readability") or {}).get("views") or {}).get(view)
+    if not words:
+        return ""
+    inside = [w for w in _in_box([{"text": w["text"], "polygon": w["polygon"], "read": w[side]["read"]}
+                                  for w in words if w.get("headline", True)], box) or []]
+    if not inside:
+        return ""
+    ordered = sorted(inside, key=lambda w: (np.mean([p[1] for p in w["polygon"]]) // 20, np.mean([p[0] for p in w["polygon"]])))
+    return "rec: " + " ".join(w["read"] or "∅" for w in ordered)
 
 
 def _pick_view(rec: dict) -> tuple[str, list] | None:
@@ -217,6 +273,8 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                 img = gt
                 v = any_rec["ocr"]["views"].get(view, {})
                 caption = _words_text(_in_box(v.get("gt_words"), box))
+                read = _recognised(any_rec, view, box, "gt")
+                caption = caption[:40] + (f"\n{read[:40]}" if read else "")
                 title = "Ground Truth"
             else:
                 rec = recs.get(m)
@@ -225,7 +283,9 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                     p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / f"{stem}.png"
                     img = np.asarray(Image.open(p).convert("RGB")) if p.exists() else None
                     v = rec["ocr"]["views"].get(view, {})
-                    caption = _words_text(_in_box(v.get("render_words"), box))
+                    caption = _words_text(_in_box(v.get("render_words"), box))[:40]
+                    read = _recognised(rec, view, box, "render")
+                    caption += f"\n{read[:40]}" if read else ""
                     ic = (rec.get("cer") or {}).get("images", {}).get(view)
                     if ic and ic.get("cer") is not None:
                         caption += f"\nCER {ic['cer']:.2f}"
@@ -237,25 +297,34 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                 ax.set_title(title, fontsize=9, fontweight="bold" if m == "strings" else "normal")
             if ci == 0:
                 ax.set_ylabel(f"{s}\n{view}", fontsize=7)
-            ax.set_xlabel(caption[:60], fontsize=7)
-    fig.suptitle(f"Text crops at {label}; under each crop: what OCR read there", fontsize=10)
+            ax.set_xlabel(caption, fontsize=7)
+    fig.suptitle(f"Text crops at {label}; under each crop: what OCR read there, and (rec:) what the recogniser "
+                 "alone read in each reference word's crop", fontsize=9)
     fig.tight_layout()
     return _save(fig, out)
 
 
-def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path) -> dict[str, Path]:
+def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[str] | None = None) -> dict[str, Path]:
+    """The scatter (per main checkpoint) and over-iterations plots of each metric in `metrics` (default:
+    DEFAULT_METRICS that the run has; names: METRICS), and the qualitative grid. The OCR-CER files keep
+    their names (cer_vs_time_<label>.png, cer_over_iterations.png); others are <metric>_vs_time_<label>.png ..."""
+    for m in metrics or ():
+        check_metric(m)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: dict[str, Path] = {}
     if df.empty:
         return written
+    chosen = list(metrics) if metrics else [m for m in DEFAULT_METRICS if _has(df, m)]
     for label in main_labels(df):
-        p = cer_vs_time(df, out_dir / f"cer_vs_time_{label}.png", label)
-        if p:
-            written[f"cer_vs_time_{label}"] = p
+        for metric in chosen:
+            p = metric_vs_time(df, out_dir / f"{metric}_vs_time_{label}.png", label, metric)
+            if p:
+                written[f"{metric}_vs_time_{label}"] = p
         p = qualitative(df, run_dir, out_dir / f"qualitative_{label}.png", label)
         if p:
             written[f"qualitative_{label}"] = p
-    p = cer_over_iterations(df, out_dir / "cer_over_iterations.png")
-    if p:
-        written["cer_over_iterations"] = p
+    for metric in chosen:
+        p = metric_over_iterations(df, out_dir / f"{metric}_over_iterations.png", metric)
+        if p:
+            written[f"{metric}_over_iterations"] = p
     return written

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from strings_bench.bench.results import READABILITY_COLUMNS
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).
@@ -34,6 +35,9 @@ METHOD_TITLES = {
     "strings": "STRinGS", "strings-no-densify": "STRinGS w/o text densification",
     "strings-pos-lr": "STRinGS with phase-1 position LR",
 }
+# A pseudo-method row: the recogniser on the ground-truth views (the ceiling of word_cer / text_nll); never ranked.
+GT_CEILING = "gt-ceiling"
+METHOD_TITLES[GT_CEILING] = "GT view (ceiling)"
 # Row order of the paper; other methods follow alphabetically.
 METHOD_ORDER = ["3dgs", "mip-splatting", "mip", "mcmc", "3dgs-mcmc", "absgs", "edc", "edc-absgs", "strings"]
 ABLATION_METHODS = ("strings-no-densify", "strings-pos-lr")
@@ -99,7 +103,7 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
         return pd.DataFrame()
     df = pd.read_csv(p, keep_default_na=True)
     for c in ("cer", "cer_known", "psnr", "ssim", "lpips", "train_seconds", "preprocess_seconds", "total_seconds",
-              "gaussians"):
+              "gaussians", *READABILITY_COLUMNS):
         if c in df:
             df[c] = pd.to_numeric(df[c], errors="coerce")
     df["label"] = df["label"].astype(str)
@@ -178,6 +182,7 @@ class Table:
         vals = [col.values.get(m, math.nan) for m in self.methods]
         if not self.shade:
             return {m: None for m in self.methods}
+        vals = [math.nan if m == GT_CEILING else v for m, v in zip(self.methods, vals)]
         return dict(zip(self.methods, rank_classes(vals, col.lower_is_better, self.decimals(col))))
 
 
@@ -251,8 +256,12 @@ def main_labels(df: pd.DataFrame) -> list[str]:
     return main or labels
 
 
-def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None) -> Table:
+def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
+                      ceiling: str | None = None) -> Table:
+    """A value per method x (dataset, checkpoint); `ceiling` names a column whose mean becomes an
+    unranked GT-ceiling row (e.g. word_cer_gt)."""
     means = dataset_means(df, value)
+    ceil = dataset_means(df, ceiling) if ceiling else None
     labels = main_labels(df)
     datasets = list(dict.fromkeys(df["dataset"]))
     methods = methods or method_order(m for m in df["method"] if m not in ABLATION_METHODS)
@@ -261,7 +270,13 @@ def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt
         for l in labels:
             sel = means[(means["dataset"] == d) & (means["label"] == l)]
             vals = {r.method: (getattr(r, value) * scale) for r in sel.itertuples()}
+            if ceil is not None:
+                # The GT side does not depend on the method: any method's cells give it (mean over them).
+                c = ceil[(ceil["dataset"] == d) & (ceil["label"] == l)][ceiling]
+                vals[GT_CEILING] = float(c.mean()) if c.notna().any() else math.nan
             cols.append(Column(dataset_title(d), l, l, lower, fmt, vals))
+    if ceiling:
+        methods = [*methods, GT_CEILING]
     return Table(name, corner, corner_plain, cols, methods, caption)
 
 
@@ -303,6 +318,8 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
             df, "known_text_cer", "cer_known", r"\makecell[l]{Known-text\\CER $\downarrow$}", "Known-text CER (lower is better)",
             "CER of the OCR of rendered views against the known strings of the scene (synthetic scenes only)."
             + RANK_NOTE + note, True, ".3f"))
+    if "word_cer" in df and df["word_cer"].notna().any():
+        tables += readability_tables(df, note)
     tables.append(metrics_table(df, note))
     paper = paper_comparison_table(df, note)
     if paper is not None:
@@ -347,6 +364,46 @@ def paper_comparison_table(df: pd.DataFrame, note: str = "") -> Table | None:
                  cols, methods, "OCR-CER measured in this run next to the figures published in the STRinGS paper "
                  "(RTX 3090 Ti, Google Cloud Vision OCR; REFERENCE.md section 5), mean over the scenes of each "
                  "dataset. The paper's scenes, OCR engine and schedule may differ from this run's." + RANK_NOTE + note)
+
+
+READ_NOTE = (" Reference words: the known words at least 6.5 px high and the words the GT view's OCR read; each "
+             "is rectified from the render and read by the recogniser alone (docs/ocr.md). The last row reads the "
+             "ground-truth views (the ceiling).")
+
+
+def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
+    """Word-crop readability per checkpoint (word_cer, text_nll, each with the GT ceiling row) and the
+    text-region table (word_acc, text PSNR/SSIM/LPIPS inside the dilated text mask) at the last checkpoint."""
+    out = [
+        _checkpoint_table(df, "word_cer", "word_cer", r"Word CER $\downarrow$", "Word CER (lower is better)",
+                          "Word-crop CER: edit distance of what the recogniser reads in each reference word's crop, "
+                          "over the reference characters, mean over the scenes of each dataset." + READ_NOTE
+                          + RANK_NOTE + note, True, ".3f", ceiling="word_cer_gt"),
+        _checkpoint_table(df, "text_nll", "text_nll", r"\makecell[l]{Text NLL\\(nats/char) $\downarrow$}",
+                          "Text NLL, nats per character (lower is better)",
+                          "Text likelihood: CTC negative log-likelihood of each reference word under the recogniser's "
+                          "output on its crop, nats per reference character, mean over the scenes of each dataset."
+                          + READ_NOTE + RANK_NOTE + note, True, ".3f", ceiling="text_nll_gt"),
+    ]
+    labels = main_labels(df)
+    final = labels[-1]
+    sub = df[(df["label"] == final) & ~df["method"].isin(ABLATION_METHODS)]
+    specs = [("word_acc", r"Words$\uparrow$", "Words read", False, ".3f"),
+             ("text_psnr", r"PSNR$\uparrow$", "text PSNR", False, ".2f"),
+             ("text_ssim", r"SSIM$\uparrow$", "text SSIM", False, ".4f"),
+             ("text_lpips", r"LPIPS$\downarrow$", "text LPIPS", True, ".4f")]
+    cols = []
+    for d in dict.fromkeys(df["dataset"]):
+        for value, sub_l, sub_p, lower, fmt in specs:
+            if value not in sub:
+                continue
+            means = dataset_means(sub[sub["dataset"] == d], value)
+            cols.append(Column(dataset_title(d), sub_l, sub_p, lower, fmt, {r.method: getattr(r, value) for r in means.itertuples()}))
+    out.append(Table("text_region", "Method", "Method", cols, method_order(sub["method"]),
+                     f"Text regions at {final} iterations: fraction of reference words read exactly (Words), and PSNR "
+                     "over the dilated text mask's pixels, the SSIM map's mean over them, LPIPS-VGG of the mask's "
+                     "bounding crop; mean over the scenes of each dataset." + RANK_NOTE + note))
+    return out
 
 
 def metrics_table(df: pd.DataFrame, note: str = "") -> Table:

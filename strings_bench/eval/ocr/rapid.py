@@ -421,3 +421,91 @@ class RapidOCRBackend(OCRBackend):
                 line_words = split_line_into_words(txt, quad, float(score))
             words.extend(line_words)
         return words
+
+
+# ---- the recogniser alone (word-crop readability, strings_bench.eval.readability) ------------------
+# RapidOCR's recognition stage (rapidocr/ch_ppocr_rec/main.py, config.yaml `Rec`): the PP-OCRv6 small
+# model shipped in the package, input (N, 3, 48, W) BGR scaled to [-1, 1] ((x / 255 - 0.5) / 0.5),
+# the crop resized to height 48 keeping its aspect ratio, padded on the right with 0 (mid-grey) to at
+# least 320 px; output (N, W / 8, C) softmax probabilities over [blank] + the model's `character`
+# metadata + [" "] (CTCLabelDecode inserts blank at 0 and the space last).
+REC_HEIGHT = 48
+REC_MIN_WIDTH = 320
+REC_MODEL_FILE = "PP-OCRv6_rec_small.onnx"
+
+
+class Recognizer:
+    """RapidOCR's text recogniser run on its own (no detector, no classifier), through ONNX Runtime.
+
+    `probabilities(crops)` gives each crop's per-column softmax (T, C) over `characters` (index 0
+    is the CTC blank, the last one the space), the same numbers RapidOCR's CTC decoder reads.
+    """
+
+    def __init__(self, threads: int | None = None, model_path: str | None = None):
+        from pathlib import Path
+
+        try:
+            import onnxruntime
+            import rapidocr
+        except Exception as exc:  # noqa: BLE001 - reported with the install hint
+            raise OCRError(f"the RapidOCR recogniser cannot be loaded: {type(exc).__name__}: {exc}",
+                           hint="pip install rapidocr==3.10.0 onnxruntime") from exc
+        if _ort_guard.imported_unguarded:
+            log.warning("onnxruntime was imported before strings_bench.eval.ocr; set ORT_DISABLE_TELEMETRY=1")
+        path = Path(model_path) if model_path else Path(rapidocr.__file__).parent / "models" / REC_MODEL_FILE
+        if not path.is_file():
+            raise OCRError(f"RapidOCR's recognition model {path} is missing",
+                           hint="reinstall the wheel: pip install --force-reinstall rapidocr==3.10.0")
+        opts = onnxruntime.SessionOptions()
+        opts.intra_op_num_threads = int(DEFAULT_THREADS if threads is None else threads)
+        opts.inter_op_num_threads = 1
+        self.session = onnxruntime.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+        self.input_name = self.session.get_inputs()[0].name
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if "character" not in meta:
+            raise OCRError(f"{path} carries no character dictionary (metadata 'character')",
+                           hint="use the model shipped with rapidocr 3.10.0")
+        self.characters: list[str] = ["<blank>"] + meta["character"].splitlines() + [" "]
+        self.model = f"{path.name} (rapidocr {_rapidocr_version()}, onnxruntime {onnxruntime.__version__})"
+
+    @staticmethod
+    def preprocess(crop_rgb: np.ndarray, width: int) -> np.ndarray:
+        """One crop (48 px high, RGB uint8) as the model's (3, 48, width) input: BGR, [-1, 1], right-padded with 0."""
+        h, w = crop_rgb.shape[:2]
+        if h != REC_HEIGHT:
+            raise OCRError(f"recogniser crops must be {REC_HEIGHT} px high, got {h}", hint="use readability.rectify")
+        x = crop_rgb[:, :, ::-1].astype(np.float32).transpose(2, 0, 1) / 255.0
+        out = np.zeros((3, REC_HEIGHT, width), dtype=np.float32)
+        out[:, :, :w] = (x - 0.5) / 0.5
+        return out
+
+    def probabilities(self, crops: list[np.ndarray], batch: int = 16) -> list[np.ndarray]:
+        """Per-column class probabilities (T, C) of each crop (RGB uint8, 48 px high, any width).
+
+        Each crop is padded to max(320, its width), as RapidOCR pads a batch of one, so a crop's
+        output does not depend on the other crops; crops of the same padded width run together.
+        """
+        out: list[np.ndarray | None] = [None] * len(crops)
+        by_width: dict[int, list[int]] = {}
+        for i, c in enumerate(crops):
+            by_width.setdefault(max(REC_MIN_WIDTH, c.shape[1]), []).append(i)
+        for width, idx in by_width.items():
+            for b in range(0, len(idx), batch):
+                part = idx[b:b + batch]
+                x = np.stack([self.preprocess(crops[i], width) for i in part])
+                y = self.session.run(None, {self.input_name: x})[0]
+                for k, i in enumerate(part):
+                    out[i] = np.asarray(y[k], dtype=np.float64)
+        return out
+
+
+_RECOGNIZERS: dict[int, Recognizer] = {}
+
+
+def get_recognizer(threads: int | None = None) -> Recognizer:
+    """A shared Recognizer (loading the ONNX session takes a while)."""
+    key = int(DEFAULT_THREADS if threads is None else threads)
+    with _ENGINES_LOCK:
+        if key not in _RECOGNIZERS:
+            _RECOGNIZERS[key] = Recognizer(threads=key)
+        return _RECOGNIZERS[key]
