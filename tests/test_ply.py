@@ -14,7 +14,7 @@ from _engine_helpers import make_tiny_scene  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.engine.gaussians import GaussianModel  # noqa: E402
-from strings_bench.scene.ply import read_ply, write_ply  # noqa: E402
+from strings_bench.engine.ply import read_ply, write_ply  # noqa: E402
 
 
 def _model(n=25, degree=3, seed=0):

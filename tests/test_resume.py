@@ -187,7 +187,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
         assert recs[it]["metrics"]["psnr"] == pytest.approx(refs[it]["metrics"]["psnr"], abs=1e-5)
         assert recs[it]["gaussians"] == refs[it]["gaussians"]
     # --keep-models: each cell of the uninterrupted run holds its model, which reads back at that size
-    from strings_bench.scene.ply import read_ply
+    from strings_bench.engine.ply import read_ply
 
     for it, rec in refs.items():
         ply = next(whole.glob(f"cells/**/{it}/model.ply"))

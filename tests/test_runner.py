@@ -426,7 +426,7 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
 # ---- the PLY adapter ---------------------------------------------------------------------------------
 def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
     from strings_bench.engine.gaussians import GaussianModel
-    from strings_bench.scene.ply import write_ply
+    from strings_bench.engine.ply import write_ply
     from strings_bench.scene.scene import Scene
 
     scene = Scene.load(scene_dir)

@@ -211,6 +211,7 @@ def add_dataset_subcommands(sub) -> None:
 def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> list:
     """Check then register; returns the scene reports. Raises DatasetError when the check fails."""
     from strings_bench.datasets.cards import BUILTIN_REAL_CARDS
+    from strings_bench.datasets.card import LOCAL_CARD_NOTES
     from strings_bench.datasets.registry import register_local_copies
     from strings_bench.datasets.check import check_card_copy, check_path, format_reports
     from strings_bench.datasets.registry import _REGISTRY, list_datasets, read_index, write_index
@@ -234,7 +235,7 @@ def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> li
             echo(f"note: {missing} scene(s) of {name} are not in {path}; the others are checked")
     else:
         existing = _REGISTRY.get(name)
-        if existing is not None and existing.notes != "registered with `datasets add` or `prepare`":
+        if existing is not None and existing.notes != LOCAL_CARD_NOTES:
             raise DatasetError(f"{name!r} is a built-in dataset that is not stored on disk by the user",
                                hint="choose another name for your copy")
         reports = check_path(path)

@@ -46,7 +46,7 @@ def render_ply(ply: Path, scene_dir: Path, out: Path, split: str = "test", downs
 
     from strings_bench.core.io import atomic_write_bytes
     from strings_bench.engine.trainer import resolve_device
-    from strings_bench.scene.ply import read_ply
+    from strings_bench.engine.ply import read_ply
     from strings_bench.scene.scene import Scene
 
     if downscale <= 0:

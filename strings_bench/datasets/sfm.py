@@ -307,7 +307,7 @@ def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr
     time with the chosen kernel (paper 5 % of the width), exactly as it does for Hi-SAM masks.
     Returns (masks written, masks with any text).
     """
-    from strings_bench.methods.strings.masks import fill_polygons
+    from strings_bench.scene.polygons import fill_polygons
     from strings_bench.eval.ocr import get_backend
 
     ocr = get_backend(backend)

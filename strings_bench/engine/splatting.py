@@ -430,7 +430,7 @@ class GaussianSplatting(Method):
 
     def save_model(self, path) -> None:
         """Write the model as a 3DGS PLY (atomic)."""
-        from strings_bench.scene.ply import write_ply
+        from strings_bench.engine.ply import write_ply
 
         write_ply(path, self.model)
 

@@ -31,7 +31,7 @@ stays: the OCR found it legible.) Each source's own figures are kept too (`by_so
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
 import numpy as np

@@ -46,6 +46,6 @@ class MipSplatting(GaussianSplatting):
             self.model = live
 
     def save_model(self, path) -> None:
-        from strings_bench.scene.ply import write_ply
+        from strings_bench.engine.ply import write_ply
 
         write_ply(path, fold_3d_filter(self.model))

@@ -1,6 +1,6 @@
 """Method "ply": evaluate 3DGS models trained elsewhere, saved as PLY files in the 3DGS layout.
 
-Nothing is trained: the PLY is read (`strings_bench.scene.ply.read_ply`) and the scene's test views are
+Nothing is trained: the PLY is read (`strings_bench.engine.ply.read_ply`) and the scene's test views are
 rendered with our rasterizer (`GaussianModel.render`). Settings:
 
 - `ply_path` (required): the PLY file, or a template with `{scene}`, `{dataset}` and `{iteration}`
@@ -68,7 +68,7 @@ class PlyAdapter(MethodAdapter):
     def train(self, scene, checkpoints: list[int], downscale: float = 1) -> Iterator[CheckpointResult]:
         import torch
 
-        from strings_bench.scene.ply import read_ply
+        from strings_bench.engine.ply import read_ply
 
         bg = tuple(float(x) for x in self.settings.get("background", (0.0, 0.0, 0.0)))
         for it in sorted(checkpoints):

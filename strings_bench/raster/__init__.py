@@ -19,7 +19,6 @@ import os
 
 import torch
 
-from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import cache_root
 from strings_bench.raster.sh import sh_to_color
 from strings_bench.raster.types import RasterInputError, RasterOutput

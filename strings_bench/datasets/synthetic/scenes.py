@@ -10,7 +10,7 @@ tall, medium text ~7-9 px and the small print ~4-6 px (hard, sometimes unreadabl
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np

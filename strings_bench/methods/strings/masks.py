@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Iterable, Mapping
 
 import numpy as np
 
+from strings_bench.scene.polygons import fill_polygons
 from strings_bench.core.errors import DatasetError, StringsBenchError
 from strings_bench.core.io import atomic_write, cache_root
 
@@ -105,24 +106,6 @@ class MaskSettings:
 
 
 # ---- primitives ------------------------------------------------------------------------------
-
-def fill_polygons(polygons: Iterable[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
-    """Boolean (H, W) mask of the pixels whose centre lies inside any polygon.
-
-    Polygons are (K, 2) x, y in the continuous pixel frame (pixel centres at integer + 0.5, as in
-    camera.py); skimage.draw.polygon samples at integer coordinates, hence the -0.5 shift.
-    """
-    from skimage.draw import polygon as draw_polygon
-
-    mask = np.zeros(shape, dtype=bool)
-    for poly in polygons:
-        poly = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
-        if len(poly) < 3 or not np.isfinite(poly).all():
-            continue
-        rr, cc = draw_polygon(poly[:, 1] - 0.5, poly[:, 0] - 0.5, shape=shape)
-        mask[rr, cc] = True
-    return mask
-
 
 def dilate_mask(mask: np.ndarray, diameter: float) -> np.ndarray:
     """Dilate a boolean mask with a disk of the given diameter (pixels).

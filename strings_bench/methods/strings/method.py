@@ -28,7 +28,6 @@ from strings_bench.engine.splatting import GaussianSplatting
 
 if TYPE_CHECKING:
     from strings_bench.scene.scene import Scene
-    from strings_bench.methods.strings.segmentation import TextSegmentation
 
 log = logging.getLogger(__name__)
 
