@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
                     keep_models=args.keep_models)
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
+    print(f"html:    {(out / 'report' / 'index.html').resolve().as_uri()}")
     return 0
 
 

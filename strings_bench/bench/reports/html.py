@@ -31,6 +31,7 @@ import json
 import logging
 import math
 import numbers
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
@@ -87,6 +88,7 @@ table.gallery img { display: block; margin: 0 auto; max-width: %dpx; height: aut
 .err { font-size: 12px; } td.exact { background: #e3f4e3; } td.wrong { background: #fbe4e4; }
 .empty { color: #999; font-style: italic; }
 .muted { color: #777; font-size: 12px; }
+.scroll { overflow-x: auto; max-width: 100%%; }
 """ % CROP_MAX_WIDTH
 
 # Sorting by a header click (numbers by data-v, n/a last either way), pagination of tables with
@@ -184,6 +186,16 @@ def _is_nan(x) -> bool:
     return x is None or (isinstance(x, numbers.Real) and math.isnan(float(x)))
 
 
+def sort_key(v) -> str:
+    """A number as the page's script sorts it (data-v): "" for n/a, JavaScript's spelling of infinities."""
+    if _is_nan(v):
+        return ""
+    f = float(v)
+    if math.isinf(f):
+        return "Infinity" if f > 0 else "-Infinity"
+    return repr(f)
+
+
 def _number(v) -> str:
     """A results.csv number as shown: integers as they are, other floats to 4 significant digits."""
     f = float(v)
@@ -201,7 +213,7 @@ def _plain(s: str) -> str:
 
 
 def _page(title: str, body: str, back: str | None = None) -> str:
-    nav = f'<p><a href="{href(back)}">&larr; back to the report</a></p>' if back else ""
+    nav = f'<header><p><a href="{href(back)}">&larr; back to the report</a></p></header>' if back else ""
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
             f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
@@ -239,7 +251,7 @@ def table_html(t: Table) -> str:
         for c, sh in zip(t.columns, shades):
             v = c.values.get(m, math.nan)
             rank = sh.get(m)
-            data_v = "" if _is_nan(v) else repr(float(v))
+            data_v = sort_key(v)
             cells.append(f'<td{f" class={chr(34)}{rank}{chr(34)}" if rank else ""} data-v="{esc(data_v)}">'
                          f"{esc(t.fmt(c, v))}</td>")
         out.append(f"<tr{cls}>" + "".join(cells) + "</tr>")
@@ -263,7 +275,7 @@ def _ablation_html(t: Table) -> str:
             better_wo = not (_is_nan(wo) or _is_nan(ours)) and round(wo, 3) < round(ours, 3)
             better_ours = not (_is_nan(wo) or _is_nan(ours)) and round(ours, 3) < round(wo, 3)
             for v, best in ((wo, better_wo), (ours, better_ours)):
-                data_v = "" if _is_nan(v) else repr(float(v))
+                data_v = sort_key(v)
                 cells.append(f'<td{" class=" + chr(34) + "best" + chr(34) if best else ""} data-v="{esc(data_v)}">'
                              f"{esc(_fmt3(v))}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
@@ -286,7 +298,7 @@ def _cells_table(df: pd.DataFrame) -> str:
                 if _is_nan(v):
                     cells.append('<td data-v="">n/a</td>')
                 else:
-                    cells.append(f'<td data-v="{esc(repr(float(v)))}">{esc(_number(v))}</td>')
+                    cells.append(f'<td data-v="{esc(sort_key(v))}">{esc(_number(v))}</td>')
             else:
                 cells.append(f"<td>{'' if _is_nan(v) else esc(v)}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
@@ -375,7 +387,9 @@ class SceneGallery:
 
 
 def _word_key(view: str, rec: dict) -> tuple:
-    return view, str(rec.get("text", "")), tuple(np.round(np.asarray(rec.get("polygon", []), float), 2).ravel().tolist())
+    # The source is part of the key: a GT-OCR word over a known word is a reference word of its own
+    # (outside the headline figures), shown on its own row even where its box and text are the same.
+    return view, str(rec.get("source", "")), str(rec.get("text", "")), tuple(np.round(np.asarray(rec.get("polygon", []), float), 2).ravel().tolist())
 
 
 def collect_galleries(run_dir: Path, df: pd.DataFrame) -> list[SceneGallery]:
@@ -500,7 +514,7 @@ def _reading_cell(reading: dict | None, chars: int, crop: Path | None, alt: str)
     err = "n/a" if cer is None else f"{errors}/{chars} errors (CER {cer:.2f})"
     nll = reading.get("nll")
     title = "" if _is_nan(nll) else f' title="text NLL {esc(f"{float(nll):.3g}")} nats"'
-    return (f'<td class="crop{cls}" data-v="{"" if cer is None else esc(repr(cer))}"{title}>{img}'
+    return (f'<td class="crop{cls}" data-v="{esc(sort_key(cer))}"{title}>{img}'
             f'<div>{read_html}</div><div class="err">{esc(err)}</div></td>')
 
 
@@ -546,7 +560,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
             rows.append("<tr>" + "".join(cells) + "</tr>")
         parts.append(f'<section id="ckpt-{i}" class="checkpoint" data-label="{esc(label)}">'
                      f"<h2>Checkpoint {esc(label)}</h2><p class=\"muted\">iterations trained: {esc(its)}</p>"
-                     f'<table class="data gallery" data-page-size="{GALLERY_PAGE_SIZE}"><thead><tr>{"".join(head)}</tr></thead>'
+                     f'<table class="data gallery" id="gallery-{i}" data-page-size="{GALLERY_PAGE_SIZE}"><thead><tr>{"".join(head)}</tr></thead>'
                      f"<tbody>{''.join(rows)}</tbody></table></section>")
     return _page(title, "\n".join(parts) + "</main>", back)
 
@@ -588,7 +602,8 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         parts.append("<p>No figures.</p>")
     for name, p in figures.items():
         rel = Path(p).relative_to(out) if Path(p).is_absolute() else Path(p)
-        parts.append(f'<figure><img src="{href(rel)}" loading="lazy" alt="{esc(name)}">'
+        # Figures load eagerly (a dozen at most); the thousands of crops are the lazy ones.
+        parts.append(f'<figure><img src="{href(rel)}" alt="{esc(name)}">'
                      f"<figcaption>{esc(name.replace('_', ' '))}</figcaption></figure>")
 
     parts.append('<h2 id="galleries">Word crops</h2><p>Per scene, every reference word of the word-crop readability '
@@ -598,7 +613,9 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
     grow = []
     for g in galleries:
         page = g.folder / "index.html"
+        t0 = time.perf_counter()
         paths = write_crops(run_dir, out, g)
+        log.info("word crops of %s/%s: %d in %.1f s", g.dataset, g.scene, len(paths), time.perf_counter() - t0)
         back = "/".join([".."] * len(g.folder.parts)) + "/index.html"
         atomic_write_text(out / page, gallery_page(g, paths, back))
         n_crops = sum(p is not None for p in paths.values())
@@ -619,5 +636,5 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
     parts.append(f'<h2 id="cells">All cells</h2><p>Every row of <a href="{href(Path("..") / "results.csv")}">results.csv</a>, '
                  "one per (method, dataset, scene, checkpoint); docs/running.md lists the columns.</p>")
     if not df.empty:
-        parts.append(_cells_table(df))
+        parts.append(f'<div class="scroll">{_cells_table(df)}</div>')
     return atomic_write_text(out / "index.html", _page(title, "\n".join(parts) + "</main>"))
