@@ -20,7 +20,7 @@ Run folder (see docs/running.md):
       state/<method>/<dataset>/<scene>/training_state.pt
                                         the resumable training state; removed when the (method, scene) is done
       gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
-      report/                           tables and figures (strings_bench.bench.reports.write_report)
+      report/                           tables, figures, index.html (strings_bench.bench.reports.write_report)
 
 Execution goes through an `Executor` (`submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one
 after another in this process. A distributed executor only has to run `run_job(job)` somewhere that
