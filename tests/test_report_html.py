@@ -115,6 +115,19 @@ def test_table_cells_carry_the_paper_ranks():
     assert got == _expected_ranks({m: float(sub[sub["method"] == m]["psnr"].mean()) for m in methods}, False, 2)
 
 
+def test_ablation_table_marks_the_better_of_each_pair():
+    rows = []
+    for m, cer in (("strings", 0.177), ("strings-no-densify", 0.437)):
+        for scene, delta in (("a", -0.01), ("b", 0.01)):
+            rows.append({"method": m, "dataset": "synthetic", "scene": scene, "iteration": 350, "label": "7K",
+                         "cer": cer + delta, "cer_known": math.nan, "psnr": 25.0, "ssim": 0.9, "lpips": math.nan,
+                         "train_seconds": 60.0, "gaussians": 1000, "ocr_failed": 0})
+    built = {t.name: t for t in tables.build_tables(pd.DataFrame(rows))}
+    body = Parsed(report_html.table_html(built["ablations"])).tables["table-ablations"]
+    assert [c[1] for c in body[0]] == ["Effect of text densification", "7K", "0.437", "0.177"]
+    assert [c[0].get("class") for c in body[0][2:]] == [None, "best"]
+
+
 def test_untrusted_text_is_escaped():
     evil = '<img src=x onerror="alert(1)">&</td>'
     t = Table("evil", "corner", f"corner {evil}", [Column(evil, "7K", f"7K {evil}", True, ".3f", {evil: 0.5, "b": 0.25})],
@@ -216,6 +229,26 @@ def test_crops_are_rewritten_only_when_stale(fake_run):
     stray.write_bytes(b"x")
     report_html.write_crops(fake_run, rep, g)
     assert victim.is_file() and not stray.exists()
+
+
+def test_missing_renders_and_an_empty_run_still_give_a_page(fake_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(fake_run, run)
+    gone = next((run / "cells" / "fake-b").glob("*/*/35"))
+    shutil.rmtree(gone / "renders")
+    df = tables.load_results(run)
+    report_html.write_html(run, run / "report", df, {}, [], {})
+    page = next((run / "report" / "gallery").rglob("index.html"))
+    n_words = sum(len(v) for v in json.loads((gone / "result.json").read_text())["readability"]["views"].values())
+    assert page.read_text().count("image missing") == n_words
+    for ref in _local_refs(page):
+        assert (page.parent / unquote(ref)).is_file()
+    assert not list((run / "report" / "gallery").rglob("crops/fake-b/35/*/*.png"))  # its old crops were removed
+
+    empty = tmp_path / "empty"
+    index = report_html.write_html(empty, empty / "report", pd.DataFrame(), {}, [], {})
+    text = index.read_text()
+    assert "No finished cells yet" in text and "no run.json" in text
 
 
 # ---- the page in a real browser ---------------------------------------------------------------------------

@@ -420,7 +420,7 @@ def collect_galleries(run_dir: Path, df: pd.DataFrame) -> list[SceneGallery]:
                                              bool(w.get("headline", True)), w.get("polygon") or [], int(w.get("turn") or 0),
                                              int(w.get("chars") or 0), dict(w.get("gt") or {}))
                 g.words[k].renders[(str(r.method), label)] = {**(w.get("render") or {}), "iteration": int(r.iteration)}
-    return list(out.values())
+    return [g for g in out.values() if g.cells]  # a scene none of whose cells could be read has no page
 
 
 def _load_rgb(path: Path) -> np.ndarray | None:
