@@ -9,6 +9,11 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable
 
+# mkstemp makes 0600 files; results are shared with co-authors, so finished files get the mode a
+# plain open() would give (0666 less the umask). Read once: os.umask can only be read by setting it.
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
 
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
     """Call `write(tmp_path)` then rename the temporary file onto `path`.
@@ -22,6 +27,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
     tmp_path = Path(tmp)
     try:
         write(tmp_path)
+        os.chmod(tmp_path, 0o666 & ~_UMASK)
         os.replace(tmp_path, path)
     except BaseException:
         tmp_path.unlink(missing_ok=True)
