@@ -8,9 +8,10 @@ known-text CER and OCR-CER. Then, per metric and checkpoint, the difference of t
 and whether it exceeds the spread (|mean difference| > std_a + std_b). Last, the evaluation cost per
 cell: eval seconds, of which the word-crop recogniser, in the same runs.
 
+    python benchmarks/readability.py                                     # the default run's table (its preset and scenes)
     python benchmarks/readability.py --preset tiny --scenes books        # a smoke check (CPU-heavy)
-    python benchmarks/readability.py --preset quick                      # the default run's table
-    python benchmarks/readability.py --preset quick --seeds 0,1,2,3,4 --out runs/readability_q5
+    python benchmarks/readability.py --preset quick --scenes books,extinguisher,globe,chemicals,shelf
+    python benchmarks/readability.py --seeds 0,1,2,3,4 --out runs/readability_s5
 """
 
 from __future__ import annotations
@@ -45,8 +46,9 @@ def _ms(vals: list[float]) -> tuple[float, float, int]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", default="quick")
-    ap.add_argument("--scenes", default=",".join(SCENES), help="synthetic scene names, comma-separated")
+    ap.add_argument("--preset", default=None, help="schedule preset (default: the default run's)")
+    ap.add_argument("--scenes", default=None,
+                    help=f"synthetic scene names, comma-separated, of {','.join(SCENES)} (default: the preset's scenes)")
     ap.add_argument("--datasets", default=None, help="--datasets entries instead of --scenes (e.g. synthetic/books)")
     ap.add_argument("--methods", default="strings,3dgs")
     ap.add_argument("--seeds", default="0,1,2")
@@ -61,7 +63,13 @@ def main(argv=None) -> int:
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
-    datasets = args.datasets.split(",") if args.datasets else [f"synthetic/{s}" for s in args.scenes.split(",")]
+    args.preset = args.preset or runner.DEFAULT_PRESET
+    if args.datasets:
+        datasets = args.datasets.split(",")
+    elif args.scenes:
+        datasets = [f"synthetic/{s}" for s in args.scenes.split(",")]
+    else:
+        datasets = runner.get_preset(args.preset).default_datasets()
     # per_seed[(method, label)][metric][seed] = mean over scenes
     per_seed: dict = defaultdict(lambda: defaultdict(dict))
     costs = defaultdict(list)  # method -> [(eval seconds, recogniser seconds)]

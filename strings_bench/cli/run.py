@@ -8,7 +8,6 @@ from strings_bench.cli import command_help
 from strings_bench.core.errors import StringsBenchError
 
 DEFAULT_METHODS = "strings,3dgs"
-DEFAULT_DATASETS = "synthetic"
 ALL_METHODS = "*"  # = strings_bench.bench.runner.ALL_METHODS (not imported here: the runner is heavy)
 
 
@@ -17,19 +16,20 @@ def _split(s: str) -> list[str]:
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from strings_bench.bench.runner import DEFAULT_RUN_DIR, EXECUTORS, PRESETS
+    from strings_bench.bench.runner import DEFAULT_PRESET, DEFAULT_RUN_DIR, EXECUTORS, PRESETS
 
     p = subparsers.add_parser("run", help=command_help("run"),
                               description="Runs every method x scene x checkpoint not already finished in the run folder "
                                           "(re-running the same command resumes), then writes the report.")
     p.add_argument("--methods", default=DEFAULT_METHODS, help=f"comma-separated method names (default {DEFAULT_METHODS}); "
                                                               "see `strings-bench methods list`")
-    p.add_argument("--datasets", default=DEFAULT_DATASETS,
+    p.add_argument("--datasets", default=None,
                    help="comma-separated dataset ids (synthetic, synthetic/books, strings360/globe) or scene folders "
-                        f"(default {DEFAULT_DATASETS})")
-    p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
-                   help="schedule: paper = 30K iterations (3K/7K/30K); standard = x0.05 (350/1500 steps); "
-                        "quick (default) = x0.01 (70/300 steps, ~10 min for the default run on 2 cores); tiny = smoke test")
+                        "(default: the preset's scenes: " + "; ".join(
+                            f"{n}: {','.join(pr.default_datasets())}" for n, pr in PRESETS.items()) + ")")
+    p.add_argument("--preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
+                   help=f"schedule (default {DEFAULT_PRESET}): " + "; ".join(
+                       f"{n} = {pr.description}" for n, pr in PRESETS.items()))
     p.add_argument("--steps-scale", type=float, default=None, metavar="S",
                    help="replace the preset's schedule scale for every method (e.g. 0.2: 7K = 1400 steps; 1 = the paper's); "
                         "recorded in run.json, a run folder holds one scale")
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     """`strings-bench run`: plan and execute the run, print where its results and report are."""
     from strings_bench.bench.runner import run as run_bench
 
-    out = run_bench(_split(args.methods), _split(args.datasets), run_dir=args.out, preset=args.preset, ocr=args.ocr,
+    out = run_bench(_split(args.methods), _split(args.datasets) if args.datasets else None, run_dir=args.out, preset=args.preset, ocr=args.ocr,
                     downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
                     progress=not args.no_progress, method_overrides=parse_settings(args.settings),
                     lpips_at=args.lpips_at, cer_profile=args.cer_profile, steps_scale=args.steps_scale,
