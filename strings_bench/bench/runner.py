@@ -666,7 +666,7 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     from strings_bench.eval.ocr import parse_engines
 
     if isinstance(ocr, str):  # canonical names ("rapid,tess" = "rapidocr,tesseract"), so that resume compares like with like
-        ocr = ",".join(parse_engines(ocr))
+        ocr = ",".join(parse_engines(ocr, strict=False))  # strict where the engines are built from the names (run, _get_ocr)
     check_device_name(device)
     SaveEvery.parse(save_every)
     ds = float(downscale if downscale is not None else p.downscale)
@@ -854,11 +854,16 @@ def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_R
     overriding its preset; steps_scale and checkpoints (paper iterations) replace the preset's schedule.
     `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
     training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
-    `keep_models` writes each cell's model.ply."""
+    `keep_models` writes each cell's model.ply; `ocr` names one OCR engine or a comma-separated list (the
+    first is the primary; see `Evaluator`)."""
     if executor == "local":  # jobs run here: a missing GPU is refused before any scene is built
         from strings_bench.engine.trainer import resolve_device
 
         resolve_device(device)
+    if ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
+        from strings_bench.eval.ocr import parse_engines
+
+        parse_engines(ocr)
     plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
                     steps_scale=steps_scale, checkpoints=checkpoints, device=device, save_every=save_every,
                     keep_models=keep_models)
