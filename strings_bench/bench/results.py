@@ -19,7 +19,7 @@ from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
 
 __all__ = [
-    "CSV_COLUMNS", "READABILITY_COLUMNS", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
+    "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
     "iteration_label", "read_cell", "safe_name", "timing_columns", "write_results_csv",
 ]
 
@@ -93,7 +93,8 @@ def readability_columns(rec: dict) -> dict:
 
 
 def cell_row(rec: dict) -> dict:
-    """A cell's result.json as one results.csv row (keys: CSV_COLUMNS; missing values are "")."""
+    """A cell's result.json as one results.csv row (keys: CSV_COLUMNS, plus ENGINE_COLUMNS for each further OCR
+    engine; missing values are "")."""
     c = rec.get("cer") or {}
     k = rec.get("cer_known")
     ignored = c.get("ignored") or {}
@@ -117,16 +118,40 @@ def cell_row(rec: dict) -> dict:
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
         "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+        **engine_columns(rec),
     }
+
+
+# Per further OCR engine E of `run --ocr PRIMARY,E` (its name replaces {engine}): its CER and known-text CER
+# (the primary's keep the names cer / cer_known), the views it failed on, and its agreement with the
+# primary engine (cer.word_agreement): text regions and those read identically, on the render views
+# and on the GT views.
+ENGINE_COLUMNS = ["cer_{engine}", "cer_known_{engine}", "ocr_failed_{engine}", "agree_words_{engine}",
+                  "agree_identical_{engine}", "agree_gt_words_{engine}", "agree_gt_identical_{engine}"]
+
+
+def engine_columns(rec: dict) -> dict:
+    """The ENGINE_COLUMNS of every further OCR engine of a cell ({} for a single-engine cell)."""
+    out: dict = {}
+    for engine, e in (rec.get("ocr_engines") or {}).items():
+        c, k, agree = e.get("cer") or {}, e.get("cer_known"), e.get("agreement") or {}
+        ren, gt = agree.get("renders") or {}, agree.get("gt") or {}
+        values = [c.get("cer"), None if not k else k.get("cer"), len((c.get("ignored") or {}).get("failed") or []),
+                  ren.get("words"), ren.get("identical"), gt.get("words"), gt.get("identical")]
+        for col, v in zip(ENGINE_COLUMNS, values):
+            out[col.format(engine=engine)] = "" if v is None else v
+    return out
 
 
 def write_results_csv(run_dir: str | Path) -> Path:
     """Rebuild RUN_DIR/results.csv from the cell files (atomically); one row per cell, sorted by
-    dataset, scene, method, iteration. Returns the CSV's path."""
+    dataset, scene, method, iteration; CSV_COLUMNS, then the ENGINE_COLUMNS of each further OCR engine
+    of the run. Returns the CSV's path."""
     rows = [cell_row(r) for r in iter_cells(run_dir)]
     rows.sort(key=lambda r: (r["dataset"], r["scene"], r["method"], int(r["iteration"])))
+    extra = list(dict.fromkeys(k for r in rows for k in r if k not in CSV_COLUMNS))
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS + extra, restval="", lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
     return atomic_write_text(Path(run_dir) / RESULTS_CSV, buf.getvalue())
