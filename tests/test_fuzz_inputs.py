@@ -192,7 +192,8 @@ def base(tmp_path_factory):
                                       sh_degree=1)
     ply = write_ply(root / "model.ply", model)
     run_dir = root / "run"
-    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, preset="tiny", ocr_backend=rf.FakeOCR(), with_lpips=False,
+    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, preset="tiny", ocr="fuzzfake", ocr_backend=rf.FakeOCR(),
+               with_lpips=False,
                progress=False, write_report=False)
     poly = [[8, 12], [56, 12], [56, 30], [8, 30]]
     gt = {"format": "strings-bench-ocr/1", "images": {"a.png": [{"text": "hello", "polygon": poly}],
@@ -344,7 +345,8 @@ def test_colmap_binary_models(base, tmp_path, monkeypatch):
     outcomes = []
     for k, (label, stem, mutate, may_accept) in enumerate(BIN_CASES):
         entries = [["datasets", "check", "input/scene"]]
-        if k % 3 == 0:
+        # `run` on an input it accepts trains and evaluates (seconds): only refusals go through it here.
+        if k % 3 == 0 and not may_accept:
             entries.append(run_argv(Path("input/scene")))
         if k % 3 == 1:
             entries.append(["render", "--ply", str(base["ply"]), "--scene", "input/scene", "--out", "out/renders",
@@ -437,7 +439,7 @@ def test_colmap_text_models(base, tmp_path, monkeypatch):
     outcomes = []
     for k, (label, stem, mutate, may_accept) in enumerate(TXT_CASES):
         entries = [["datasets", "check", "input/scene"]]
-        if k % 2 == 0:
+        if k % 2 == 0 and not may_accept:
             entries.append(run_argv(Path("input/scene")))
         for j, argv in enumerate(entries):
             case_dir = new_case(tmp_path, f"txt{k}-{j}")
@@ -509,7 +511,8 @@ IMAGE_CASES = _image_cases()
 def test_images(base, tmp_path, monkeypatch):
     outcomes = []
     for k, (label, mutate, may_accept) in enumerate(IMAGE_CASES):
-        for j, argv in enumerate([["datasets", "check", "input/scene"], run_argv(Path("input/scene"))]):
+        entries = [["datasets", "check", "input/scene"]] + ([] if may_accept else [run_argv(Path("input/scene"))])
+        for j, argv in enumerate(entries):
             case_dir = new_case(tmp_path, f"img{k}-{j}")
             scene = scene_copy(base, case_dir)
             mutate(scene)
@@ -547,12 +550,32 @@ MASK_CASES = _mask_cases()
 def test_masks(base, tmp_path, monkeypatch):
     outcomes = []
     for k, (label, mutate, may_accept) in enumerate(MASK_CASES):
-        for j, argv in enumerate([["datasets", "check", "input/scene"], run_argv(Path("input/scene"))]):
+        entries = [["datasets", "check", "input/scene"]] + ([] if may_accept else [run_argv(Path("input/scene"))])
+        for j, argv in enumerate(entries):
             case_dir = new_case(tmp_path, f"mask{k}-{j}")
             scene = scene_copy(base, case_dir)
             mutate(scene)
             outcomes.append(run_case(case_dir, "masks", label, argv, ["view_00.png"], may_accept, monkeypatch))
     record(outcomes)
+
+
+def test_16bit_and_grayscale_images_load_as_their_8bit_picture(base, tmp_path):
+    """Regression: PIL's convert("RGB") clips 16-bit values at 255, which made a 16-bit photo all white."""
+    from strings_bench.scene.scene import Scene
+
+    scene_dir = tmp_path / "scene"
+    shutil.copytree(base["scene"], scene_dir)
+    rgb = np.asarray(Image.open(scene_dir / "images" / "view_00.png").convert("RGB"))
+    gray8 = rgb.mean(2).round().astype(np.uint8)
+    (scene_dir / "images" / "view_00.png").write_bytes(_png_bytes(gray8.astype(np.uint16) * 257))
+    (scene_dir / "images" / "view_01.png").write_bytes(_png_bytes(gray8))
+    (scene_dir / "masks" / "view_00.png").write_bytes(_png_bytes(
+        (np.asarray(Image.open(base["scene"] / "masks" / "view_00.png")) > 0).astype(np.uint16) * 65535))
+    scene = Scene.load(scene_dir)
+    want = np.repeat(gray8[:, :, None], 3, axis=2) / 255.0
+    np.testing.assert_allclose(scene.load_image(0), want, atol=1 / 255 + 1e-6)
+    np.testing.assert_allclose(scene.load_image(1), want, atol=1e-6)
+    np.testing.assert_array_equal(scene.load_mask(0), np.asarray(Image.open(base["scene"] / "masks" / "view_00.png")) > 127)
 
 
 # ---- PLY -------------------------------------------------------------------------------------------
@@ -753,9 +776,7 @@ def test_run_json(base, tmp_path, monkeypatch):
             shutil.copytree(base["run"], run_dir)
             _write_text(run_dir / "run.json", fn((run_dir / "run.json").read_text()))
             argv = ["report", "out/run"] if j == 0 else run_argv(base["scene"])
-            outcomes.append(run_case(case_dir, "run.json", label, argv, ["run.json"], label in (
-                "no preset", "methods is a list", "datasets is a number", "method_overrides is a string",
-                "preset is a string") and j == 0, monkeypatch))
+            outcomes.append(run_case(case_dir, "run.json", label, argv, ["run.json"], False, monkeypatch))
     record(outcomes)
 
 
@@ -822,6 +843,8 @@ def _ocr_results_cases():
 
 
 OCR_RESULTS_CASES = _ocr_results_cases()
+# Valid by the format (eval/ocr/results.py): a single-image file holding a word list, or null (a failed OCR).
+ACCEPTED_OCR_RESULTS = ("format unknown", "a JSON list", "null")
 
 
 def test_ocr_results_for_cer(base, tmp_path, monkeypatch):
@@ -835,7 +858,7 @@ def test_ocr_results_for_cer(base, tmp_path, monkeypatch):
             _write_text(bad, fn(bad.read_text()))
             argv = ["cer", "input/gt.json", "input/pred.json", "--out", "out/cer.json"]
             outcomes.append(run_case(case_dir, "OCR results (cer)", label, argv, [f"{side}.json"],
-                                     label == "format unknown", monkeypatch))
+                                     label in ACCEPTED_OCR_RESULTS, monkeypatch))
     record(outcomes)
 
 
@@ -1004,10 +1027,17 @@ def test_archives_for_download(base, tmp_path, monkeypatch):
 
 
 # ---- the count -------------------------------------------------------------------------------------
-def test_case_count_is_at_least_200():
-    """The generated set is large enough (counted per (input, entry point) run, as recorded)."""
-    per_input = (len(BIN_CASES) + len(BIN_CASES) // 3 * 2 + len(TXT_CASES) * 1.5 + 2 * len(IMAGE_CASES)
-                 + 2 * len(MASK_CASES) + len(PLY_CASES) + 2 * (len(ANNOTATION_CASES) + len(SPLIT_CASES))
-                 + 2 * len(RUN_JSON_CASES) + len(RESULT_JSON_CASES) + 2 * len(OCR_RESULTS_CASES) + 4
-                 + len(ARCHIVE_CASES))
-    assert per_input >= MIN_CASES, per_input
+ALL_KINDS = {"COLMAP .bin", "COLMAP .txt", "images", "masks", "PLY", "text_annotations.json", "split.json", "run.json",
+             "result.json", "OCR results (cer)", "photos (prepare)", "archives (download)"}
+
+
+def test_zz_at_least_200_cases_recorded(tmp_path_factory):
+    """Runs last in this file: when every kind above ran, at least 200 cases were recorded (and all survived)."""
+    kinds = {o.kind for o in COLLECTOR.outcomes}
+    if kinds != ALL_KINDS:
+        pytest.skip(f"only part of the fuzz set ran ({len(kinds)} of {len(ALL_KINDS)} kinds)")
+    summary = COLLECTOR.summary()
+    assert summary["tried"] >= MIN_CASES, summary["by_kind"]
+    assert summary["survived"] == summary["tried"]
+    assert set(summary["by_entry_point"]) >= {"datasets check", "prepare", "run", "render", "cer", "report",
+                                              "datasets download"}

@@ -677,13 +677,11 @@ def _fmt_schedule(x) -> str:
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
     """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
-    path = run_dir / RUN_FILE
-    if not path.exists():
+    from strings_bench.bench.results import read_manifest
+
+    old = read_manifest(run_dir)
+    if old is None:
         return manifest
-    try:
-        old = json.loads(path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise StringsBenchError(f"{path} is unreadable: {exc}", hint="delete it, or use another --out folder") from exc
     for k in ("downscale", "ocr"):
         if old.get(k) != manifest.get(k):
             raise StringsBenchError(

@@ -89,7 +89,11 @@ def find_api_key(api_key: str | None = None, key_file: str | os.PathLike | None 
 
 def _vertex_xy(v: Mapping[str, Any]) -> tuple[float, float]:
     # The API omits a coordinate that is 0 (proto3 JSON), so a missing x or y means 0.
-    return float(v.get("x", 0) or 0), float(v.get("y", 0) or 0)
+    try:
+        return float(v.get("x", 0) or 0), float(v.get("y", 0) or 0)
+    except (AttributeError, ValueError, TypeError):
+        raise OCRError(f"Google Vision answer holds a vertex that is not {{x, y}} numbers: {json.dumps(v)[:80]}",
+                       hint="pass the annotate response as saved") from None
 
 
 def parse_gcv_response(obj: Mapping[str, Any]) -> list[Word]:
