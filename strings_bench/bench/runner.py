@@ -732,7 +732,13 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
+    from strings_bench.core.io import cache_root, sweep_stale_temps
     from strings_bench.engine.trainer import resolve_device
+
+    # Temporary files of runs killed mid-write (kill -9, the OOM killer): finished files are never half-written,
+    # but their temporaries would stay for ever. Compiled kernels are numba's own.
+    sweep_stale_temps(run_dir)
+    sweep_stale_temps(cache_root(), skip=("numba",))
 
     # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
     # workers resolve their own and record it in each result.json.
