@@ -182,8 +182,8 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
             # Poses without images, images without poses.
             no_image = sorted(n for n in registered if n not in on_disk and not (images_dir / n).exists())
             if no_image:
-                rep.add(ERROR, images_dir, f"{len(no_image)} image(s) have a pose in the model "
-                        f"({model_file(model_dir, 'images')}) but no file in {images_dir}: {_list(no_image)}",
+                rep.add(ERROR, images_dir, f"{len(no_image)} image(s) have a pose in the model but no file in "
+                        f"{images_dir}: {_list(no_image)} (listed in {model_file(model_dir, 'images')})",
                         "copy the missing photos, or re-run SfM on the photos you have")
             no_pose = sorted(n for n in on_disk if n not in registered)
             if no_pose:

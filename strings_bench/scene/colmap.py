@@ -180,12 +180,15 @@ def _list_ids(ids: list, n: int = 5) -> str:
 
 def value_problems(rec, model_dir: Path) -> list[str]:
     """Values no scene can use, each naming its file: non-finite or non-positive intrinsics and image
-    sizes, non-finite poses of registered images, non-finite point coordinates (a NaN would reach every
+    sizes of the cameras registered images use, non-finite poses of registered images, non-finite point coordinates (a NaN would reach every
     Gaussian through the scene extent and the initial model)."""
     model_dir = Path(model_dir)
     problems = []
     bad_cams = []
+    used = {im.camera_id for im in rec.images.values() if im.has_pose}  # COLMAP keeps cameras of dropped images
     for cam_id, cam in sorted(rec.cameras.items()):
+        if cam_id not in used:
+            continue
         params = np.asarray(cam.params, dtype=np.float64)
         if not np.all(np.isfinite(params)) or int(cam.width) <= 0 or int(cam.height) <= 0:
             bad_cams.append(cam_id)
