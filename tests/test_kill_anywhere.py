@@ -268,3 +268,23 @@ def test_a_half_written_ocr_entry_and_scene_are_detected_and_rebuilt(tmp_path, m
     assert image.read_bytes() == before and intact_problem(scene) is None
     assert not _temporaries(scene.parent)
     assert sweep_stale_temps(scene.parent) == []
+
+
+def test_a_state_left_after_the_last_cell_is_removed(tmp_path, monkeypatch):
+    """Regression (found by the 30-kill run): killed after writing its last cell but before removing the
+    training state, a run left training_state.pt for ever - the re-run skipped the finished job."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import runner_fakes as rf
+    from strings_bench.bench import runner
+
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+    rf.register_fakes()
+    scene = rf.make_scene(tmp_path, "scene")
+    kw = dict(preset="tiny", ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False)
+    run_dir = runner.run(["fake-a"], [str(scene)], run_dir=tmp_path / "run", **kw)
+    plan = runner.plan_run(["fake-a"], [str(scene)], run_dir, "tiny")
+    state = plan.jobs[0].state_path()
+    state.parent.mkdir(parents=True)
+    state.write_bytes(b"a state the killed run did not remove")
+    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, **kw)
+    assert not state.exists()

@@ -468,6 +468,7 @@ class Runner:
         run_dir = Path(job.run_dir)
         todo = [k for k in job.cells() if not is_finished(run_dir, k)]
         if not todo:
+            job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
         scene = _load_scene(job)
         adapter = _build_method(job)
@@ -763,7 +764,14 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     ex = get_executor(executor, runner) if isinstance(executor, str) else executor
     errors: list[tuple[Job, BaseException]] = []
     try:
-        futures = [(job, ex.submit(job)) for job in plan.jobs if not all(is_finished(run_dir, k) for k in job.cells())]
+        pending = []
+        for job in plan.jobs:
+            if all(is_finished(run_dir, k) for k in job.cells()):
+                # A run killed between writing the last cell and removing the training state left the state.
+                job.state_path().unlink(missing_ok=True)
+            else:
+                pending.append(job)
+        futures = [(job, ex.submit(job)) for job in pending]
         for job, fut in futures:
             exc = fut.exception()
             if exc is not None:
