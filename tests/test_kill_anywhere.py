@@ -276,15 +276,19 @@ def test_a_state_left_after_the_last_cell_is_removed(tmp_path, monkeypatch):
     sys.path.insert(0, str(Path(__file__).parent))
     import runner_fakes as rf
     from strings_bench.bench import runner
+    from strings_bench.core.io import atomic_write_json
 
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
     rf.register_fakes()
     scene = rf.make_scene(tmp_path, "scene")
-    kw = dict(preset="tiny", ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False)
-    run_dir = runner.run(["fake-a"], [str(scene)], run_dir=tmp_path / "run", **kw)
-    plan = runner.plan_run(["fake-a"], [str(scene)], run_dir, "tiny")
-    state = plan.jobs[0].state_path()
-    state.parent.mkdir(parents=True)
-    state.write_bytes(b"a state the killed run did not remove")
-    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, **kw)
-    assert not state.exists()
+    plan = runner.plan_run(["fake-a"], [str(scene)], tmp_path / "run", "tiny")
+    job = plan.jobs[0]
+    for key in job.cells():  # every cell finished (as the killed run left them)
+        atomic_write_json(key.path(plan.run_dir) / "result.json", {
+            "method": key.method, "dataset": key.dataset, "scene": key.scene, "iteration": key.iteration,
+            "metrics": {"psnr": 20.0}, "timings": {}, "config": {}})
+    job.state_path().parent.mkdir(parents=True)
+    job.state_path().write_bytes(b"a state the killed run did not remove")
+    runner.execute(plan, ocr=rf.FakeOCR(), progress=False, write_report=False)
+    assert not job.state_path().exists()
+    assert len((plan.run_dir / "results.csv").read_text().splitlines()) == 1 + len(job.cells())
