@@ -523,6 +523,7 @@ class Runner:
         run_dir = Path(job.run_dir)
         todo = [k for k in job.cells() if not is_finished(run_dir, k)]
         if not todo:
+            job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
         scene = _load_scene(job)
         adapter = _build_method(job)
@@ -736,13 +737,11 @@ def _fmt_schedule(x) -> str:
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
     """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
-    path = run_dir / RUN_FILE
-    if not path.exists():
+    from strings_bench.bench.results import read_manifest
+
+    old = read_manifest(run_dir)
+    if old is None:
         return manifest
-    try:
-        old = json.loads(path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise StringsBenchError(f"{path} is unreadable: {exc}", hint="delete it, or use another --out folder") from exc
     for k in ("downscale", "ocr"):
         if old.get(k) != manifest.get(k):
             what = "--ocr engine list" if k == "ocr" else k
@@ -795,7 +794,13 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
+    from strings_bench.core.io import cache_root, sweep_stale_temps
     from strings_bench.engine.trainer import resolve_device
+
+    # Temporary files of runs killed mid-write (kill -9, the OOM killer): finished files are never half-written,
+    # but their temporaries would stay for ever. Compiled kernels are numba's own.
+    sweep_stale_temps(run_dir)
+    sweep_stale_temps(cache_root(), skip=("numba",))
 
     # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
     # workers resolve their own and record it in each result.json.
@@ -820,7 +825,14 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     ex = get_executor(executor, runner) if isinstance(executor, str) else executor
     errors: list[tuple[Job, BaseException]] = []
     try:
-        futures = [(job, ex.submit(job)) for job in plan.jobs if not all(is_finished(run_dir, k) for k in job.cells())]
+        pending = []
+        for job in plan.jobs:
+            if all(is_finished(run_dir, k) for k in job.cells()):
+                # A run killed between writing the last cell and removing the training state left the state.
+                job.state_path().unlink(missing_ok=True)
+            else:
+                pending.append(job)
+        futures = [(job, ex.submit(job)) for job in pending]
         for job, fut in futures:
             exc = fut.exception()
             if exc is not None:

@@ -12,7 +12,9 @@ Layout written (COLMAP style, loadable with `Scene.load`):
 
 `key` hashes the generator version and every setting, so changing either builds a new folder.
 The scene is built in a hidden sibling folder and renamed into place: an interrupted build never
-leaves a half-written cache.
+leaves a half-written cache. scene_meta.json, written last, lists every file with its size; a cached
+scene whose files do not match (a copy cut short, a file lost) is rebuilt, and the build folders of
+killed processes are removed (`core.io.sweep_stale_temps`).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from tqdm.auto import tqdm
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, read_model, write_model
 from strings_bench.core.errors import DatasetError
-from strings_bench.core.io import atomic_write_json, cache_root
+from strings_bench.core.io import atomic_write_json, cache_root, sweep_stale_temps, writer_tag
 from strings_bench.scene.scene import KnownWord, write_annotations
 from strings_bench.datasets.synthetic.photometric import apply_photometry, draw_view_photometry
 from strings_bench.datasets.synthetic.scenes import BUILDERS, SceneSpec
@@ -140,7 +142,35 @@ def scene_dir(scene: str, settings: SyntheticSettings | None = None) -> Path:
 
 
 def is_built(scene: str, settings: SyntheticSettings | None = None) -> bool:
-    return (scene_dir(scene, settings) / META_FILE).exists()
+    """Whether the scene's cache folder is complete (its meta file, and every file it lists at its size)."""
+    return intact_problem(scene_dir(scene, settings)) is None
+
+
+def _file_sizes(folder: Path) -> dict[str, int]:
+    return {str(p.relative_to(folder)): p.stat().st_size for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != META_FILE}
+
+
+def intact_problem(folder: Path) -> str | None:
+    """None when `folder` is a complete scene build, else what is wrong with it."""
+    meta_path = Path(folder) / META_FILE
+    if not meta_path.is_file():
+        return f"{meta_path} is missing (the build did not finish)"
+    try:
+        files = json.loads(meta_path.read_text(encoding="utf-8")).get("files")
+    except (OSError, ValueError, AttributeError) as exc:
+        return f"{meta_path} is unreadable: {exc}"
+    if files is None:
+        return None  # built before the file list was recorded: trusted as before
+    if not isinstance(files, dict):
+        return f"{meta_path} has a malformed file list"
+    for rel, size in files.items():
+        p = Path(folder) / rel
+        if not p.is_file():
+            return f"{p} is missing"
+        if p.stat().st_size != size:
+            return f"{p} has {p.stat().st_size} bytes, the build wrote {size}"
+    return None
 
 
 def read_meta(path: str | Path) -> dict:
@@ -156,11 +186,14 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     """Build (or reuse from the cache) one synthetic scene and return its folder."""
     settings = settings or SyntheticSettings()
     final = scene_dir(scene, settings)
+    sweep_stale_temps(final.parent)  # build folders of killed processes
     if final.exists() and not force:
-        if (final / META_FILE).exists():
+        problem = intact_problem(final)
+        if problem is None:
             return final
-        shutil.rmtree(final, ignore_errors=True)  # a folder without its meta file is not ours to trust
-    tmp = final.parent / f".build-{final.name}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+        log.warning("synthetic/%s: the cached scene is incomplete (%s); rebuilding it", scene, problem)
+        shutil.rmtree(final, ignore_errors=True)  # not ours to trust
+    tmp = final.parent / f".build-{final.name}-~{writer_tag()}-{uuid.uuid4().hex[:6]}"
     tmp.mkdir(parents=True)
     try:
         _build_into(scene, settings, tmp, progress)
@@ -533,6 +566,7 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
         "sfm_attempts": attempts,
         "timings_s": {"render": render_s, "sfm": sfm_s, "total": time.perf_counter() - t_start},
         "cpu_count": os.cpu_count(),
+        "files": _file_sizes(out),  # checked on reuse (intact_problem)
     }
     atomic_write_json(out / META_FILE, meta)
 
