@@ -9,10 +9,9 @@ regenerated at any time (`strings-bench report RUN_DIR`), also for a partly fini
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from strings_bench.bench.results import RESULTS_CSV, RUN_FILE, write_results_csv
+from strings_bench.bench.results import RESULTS_CSV, read_manifest, write_results_csv
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 
@@ -34,9 +33,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
         write_results_csv(run_dir)  # always from the cell files: they are the truth
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
-    manifest = {}
-    if (run_dir / RUN_FILE).exists():
-        manifest = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
+    manifest = read_manifest(run_dir) or {}
     df = load_results(run_dir)
     out = run_dir / "report"
     tables = write_tables(df, out / "tables", manifest)
