@@ -148,7 +148,7 @@ class RayExecutor:
         self._runner_ref = None
         self._task = None
         self._gpus = 0.0
-        self._env = {k: os.environ[k] for k in FORWARDED_ENV if os.environ.get(k)}
+        self._env = {k: os.path.abspath(os.environ[k]) for k in FORWARDED_ENV if os.environ.get(k)}
         self._running: dict[Any, Any] = {}  # ObjectRef -> job, until it has ended
 
     @staticmethod
@@ -185,7 +185,7 @@ class RayExecutor:
         """Connect, check the cluster can run the jobs, and check every node sees the run folder."""
         ray = self.ray
         self.connect()
-        run_dir = Path(run_dir).resolve()
+        run_dir = Path(os.path.abspath(run_dir))
         resources = ray.cluster_resources()
         self._gpus = float(resources.get("GPU", 0))
         devices = {ray_device(j.device, self._gpus) for j in jobs}
@@ -199,7 +199,7 @@ class RayExecutor:
                                     hint="lower --cpus-per-job")
         self._token_file = run_dir / f".ray-run-{secrets.token_hex(6)}"
         atomic_write_text(self._token_file, self._token_file.name)
-        self._probe(nodes, sorted({str(j.scene_path) for j in jobs}))
+        self._probe(nodes, sorted({os.path.abspath(j.scene_path) for j in jobs}))
         self._task = ray.remote(run_job_on_worker)
         self._runner_ref = ray.put(self.runner)  # sent once, not with every task
         log.info("Ray: %d node(s), %g CPUs, %g GPUs; %d job(s), each %s", len(nodes), resources.get("CPU", 0),
@@ -250,11 +250,15 @@ class RayExecutor:
         if self._task is None:
             self.start(Path(job.run_dir), [job])
         device = ray_device(job.device, self._gpus)
+        # Paths as the driver resolves them: a worker's working folder is not the driver's.
+        # (abspath, not resolve: symlinks stay, so a state saved by a local run still matches its fingerprint).
+        sent = dataclasses.replace(job, device=device, run_dir=os.path.abspath(job.run_dir),
+                                   scene_path=os.path.abspath(job.scene_path))
         ref = self._task.options(
             num_cpus=self.cpus_per_job, num_gpus=1 if device == "cuda" else 0,
             max_retries=self.max_retries, retry_exceptions=False,  # only system failures are retried
             name=f"{job.method} {job.dataset}/{job.scene}",
-        ).remote(self._runner_ref, dataclasses.replace(job, device=device), str(self._token_file), self._env)
+        ).remote(self._runner_ref, sent, str(self._token_file), self._env)
         self._running[ref] = job
         fut: Future = Future()
         ref.future().add_done_callback(lambda done: self._settle(ref, done, fut))

@@ -549,7 +549,7 @@ class Runner:
         # the paper reports it at 30K.
         lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
         ev = evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here)
-        cell_dir = key.path(self.run_dir)
+        cell_dir = key.path(Path(job.run_dir))  # the job's folder: absolute when it runs on a Ray worker
         for name, img in result.renders.items():
             if name in evaluator.names:
                 _write_png(cell_dir / "renders" / f"{Path(name).stem}.png", img)
@@ -582,8 +582,8 @@ class Runner:
             **ev,
         }
         atomic_write_json(cell_dir / RESULT_FILE, _jsonable(record))
-        if getattr(self, "results_csv", True):  # runners pickled before the flag existed: as before
-            write_results_csv(self.run_dir)
+        if self.results_csv:
+            write_results_csv(job.run_dir)
 
 
 def _preprocess_seconds(result) -> float:
