@@ -5,6 +5,10 @@
 - `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
   session (a few seconds) and shared by every test that needs a real scene folder (images,
   sparse/0 from pycolmap, masks, text_annotations.json). Treat it as read-only.
+- `fake_run`: a finished `tiny` run folder (fake methods fake-a/b/c on the 9-view toy scene of
+  runner_fakes with "hello" written in its text block, the fake OCR; no LPIPS), with its report.
+  Shared by the report tests (tables, figures, HTML, the browser test); a test may rewrite its
+  report, but nothing else in it.
 """
 
 from __future__ import annotations
@@ -48,3 +52,18 @@ def synthetic_books_small(synthetic_small_settings) -> Path:
     from strings_bench.datasets.synthetic import build_scene
 
     return build_scene("books", synthetic_small_settings, progress=False)
+
+
+@pytest.fixture(scope="session")
+def fake_run(tmp_path_factory) -> Path:
+    """Path of a finished tiny run folder with its report (see the module docstring)."""
+    import runner_fakes as rf
+    import strings_bench.bench.runner as runner
+
+    rf.register_fakes()
+    root = tmp_path_factory.mktemp("fake_run")
+    scene = rf.make_scene(root / "scenes" / "toyset", glyphs=True)
+    out = root / "run"
+    runner.run(["fake-a", "fake-b", "fake-c"], [str(scene)], run_dir=out, preset="tiny", ocr="fake",
+               ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
+    return out

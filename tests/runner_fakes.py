@@ -19,7 +19,23 @@ TEXT_BOX = (8, 12, 56, 30)  # x0, y0, x1, y1: where the "text" is in every view
 N_VIEWS = 9  # views 0 and 8 are test views (every 8th)
 
 
-def make_scene(root: Path, name: str = "toy", with_masks: bool = True) -> Path:
+def _draw_glyphs(img: np.ndarray) -> np.ndarray:
+    """The word "hello" in light letters on the dark text block (Pillow's bundled font), thin enough that
+    the block stays dark for FakeOCR (mean < 60) while the recogniser can read the word."""
+    from PIL import ImageDraw, ImageFont
+
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+    font = ImageFont.load_default(size=14)
+    x0, y0, x1, y1 = TEXT_BOX
+    left, top, right, bottom = draw.textbbox((0, 0), "hello", font=font)
+    draw.text(((x0 + x1 - (right - left)) / 2 - left, (y0 + y1 - (bottom - top)) / 2 - top), "hello", font=font,
+              fill=(235, 235, 235))
+    return np.asarray(im).copy()
+
+
+def make_scene(root: Path, name: str = "toy", with_masks: bool = True, glyphs: bool = False) -> Path:
+    """A 9-view scene folder (64x48 images, a dark text block; with `glyphs`, "hello" written in it)."""
     scene = root / name
     (scene / "images").mkdir(parents=True)
     rng = np.random.default_rng(0)
@@ -29,6 +45,8 @@ def make_scene(root: Path, name: str = "toy", with_masks: bool = True) -> Path:
         img += rng.integers(0, 20, (H, W, 3), dtype=np.uint8)
         x0, y0, x1, y1 = TEXT_BOX
         img[y0:y1, x0:x1] = 30  # dark "text" block read by FakeOCR
+        if glyphs:
+            img = _draw_glyphs(img)
         fname = f"view_{v:02d}.png"
         Image.fromarray(img).save(scene / "images" / fname)
         t = np.array([0.1 * v, 0.0, 4.0])

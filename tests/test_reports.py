@@ -95,17 +95,6 @@ def test_ablation_table_layout(tmp_path):
     assert "w/o text densification" not in written["ocr_cer"]["tex"].read_text()
 
 
-@pytest.fixture(scope="module")
-def fake_run(tmp_path_factory):
-    rf.register_fakes()
-    root = tmp_path_factory.mktemp("rep")
-    scene = rf.make_scene(root / "scenes" / "toyset")
-    out = root / "run"
-    runner.run(["fake-a", "fake-b", "fake-c"], [str(scene)], run_dir=out, preset="tiny", ocr="fake",
-               ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
-    return out
-
-
 def test_report_files_produced(fake_run):
     rep = fake_run / "report"
     for name in ("ocr_cer", "training_time", "metrics", "known_text_cer"):

@@ -19,8 +19,9 @@ from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
 
 __all__ = [
-    "CSV_COLUMNS", "READABILITY_COLUMNS", "CellKey", "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "cell_row", "is_finished", "iter_cells",
-    "iteration_label", "read_cell", "safe_name", "timing_columns", "write_results_csv",
+    "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV",
+    "RUN_FILE", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
+    "safe_name", "timing_columns", "write_results_csv",
 ]
 
 # Word-crop readability (eval.readability) of the render, its GT-view ceiling (_gt), and the text-region image
@@ -41,23 +42,92 @@ def iteration_label(iteration: int) -> str:
     return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)
 
 
+_NUMBER = (int, float)
+
+
+def _is_number(v) -> bool:
+    """A metric as result.json stores it: a number, null (NaN) or "inf"/"-inf" (JSON has no infinities)."""
+    return v is None or v in ("inf", "-inf") or (isinstance(v, _NUMBER) and not isinstance(v, bool))
+
+
+def _check(cond: bool, path: Path, what: str) -> None:
+    if not cond:
+        raise StringsBenchError(f"cell result {path} is malformed: {what}",
+                                hint="delete that cell's folder and re-run to recompute it")
+
+
+def check_cell(rec, path: str | Path) -> dict:
+    """`rec` (a parsed result.json) when it has the fields results.csv and the reports read, with the
+    right types; otherwise a StringsBenchError naming the file and the field."""
+    path = Path(path)
+    _check(isinstance(rec, dict), path, f"a JSON {type(rec).__name__}, not an object")
+    for key in ("method", "dataset", "scene"):
+        _check(isinstance(rec.get(key), str), path, f"{key!r} is missing or not a string")
+    it = rec.get("iteration")
+    _check(isinstance(it, int) and not isinstance(it, bool) and it >= 0, path, "'iteration' is missing or not an integer")
+    for key in ("metrics", "timings", "config"):
+        _check(isinstance(rec.get(key), dict), path, f"{key!r} is missing or not an object")
+    for key in ("psnr", "ssim", "lpips"):
+        v = rec["metrics"].get(key)
+        _check(_is_number(v), path, f"metrics.{key} is not a number")
+    for key in ("cer", "cer_known", "readability", "ocr", "extra"):
+        _check(rec.get(key) is None or isinstance(rec[key], dict), path, f"{key!r} is not an object")
+    for key in ("cer", "cer_known"):
+        v = (rec.get(key) or {}).get("cer")
+        _check(_is_number(v), path, f"{key}.cer is not a number")
+    views = (rec.get("ocr") or {}).get("views", {})
+    _check(isinstance(views, dict), path, "ocr.views is not an object")
+    g = rec.get("gaussians")
+    _check(g is None or (isinstance(g, int) and not isinstance(g, bool)), path, "'gaussians' is not an integer")
+    return rec
+
+
+def _read_json(p: Path, what: str):
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # a UnicodeDecodeError is a ValueError
+        raise StringsBenchError(f"{what} {p} is unreadable: {exc}",
+                                hint="delete that cell's folder and re-run to recompute it" if what == "cell result"
+                                else "delete it, or use another --out folder") from exc
+
+
 def iter_cells(run_dir: str | Path) -> Iterable[dict]:
-    """Every finished cell's result.json under RUN_DIR/cells, parsed, in path order."""
+    """Every finished cell's result.json under RUN_DIR/cells, parsed and checked (`check_cell`), in path order."""
     root = Path(run_dir) / "cells"
     if not root.is_dir():
         return
     for p in sorted(root.glob(f"*/*/*/*/{RESULT_FILE}")):
-        try:
-            yield json.loads(p.read_text(encoding="utf-8"))
-        except ValueError as exc:
-            raise StringsBenchError(f"cell result {p} is unreadable: {exc}",
-                                    hint="delete that cell's folder and re-run to recompute it") from exc
+        yield check_cell(_read_json(p, "cell result"), p)
 
 
 def read_cell(run_dir: str | Path, key: CellKey) -> dict | None:
-    """One cell's result.json, or None when the cell is not finished."""
+    """One cell's result.json (checked), or None when the cell is not finished."""
     p = key.path(Path(run_dir)) / RESULT_FILE
-    return json.loads(p.read_text(encoding="utf-8")) if p.exists() else None
+    return check_cell(_read_json(p, "cell result"), p) if p.exists() else None
+
+
+def read_manifest(run_dir: str | Path) -> dict | None:
+    """RUN_DIR/run.json, checked for the fields a resumed run and the report read; None when there is
+    none. A malformed file is a StringsBenchError naming it."""
+    p = Path(run_dir) / RUN_FILE
+    if not p.exists():
+        return None
+    m = _read_json(p, "run settings")
+
+    def need(cond: bool, what: str) -> None:
+        if not cond:
+            raise StringsBenchError(f"run settings {p} are malformed: {what}",
+                                    hint="restore it from a backup, or use another --out folder (the cells are kept)")
+    need(isinstance(m, dict), f"a JSON {type(m).__name__}, not an object")
+    need(isinstance(m.get("preset"), dict) and isinstance(m["preset"].get("name"), str),
+         "'preset' is missing or not an object with a name")
+    need(isinstance(m.get("methods"), dict) and all(isinstance(v, dict) for v in m["methods"].values()),
+         "'methods' is missing or not an object of objects")
+    need(isinstance(m.get("datasets"), list), "'datasets' is missing or not a list")
+    need(m.get("method_overrides") is None or isinstance(m["method_overrides"], dict), "'method_overrides' is not an object")
+    need(isinstance(m.get("ocr"), str), "'ocr' is missing or not a string")
+    need(isinstance(m.get("downscale"), _NUMBER), "'downscale' is missing or not a number")
+    return m
 
 
 def timing_columns(rec: dict) -> dict:
@@ -93,7 +163,8 @@ def readability_columns(rec: dict) -> dict:
 
 
 def cell_row(rec: dict) -> dict:
-    """A cell's result.json as one results.csv row (keys: CSV_COLUMNS; missing values are "")."""
+    """A cell's result.json as one results.csv row (keys: CSV_COLUMNS, plus ENGINE_COLUMNS for each further OCR
+    engine; missing values are "")."""
     c = rec.get("cer") or {}
     k = rec.get("cer_known")
     ignored = c.get("ignored") or {}
@@ -117,16 +188,40 @@ def cell_row(rec: dict) -> dict:
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
         "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+        **engine_columns(rec),
     }
+
+
+# Per further OCR engine E of `run --ocr PRIMARY,E` (its name replaces {engine}): its CER and known-text CER
+# (the primary's keep the names cer / cer_known), the views it failed on, and its agreement with the
+# primary engine (cer.word_agreement): text regions and those read identically, on the render views
+# and on the GT views.
+ENGINE_COLUMNS = ["cer_{engine}", "cer_known_{engine}", "ocr_failed_{engine}", "agree_words_{engine}",
+                  "agree_identical_{engine}", "agree_gt_words_{engine}", "agree_gt_identical_{engine}"]
+
+
+def engine_columns(rec: dict) -> dict:
+    """The ENGINE_COLUMNS of every further OCR engine of a cell ({} for a single-engine cell)."""
+    out: dict = {}
+    for engine, e in (rec.get("ocr_engines") or {}).items():
+        c, k, agree = e.get("cer") or {}, e.get("cer_known"), e.get("agreement") or {}
+        ren, gt = agree.get("renders") or {}, agree.get("gt") or {}
+        values = [c.get("cer"), None if not k else k.get("cer"), len((c.get("ignored") or {}).get("failed") or []),
+                  ren.get("words"), ren.get("identical"), gt.get("words"), gt.get("identical")]
+        for col, v in zip(ENGINE_COLUMNS, values):
+            out[col.format(engine=engine)] = "" if v is None else v
+    return out
 
 
 def write_results_csv(run_dir: str | Path) -> Path:
     """Rebuild RUN_DIR/results.csv from the cell files (atomically); one row per cell, sorted by
-    dataset, scene, method, iteration. Returns the CSV's path."""
+    dataset, scene, method, iteration; CSV_COLUMNS, then the ENGINE_COLUMNS of each further OCR engine
+    of the run. Returns the CSV's path."""
     rows = [cell_row(r) for r in iter_cells(run_dir)]
     rows.sort(key=lambda r: (r["dataset"], r["scene"], r["method"], int(r["iteration"])))
+    extra = list(dict.fromkeys(k for r in rows for k in r if k not in CSV_COLUMNS))
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS + extra, restval="", lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
     return atomic_write_text(Path(run_dir) / RESULTS_CSV, buf.getvalue())

@@ -20,7 +20,7 @@ Run folder (see docs/running.md):
       state/<method>/<dataset>/<scene>/training_state.pt
                                         the resumable training state; removed when the (method, scene) is done
       gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
-      report/                           tables and figures (strings_bench.bench.reports.write_report)
+      report/                           tables, figures, index.html (strings_bench.bench.reports.write_report)
 
 Execution goes through an `Executor` (`submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one
 after another in this process, `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job
@@ -299,14 +299,24 @@ def eval_mask(scene, i: int, downscale: float, settings: dict | None) -> np.ndar
 
 # ---- evaluation of one checkpoint ------------------------------------------------------------
 class Evaluator:
-    """Computes everything about one checkpoint of one scene. GT-side work is done once per scene."""
+    """Computes everything about one checkpoint of one scene. GT-side work is done once per scene.
+
+    `ocr_backend` is one OCR backend or a list of them (`run --ocr rapidocr,tesseract`): the first is
+    the primary engine (`cer`, `cer_known`, the word-crop readability); each further one is scored the
+    same way and compared with the primary (`ocr_engines` in result.json). GT OCR is kept per engine."""
 
     def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True,
                  cer_profile: str = "paper", device: str = "cpu"):
         self.scene = scene
         self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
-        self.ocr = ocr_backend
+        self.engines = list(ocr_backend) if isinstance(ocr_backend, (list, tuple)) else [ocr_backend]
+        if not self.engines:
+            raise StringsBenchError("no OCR engine given", hint="e.g. --ocr rapidocr")
+        names = [e.name for e in self.engines]
+        if len(set(names)) != len(names):
+            raise StringsBenchError(f"OCR engines {names} name one engine twice", hint="name each engine once")
+        self.ocr = self.engines[0]
         self.downscale = downscale
         self.run_dir = Path(run_dir)
         self.dataset = dataset
@@ -316,8 +326,8 @@ class Evaluator:
         self.mask_settings = eval_mask_settings(scene)
         self._gt: dict[str, np.ndarray] = {}
         self._masks: dict[str, np.ndarray | None] = {}
-        self._gt_ocr: dict[str, list | None] = {}
-        self._gt_ocr_error: dict[str, str] = {}
+        self._gt_ocr: dict[tuple[str, str], list | None] = {}  # (engine, view) -> GT words (None: OCR failed)
+        self._gt_ocr_error: dict[tuple[str, str], str] = {}
         self._lpips_ref: dict[str, object] = {}
         self._readability = None  # eval.readability.SceneReadability: GT-side word crops, made once per scene
 
@@ -335,19 +345,22 @@ class Evaluator:
         self.gt(name)
         return self._masks[name]
 
-    def _read(self, img: np.ndarray, mask: np.ndarray | None):
+    def _read(self, img: np.ndarray, mask: np.ndarray | None, engine=None):
         try:
-            return self.ocr.read(_to_uint8(img), mask=mask), None
+            return (engine or self.ocr).read(_to_uint8(img), mask=mask), None
         except OCRError as exc:
             return None, str(exc)
 
-    def gt_words(self, name: str):
-        if name not in self._gt_ocr:
-            words, err = self._read(self.gt(name), self.mask(name))
-            self._gt_ocr[name] = words
+    def gt_words(self, name: str, engine=None):
+        """The OCR words of test view `name`'s ground truth by `engine` (default the primary), read once."""
+        engine = engine or self.ocr
+        key = (engine.name, name)
+        if key not in self._gt_ocr:
+            words, err = self._read(self.gt(name), self.mask(name), engine)
+            self._gt_ocr[key] = words
             if err:
-                self._gt_ocr_error[name] = err
-        return self._gt_ocr[name]
+                self._gt_ocr_error[key] = err
+        return self._gt_ocr[key]
 
     def check_renders(self, method: str, renders: dict) -> None:
         missing = [n for n in self.names if n not in renders]
@@ -412,7 +425,7 @@ class Evaluator:
                 "mask": "whole image" if self.mask(name) is None else "dilated text mask",
                 "gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
                 "render_words": None if render_words is None else [w.to_dict() for w in render_words],
-                "gt_error": self._gt_ocr_error.get(name),
+                "gt_error": self._gt_ocr_error.get((self.ocr.name, name)),
                 "render_error": render_err,
             }
             known = self.scene.known_words(i, self.downscale)
@@ -426,6 +439,7 @@ class Evaluator:
         known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
 
         readability = self.readability(read_views)
+        engines = {e.name: self.second_opinion(e, renders, pairs) for e in self.engines[1:]}
 
         def mean(key):
             vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
@@ -438,7 +452,44 @@ class Evaluator:
             "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
             "cer": scene_cer.to_dict(),
             "cer_known": None if known_cer is None else known_cer.to_dict(),
+            **({"ocr_engines": engines} if engines else {}),
         }
+
+    def second_opinion(self, engine, renders: dict, primary_pairs: dict) -> dict:
+        """A further OCR engine's reading of a cell: its words on every GT and render view, its CER and
+        known-text CER (same rules as the primary's), and its agreement with the primary engine
+        (`cer.word_agreement`) on the render views and on the GT views, summed over the views both
+        engines read without failing."""
+        import strings_bench.eval.cer as cer
+
+        pairs: dict[str, tuple] = {}
+        known_pairs: dict[str, tuple] = {}
+        views: dict[str, dict] = {}
+        agree_render = agree_gt = cer.WordAgreement()
+        for i, name in zip(self.views, self.names):
+            r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
+            gt_words = self.gt_words(name, engine)
+            render_words, render_err = self._read(r, self.mask(name), engine)
+            pairs[name] = (gt_words, render_words)
+            views[name] = {"gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
+                           "render_words": None if render_words is None else [w.to_dict() for w in render_words],
+                           "gt_error": self._gt_ocr_error.get((engine.name, name)), "render_error": render_err}
+            known = self.scene.known_words(i, self.downscale)
+            if known:
+                known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
+            primary_gt, primary_render = primary_pairs[name]
+            if primary_render is not None and render_words is not None:
+                agree_render = agree_render + cer.word_agreement(primary_render, render_words, self.cer_profile)
+            if primary_gt is not None and gt_words is not None:
+                agree_gt = agree_gt + cer.word_agreement(primary_gt, gt_words, self.cer_profile)
+        scene_cer = cer.scene_cer(pairs, profile=self.cer_profile)
+        known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
+        return {"backend": engine.describe(), "views": views, "cer": scene_cer.to_dict(),
+                "cer_known": None if known_cer is None else known_cer.to_dict(),
+                "agreement": {"with": self.ocr.name, "renders": agree_render.to_dict(), "gt": agree_gt.to_dict(),
+                              "iou_threshold": cer.IOU_THRESHOLD,
+                              "rule": "text regions (IoU >= 0.1 components of both engines' words) read identically "
+                                      "after the CER profile's normalisation (cer.word_agreement)"}}
 
 
 # ---- running ------------------------------------------------------------------------------------
@@ -456,12 +507,16 @@ def _load_scene(job: Job):
     return Scene.load(job.scene_path, name=job.scene, settings=job.scene_settings)
 
 
-def _get_ocr(name_or_backend):
-    if not isinstance(name_or_backend, str):
-        return name_or_backend
-    from strings_bench.eval.ocr import get_backend
+def _get_ocr(name_or_backend) -> list:
+    """The OCR engines of a job: from `--ocr` ("rapidocr" or "rapidocr,tesseract"), a backend object
+    (tests), or a list of either; the first is the primary."""
+    from strings_bench.eval.ocr import get_backend, parse_engines
 
-    return get_backend(name_or_backend)
+    if isinstance(name_or_backend, str):
+        return [get_backend(n) for n in parse_engines(name_or_backend)]
+    if isinstance(name_or_backend, (list, tuple)):
+        return [x for item in name_or_backend for x in _get_ocr(item)]
+    return [name_or_backend]
 
 
 class Runner:
@@ -490,6 +545,7 @@ class Runner:
         run_dir = Path(job.run_dir)
         todo = [k for k in job.cells() if not is_finished(run_dir, k)]
         if not todo:
+            job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
         scene = _load_scene(job)
         adapter = _build_method(job)
@@ -631,6 +687,10 @@ def plan_run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFA
     p = schedule(preset, steps_scale, checkpoints)
     get_profile(cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
+    from strings_bench.eval.ocr import parse_engines
+
+    if isinstance(ocr, str):  # canonical names ("rapid,tess" = "rapidocr,tesseract"), so that resume compares like with like
+        ocr = ",".join(parse_engines(ocr, strict=False))  # strict where the engines are built from the names (run, _get_ocr)
     check_device_name(device)
     SaveEvery.parse(save_every)
     ds = float(downscale if downscale is not None else p.downscale)
@@ -700,18 +760,18 @@ def _fmt_schedule(x) -> str:
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
     """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
-    path = run_dir / RUN_FILE
-    if not path.exists():
+    from strings_bench.bench.results import read_manifest
+
+    old = read_manifest(run_dir)
+    if old is None:
         return manifest
-    try:
-        old = json.loads(path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise StringsBenchError(f"{path} is unreadable: {exc}", hint="delete it, or use another --out folder") from exc
     for k in ("downscale", "ocr"):
         if old.get(k) != manifest.get(k):
+            what = "--ocr engine list" if k == "ocr" else k
             raise StringsBenchError(
-                f"{run_dir} holds results made with {k}={old.get(k)!r}; this run asks for {manifest.get(k)!r}",
-                hint="use another --out folder, or the same settings to resume")
+                f"{run_dir} holds results made with {what} {old.get(k)!r}; this run asks for {manifest.get(k)!r}",
+                hint="use another --out folder, or the same settings to resume"
+                     + (" (every cell is scored by every engine of the list, the first being the primary)" if k == "ocr" else ""))
     # Folders made before the profile was recorded were scored with the rules now named "robust".
     old_profile = old.get("cer_profile", "robust")
     if old_profile != manifest.get("cer_profile", "paper"):
@@ -767,6 +827,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     """
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
+    from strings_bench.core.io import cache_root, sweep_stale_temps
     from strings_bench.engine.trainer import resolve_device
 
     if isinstance(executor, str):
@@ -774,6 +835,11 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
         in_process = getattr(factory, "in_process", True)
     else:
         factory, in_process = None, getattr(executor, "in_process", True)
+    # Temporary files of runs killed mid-write (kill -9, the OOM killer): finished files are never half-written,
+    # but their temporaries would stay for ever. Compiled kernels are numba's own.
+    sweep_stale_temps(run_dir)
+    sweep_stale_temps(cache_root(), skip=("numba",))
+
     # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
     # workers resolve their own and record it in each result.json.
     asked = plan.manifest.get("device", "auto")
@@ -799,7 +865,13 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
                     on_cell=on_cell if in_process else None, lpips_at=lpips_at,
                     progress=progress if in_process else False, results_csv=in_process)
     ex = factory(runner, **(executor_options or {})) if factory is not None else executor
-    pending = [job for job in plan.jobs if not all(is_finished(run_dir, k) for k in job.cells())]
+    pending = []
+    for job in plan.jobs:
+        if all(is_finished(run_dir, k) for k in job.cells()):
+            # A run killed between writing the last cell and removing the training state left the state.
+            job.state_path().unlink(missing_ok=True)
+        else:
+            pending.append(job)
     errors: list[tuple[Job, BaseException]] = []
     try:
         if pending and hasattr(ex, "start"):
@@ -899,7 +971,8 @@ def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_R
     overriding its preset; steps_scale and checkpoints (paper iterations) replace the preset's schedule.
     `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
     training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
-    `keep_models` writes each cell's model.ply. `executor` names where jobs run (EXECUTORS);
+    `keep_models` writes each cell's model.ply; `ocr` names one OCR engine or a comma-separated list (the
+    first is the primary; see `Evaluator`). `executor` names where jobs run (EXECUTORS);
     `executor_options` go to its factory (`--executor ray`: address, max_retries, cpus_per_job)."""
     factory = executor_factory(executor)
     if getattr(factory, "in_process", True):  # jobs run here: a missing GPU is refused before any scene is built
@@ -912,6 +985,10 @@ def run(methods: list[str], datasets: list[str], run_dir: str | Path = DEFAULT_R
     elif executor_options:
         raise StringsBenchError(f"executor {executor!r} takes no options (given: {', '.join(sorted(executor_options))})",
                                 hint="--ray-address, --max-retries and --cpus-per-job apply to --executor ray")
+    if ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
+        from strings_bench.eval.ocr import parse_engines
+
+        parse_engines(ocr)
     plan = plan_run(methods, datasets, run_dir, preset, ocr, downscale, method_overrides, cer_profile,
                     steps_scale=steps_scale, checkpoints=checkpoints, device=device, save_every=save_every,
                     keep_models=keep_models)

@@ -37,7 +37,7 @@ class Command:
 # The one table of commands, in the order `strings-bench --help` lists them.
 COMMANDS: dict[str, Command] = {
     "run": Command("strings_bench.cli.run", "train and evaluate methods on scenes, write results.csv and a report"),
-    "report": Command("strings_bench.cli.report", "(re)write the tables and figures of a run folder"),
+    "report": Command("strings_bench.cli.report", "(re)write the tables, figures and HTML page of a run folder"),
     "methods": Command("strings_bench.cli.methods", "methods available to `run`"),
     "datasets": Command("strings_bench.cli.datasets",
                         "list datasets, prepare scenes (build synthetic ones), add/check/download real data"),

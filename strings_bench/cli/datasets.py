@@ -67,12 +67,37 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     g.add_argument("--views", type=int, dest="n_views", help="views on the orbit (default 48)")
     g.add_argument("--seed", type=int, help="generator seed (default 0)")
     g.add_argument("--supersample", type=int, help="s x s rays per pixel (default 2)")
+    d = pp.add_argument_group("difficulty controls (docs/synthetic.md; the first four: synthetic360 scenes only)")
+    d.add_argument("--room-scale", type=float, help="multiplies the room, the clutter ring and the orbit radius (default 1)")
+    d.add_argument("--text-px", type=_text_px, metavar="LO,HI",
+                   help="word box heights in pixels at room scale 1 (default 6,16 x width/320)")
+    d.add_argument("--bg-frequency", type=float, help="multiplies the spatial frequency of background textures (default 1)")
+    d.add_argument("--clutter", type=int, help="textured objects without text around the room (default 10)")
+    d.add_argument("--exposure-sd", type=float, help="per-view exposure, sd in stops (synthetic 0, synthetic360 0.15)")
+    d.add_argument("--white-balance-sd", type=float, help="per-view sd of the log red and blue gains (0 / 0.03)")
+    d.add_argument("--vignetting", type=float, help="corner darkening, gain 1 - v r^2 (0 / 0.15)")
+    d.add_argument("--noise-sigma", type=float, help="Gaussian sensor noise, sd in 8-bit levels (0 / 1.5)")
+    d.add_argument("--defocus-px", type=float, help="Gaussian defocus blur, sd in pixels (default 0)")
+    d.add_argument("--motion-blur-px", type=float, help="motion blur, length up to this many pixels per view (default 0)")
     pp.set_defaults(func=cmd_prepare)
 
     add_dataset_subcommands(sub)
     for extra in EXTRA_SUBCOMMANDS:
         extra.setup(sub.add_parser(extra.name, help=extra.help))
     return p
+
+
+def _text_px(value: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI (two numbers, e.g. 6,16), got {value!r}") from None
+    return lo, hi
+
+
+SYNTHETIC_IDS = ("synthetic", "synthetic360")
+OVERRIDE_FIELDS = ("width", "height", "n_views", "seed", "supersample", "room_scale", "text_px", "bg_frequency", "clutter",
+                   "exposure_sd", "white_balance_sd", "vignetting", "noise_sigma", "defocus_px", "motion_blur_px")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,10 +111,11 @@ def _scene_status(card, scene: str) -> str:
     from strings_bench.core.errors import DatasetError
     from strings_bench.datasets.registry import local_root
 
-    if card.id == "synthetic":
-        from strings_bench.datasets.synthetic import is_built, scene_dir
+    if card.id in SYNTHETIC_IDS:
+        from strings_bench.datasets.synthetic import default_settings, is_built, scene_dir
 
-        return f"cached at {scene_dir(scene)}" if is_built(scene) else "not built (built on first use)"
+        settings = default_settings(scene)
+        return f"cached at {scene_dir(scene, settings)}" if is_built(scene, settings) else "not built (built on first use)"
     if card.locate is not None:
         return "located on demand"
     try:
@@ -116,15 +142,16 @@ def cmd_prepare(args) -> int:
 
     from strings_bench.core.errors import DatasetError
     from strings_bench.datasets.registry import get_dataset, locate_scene
-    from strings_bench.datasets.synthetic import SCENE_NAMES, build_scene, settings_with
+    from dataclasses import replace
+
+    from strings_bench.datasets.synthetic import SCENE_NAMES, build_scene, default_settings
 
     specs = list(args.specs)
     if args.all:
         specs += [f"synthetic/{s}" for s in SCENE_NAMES]
     if not specs:
         raise DatasetError("nothing to prepare", hint="name scenes (e.g. synthetic/books) or pass --all")
-    settings = settings_with(width=args.width, height=args.height, n_views=args.n_views, seed=args.seed,
-                             supersample=args.supersample)
+    overrides = {k: getattr(args, k) for k in OVERRIDE_FIELDS if getattr(args, k, None) is not None}
     todo = []
     for spec in specs:
         dataset_id, _, scene = spec.partition("/")
@@ -135,8 +162,9 @@ def cmd_prepare(args) -> int:
     rows = []
     for dataset_id, scene, card in tqdm(todo, desc="scenes", unit="scene", disable=len(todo) < 2):
         t0 = time.perf_counter()
-        if dataset_id == "synthetic":
-            path = build_scene(scene, settings, force=args.force, progress=True)
+        if dataset_id in SYNTHETIC_IDS:
+            # Each scene's defaults (synthetic360 has camera variation on), with the options given.
+            path = build_scene(scene, replace(default_settings(scene), **overrides), force=args.force, progress=True)
         else:
             path = locate_scene(card, scene)
         rows.append(_stats(f"{dataset_id}/{scene}", path, time.perf_counter() - t0))

@@ -1,4 +1,4 @@
-"""CLI: `strings-bench report RUN_DIR`: (re)write the tables and figures of a run folder."""
+"""CLI: `strings-bench report RUN_DIR`: (re)write the tables, figures and HTML page of a run folder."""
 
 from __future__ import annotations
 
@@ -18,9 +18,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write RUN_DIR/report/ from the run folder's cells and print where."""
+    """Write RUN_DIR/report/ from the run folder's cells and print where (report.md and index.html)."""
     from strings_bench.bench.reports import write_report
 
     path = write_report(args.run_dir, metrics=args.metric)
     print(f"report: {path}")
+    print(f"html:   {(path.parent / 'index.html').resolve().as_uri()}")
     return 0

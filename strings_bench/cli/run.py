@@ -38,7 +38,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "default: the preset's; recorded in run.json")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
-    p.add_argument("--ocr", default="rapidocr", help="OCR backend for OCR-CER (rapidocr, tesseract, gcv)")
+    p.add_argument("--ocr", default="rapidocr",
+                   help="OCR engine for OCR-CER (rapidocr, tesseract, gcv), or a comma-separated list, e.g. "
+                        "rapidocr,tesseract: the first is the primary (cer, cer_known), each further engine adds "
+                        "cer_<engine> and its agreement with the primary (docs/ocr.md); recorded in run.json")
     p.add_argument("--cer-profile", default="paper",
                    help="OCR-CER profile (default paper: the authors' rules exactly; robust: repairs invalid polygons, "
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
@@ -80,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
     out = run_bench(executor_options=executor_options(args), **_run_arguments(args))
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
+    print(f"html:    {(out / 'report' / 'index.html').resolve().as_uri()}")
     return 0
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 
 from PIL import Image
 
-from strings_bench.scene.colmap import MODEL_FILES, PINHOLE_MODELS, diagnose_binary_model
+from strings_bench.scene.colmap import (MODEL_FILES, PINHOLE_MODELS, diagnose_binary_model, diagnose_text_model,
+                                       model_file, value_problems)
 from strings_bench.core.errors import DatasetError, StringsBenchError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg"}
@@ -86,10 +87,13 @@ def _same_aspect(a: tuple[int, int], b: tuple[int, int]) -> bool:
 
 
 def _image_size(path: Path) -> tuple[int, int] | None:
+    """The image's size, or None when it cannot be decoded. The whole file is decoded: a photo cut short
+    by a broken copy has a valid header and would otherwise pass until training reads it."""
     try:
-        with Image.open(path) as im:  # reads the header only
+        with Image.open(path) as im:
+            im.load()
             return im.size
-    except OSError:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
         return None
 
 
@@ -131,7 +135,7 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
         else:
             # Walk the binary files first: pycolmap can spend minutes on a cut-off points3D.bin
             # (a garbage track length read past the end), and its errors do not name the file.
-            where = diagnose_binary_model(model_dir) if complete[0] == ".bin" else []
+            where = diagnose_binary_model(model_dir) if complete[0] == ".bin" else diagnose_text_model(model_dir)
             if where:
                 rep.add(ERROR, model_dir, f"cannot read the COLMAP model in {model_dir}: {'; '.join(where)}",
                         "re-copy or re-export the model (the file was cut short or damaged)")
@@ -144,6 +148,10 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
 
     registered = {}
     if rec is not None:
+        bad_values = value_problems(rec, model_dir)
+        if bad_values:
+            rep.add(ERROR, model_dir, f"invalid values in the COLMAP model: {'; '.join(bad_values)}",
+                    "re-copy or re-export the model (the file was damaged or written by a broken tool)")
         for im in rec.images.values():
             if im.has_pose:
                 registered[im.name] = im
@@ -175,7 +183,7 @@ def check_scene(path: str | Path, name: str = "", try_load: bool = True) -> Scen
             no_image = sorted(n for n in registered if n not in on_disk and not (images_dir / n).exists())
             if no_image:
                 rep.add(ERROR, images_dir, f"{len(no_image)} image(s) have a pose in the model but no file in "
-                        f"{images_dir}: {_list(no_image)}",
+                        f"{images_dir}: {_list(no_image)} (listed in {model_file(model_dir, 'images')})",
                         "copy the missing photos, or re-run SfM on the photos you have")
             no_pose = sorted(n for n in on_disk if n not in registered)
             if no_pose:

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import lzma
 import os
 import shutil
 import stat
@@ -20,6 +21,7 @@ import tarfile
 import urllib.error
 import urllib.request
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Callable
@@ -136,11 +138,52 @@ def _zip_is_link_or_special(info: zipfile.ZipInfo) -> bool:
     return file_type not in (0, stat.S_IFREG, stat.S_IFDIR)
 
 
-def safe_extract(archive: str | Path, target: str | Path, progress: bool = True) -> Path:
-    """Extract a .zip or .tar(.gz/.bz2/.xz) into `target` (which must not exist yet)."""
+EXTRACT_LIMIT_ENV = "STRINGS_BENCH_MAX_EXTRACT_BYTES"
+MIN_EXTRACT_LIMIT = 1 << 30  # 1 GiB
+EXTRACT_RATIO_LIMIT = 100  # photos and COLMAP models compress far less than 100:1; a zip bomb far more
+
+
+def extract_limit(archive: Path, max_bytes: int | None = None) -> int:
+    """Bytes an archive may expand to: `max_bytes` (a card's `download.max_bytes`), else the environment's
+    STRINGS_BENCH_MAX_EXTRACT_BYTES, else 100 x the archive's size (at least 1 GiB)."""
+    if max_bytes is not None:
+        return int(max_bytes)
+    env = os.environ.get(EXTRACT_LIMIT_ENV, "").strip()
+    if env:
+        try:
+            return int(float(env))
+        except ValueError:
+            raise DatasetError(f"{EXTRACT_LIMIT_ENV}={env!r} is not a number of bytes", hint="e.g. 200e9") from None
+    return max(MIN_EXTRACT_LIMIT, EXTRACT_RATIO_LIMIT * Path(archive).stat().st_size)
+
+
+class _Budget:
+    """Counts the bytes actually written (headers can lie about sizes) and stops at the limit."""
+
+    def __init__(self, archive: Path, limit: int):
+        self.archive, self.limit, self.used = archive, limit, 0
+
+    def refuse(self, amount: str) -> UnsafeArchiveError:
+        return UnsafeArchiveError(
+            f"{self.archive} expands to {amount}, over the extraction limit of {self.limit} bytes (a zip bomb, or a "
+            f"larger dataset than expected); extraction stopped and nothing was kept",
+            hint=f"if the archive is genuine, raise the limit with {EXTRACT_LIMIT_ENV}=BYTES")
+
+    def copy(self, src, dst) -> None:
+        while block := src.read(CHUNK):
+            self.used += len(block)
+            if self.used > self.limit:
+                raise self.refuse(f"more than {self.limit} bytes")
+            dst.write(block)
+
+
+def safe_extract(archive: str | Path, target: str | Path, progress: bool = True, max_bytes: int | None = None) -> Path:
+    """Extract a .zip or .tar(.gz/.bz2/.xz) into `target` (which must not exist yet), writing at most
+    `extract_limit(archive, max_bytes)` bytes."""
     archive, target = Path(archive), Path(target)
     if target.exists():
         raise DatasetError(f"{target} already exists", hint="delete it or choose another folder")
+    budget = _Budget(archive, extract_limit(archive, max_bytes))
     tmp = target.with_name(f".{target.name}.extract-tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -153,6 +196,9 @@ def safe_extract(archive: str | Path, target: str | Path, progress: bool = True)
                     if _zip_is_link_or_special(info):
                         raise UnsafeArchiveError(f"{archive} holds a link or special file: {info.filename!r}",
                                                  hint="refusing to extract links; get the archive from the official source")
+                declared = sum(info.file_size for info in infos)
+                if declared > budget.limit:
+                    raise budget.refuse(f"{declared} bytes (as its directory says)")
                 for info in tqdm(infos, desc=f"extract {archive.name}", unit="file", disable=not progress):
                     rel = _checked_member_path(info.filename, archive)
                     out = tmp.joinpath(*rel.parts)
@@ -161,7 +207,7 @@ def safe_extract(archive: str | Path, target: str | Path, progress: bool = True)
                         continue
                     out.parent.mkdir(parents=True, exist_ok=True)
                     with zf.open(info) as src, open(out, "wb") as dst:
-                        shutil.copyfileobj(src, dst, CHUNK)
+                        budget.copy(src, dst)
         elif tarfile.is_tarfile(archive):
             with tarfile.open(archive) as tf:
                 members = tf.getmembers()
@@ -173,6 +219,9 @@ def safe_extract(archive: str | Path, target: str | Path, progress: bool = True)
                     if not (m.isfile() or m.isdir()):
                         raise UnsafeArchiveError(f"{archive} holds a special file (device/fifo): {m.name!r}",
                                                  hint="refusing to extract special files")
+                declared = sum(m.size for m in members if m.isfile())
+                if declared > budget.limit:
+                    raise budget.refuse(f"{declared} bytes (as its headers say)")
                 for m in tqdm(members, desc=f"extract {archive.name}", unit="file", disable=not progress):
                     rel = _checked_member_path(m.name, archive)
                     out = tmp.joinpath(*rel.parts)
@@ -182,11 +231,17 @@ def safe_extract(archive: str | Path, target: str | Path, progress: bool = True)
                     out.parent.mkdir(parents=True, exist_ok=True)
                     src = tf.extractfile(m)
                     with src, open(out, "wb") as dst:
-                        shutil.copyfileobj(src, dst, CHUNK)
+                        budget.copy(src, dst)
         else:
             raise DatasetError(f"{archive} is neither a zip nor a tar archive", hint="the download may be damaged; delete it and retry")
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp, target)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, tarfile.TarError, EOFError, zlib.error, lzma.LZMAError,
+            NotImplementedError, RuntimeError, OSError) as exc:
+        # A damaged archive: a bad CRC, cut-off compressed data, an unsupported or encrypted member.
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise DatasetError(f"{archive} is damaged or unsupported and cannot be extracted: {type(exc).__name__}: {exc}",
+                           hint="delete it and download again; your other files were not touched") from exc
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -227,7 +282,7 @@ def download_dataset(dataset_id: str, dest: str | Path | None = None, progress: 
     dest = Path(dest) if dest is not None else cache_root() / "datasets" / card.id
     extracted = dest  # the archive's content; the dataset root may be a subfolder of it
     if not extracted.exists():
-        safe_extract(archive, extracted, progress=progress)
+        safe_extract(archive, extracted, progress=progress, max_bytes=info.get("max_bytes"))
     root = extracted
     if info.get("archive_subdir"):
         sub = extracted / info["archive_subdir"]

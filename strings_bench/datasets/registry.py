@@ -1,6 +1,6 @@
 """Registry of dataset cards and resolution of `--datasets` specs to scene folders.
 
-A spec is a registry id (`synthetic`, `synthetic/books`, `strings360/globe`) or a path to a scene
+A spec is a registry id (`synthetic`, `synthetic/books`, `synthetic360/office`, `strings360/globe`) or a path to a scene
 folder in the COLMAP layout. Cards describe scenes and their per-scene settings; where a card's
 data lives on disk is either built in (synthetic scenes are generated into the cache) or recorded
 by `strings-bench datasets add NAME PATH` in the user's dataset index.
@@ -40,7 +40,7 @@ def _register_builtin_cards() -> None:
     import strings_bench.datasets.cards as cards
     import strings_bench.datasets.synthetic as synthetic
 
-    for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD):
+    for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD, synthetic.CARD_360):
         register_dataset(card)
     _BUILTINS_REGISTERED = True
     try:

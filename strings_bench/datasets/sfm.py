@@ -206,6 +206,17 @@ def prepare_scene(
                 hint="the photos need overlap and texture: walk around the object taking a photo every few degrees",
             )
         best_idx, best = max(maps.items(), key=lambda kv: (kv[1].num_reg_images(), kv[1].num_points3D()))
+        # Self-calibration on few photos can end with a camera of focal length <= 0 (a mirrored camera no
+        # method can train with); `datasets check` refuses such a model, so those photos are left out here.
+        broken = _drop_invalid_cameras(best)
+        if broken:
+            echo(f"leaving out {len(broken)} photo(s) whose self-calibrated camera came out invalid "
+                 f"(focal length <= 0 or not finite): {', '.join(broken[:8])}{' ...' if len(broken) > 8 else ''}")
+            if not best.num_reg_images():
+                raise DatasetError(f"SfM registered no usable images from {photos_dir}",
+                                   hint="the photos need overlap and texture: walk around the object taking a photo "
+                                        "every few degrees")
+            shutil.rmtree(work / "sparse_raw" / str(best_idx), ignore_errors=True)
         num_registered = best.num_reg_images()
         registered_names = {im.name for im in best.images.values() if im.has_pose}
         unregistered = sorted(p.name for p in photos if p.name not in registered_names)
@@ -276,6 +287,21 @@ def prepare_scene(
         write_index(index)
         register_local_copies()
     return result
+
+
+def _drop_invalid_cameras(rec) -> list[str]:
+    """Deregister the images of `rec` whose camera has a focal length <= 0 or non-finite parameters;
+    returns their names."""
+    bad = []
+    for im in list(rec.images.values()):
+        if not im.has_pose:
+            continue
+        cam = rec.cameras[im.camera_id]
+        params = np.asarray(cam.params, dtype=np.float64)
+        if not np.all(np.isfinite(params)) or cam.focal_length_x <= 0 or cam.focal_length_y <= 0:
+            bad.append(im.name)
+            rec.deregister_frame(im.frame_id)
+    return sorted(bad)
 
 
 def _save_like(im: Image.Image, dest: Path) -> None:

@@ -74,12 +74,18 @@ def _parse_header(path: Path, raw: bytes) -> tuple[int, int, np.dtype]:
         if not tok:
             continue
         if tok[0] == "format":
-            fmt = tok[1]
+            fmt = tok[1] if len(tok) > 1 else None
         elif tok[0] == "element":
+            if len(tok) != 3 or not tok[2].isdigit():
+                raise StringsBenchError(f"{path}: PLY header line {line!r} is not 'element NAME COUNT' with a count >= 0",
+                                        hint="the header is damaged; re-export the model")
             elements.append((tok[1], int(tok[2]), []))
         elif tok[0] == "property":
             if not elements:
                 raise StringsBenchError(f"{path}: property before any element in the PLY header")
+            if len(tok) < 3:
+                raise StringsBenchError(f"{path}: PLY header line {line!r} is not 'property TYPE NAME'",
+                                        hint="the header is damaged; re-export the model")
             if tok[1] == "list":
                 raise StringsBenchError(f"{path}: list property {tok[-1]} in element {elements[-1][0]}",
                                         hint="Gaussian-splat PLYs have only scalar vertex properties")
@@ -92,6 +98,9 @@ def _parse_header(path: Path, raw: bytes) -> tuple[int, int, np.dtype]:
     if not elements or elements[0][0] != "vertex":
         raise StringsBenchError(f"{path} has no vertex element first in its header")
     _, count, props = elements[0]
+    names = [n for n, _ in props]
+    if len(set(names)) != len(names):
+        raise StringsBenchError(f"{path}: the PLY header repeats a vertex property name")
     return body_start, count, np.dtype([(n, "<" + t) for n, t in props])
 
 
@@ -122,6 +131,21 @@ def read_ply(path: str | Path, device: str = "cpu", extras: bool = True) -> Gaus
 
     def cols(names):
         return np.stack([arr[c].astype(np.float32) for c in names], axis=1) if names else np.zeros((n, 0), np.float32)
+
+    for label, names in (("positions", ["x", "y", "z"]), ("colours", ["f_dc_0", "f_dc_1", "f_dc_2"]),
+                         ("opacities", ["opacity"]), ("scales", ["scale_0", "scale_1", "scale_2"]),
+                         ("rotations", ["rot_0", "rot_1", "rot_2", "rot_3"]),
+                         ("SH coefficients", [f"f_rest_{i}" for i in range(n_rest)])):
+        values = cols(names)
+        bad = ~np.all(np.isfinite(values), axis=1)
+        if bad.any():
+            raise StringsBenchError(f"{path}: {int(bad.sum())} of {n} Gaussians have NaN or Inf {label} "
+                                    f"(first: vertex {int(np.argmax(bad))})",
+                                    hint="the model diverged or the file is damaged; re-export or retrain it")
+    zero_rot = np.linalg.norm(cols(["rot_0", "rot_1", "rot_2", "rot_3"]), axis=1) == 0
+    if zero_rot.any():
+        raise StringsBenchError(f"{path}: {int(zero_rot.sum())} Gaussians have a zero rotation quaternion "
+                                f"(first: vertex {int(np.argmax(zero_rot))})", hint="the file is damaged; re-export it")
 
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
     rest = cols([f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, k_rest).transpose(0, 2, 1)

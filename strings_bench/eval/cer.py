@@ -314,20 +314,100 @@ def image_cer(
         if int(labels[n + j]) in members:  # predicted words outside GT components cost nothing
             members[int(labels[n + j])][1].append(j)
     for g_idx, p_idx in members.values():  # components holding at least one GT word
-        best: tuple[int, str, str] | None = None
-        for g_axis in (0, 1):
-            g_sorted = sorted(g_idx, key=lambda i: (gt_centres[i][g_axis], i))
-            g_str = "".join(gt_text[i] for i in g_sorted)
-            for p_axis in (0, 1):
-                p_sorted = sorted(p_idx, key=lambda j: (pred_centres[j][p_axis], j))
-                p_str = "".join(pred_text[j] for j in p_sorted)
-                d = Levenshtein.distance(g_str, p_str)
-                if best is None or d < best[0]:
-                    best = (d, g_str, p_str)
-        assert best is not None
-        total += best[0]
-        comps.append(ComponentMatch(tuple(g_idx), tuple(p_idx), best[1], best[2], best[0]))
+        d, g_str, p_str = _component_distance(g_idx, p_idx, gt_text, pred_text, gt_centres, pred_centres)
+        total += d
+        comps.append(ComponentMatch(tuple(g_idx), tuple(p_idx), g_str, p_str, d))
     return ImageCER(total, chars, tuple(comps))
+
+
+def _component_distance(a_idx, b_idx, a_text, b_text, a_centres, b_centres) -> tuple[int, str, str]:
+    """The smallest Levenshtein distance between the two sides of a component, each side's texts
+    concatenated in the order of the mean x or the mean y of their polygons (4 combinations; ties:
+    input order), with the two strings that give it."""
+    best: tuple[int, str, str] | None = None
+    for a_axis in (0, 1):
+        a_str = "".join(a_text[i] for i in sorted(a_idx, key=lambda i: (a_centres[i][a_axis], i)))
+        for b_axis in (0, 1):
+            b_str = "".join(b_text[j] for j in sorted(b_idx, key=lambda j: (b_centres[j][b_axis], j)))
+            d = Levenshtein.distance(a_str, b_str)
+            if best is None or d < best[0]:
+                best = (d, a_str, b_str)
+    assert best is not None
+    return best
+
+
+# --------------------------------------------------------------------------- two engines' agreement
+@dataclass(frozen=True)
+class WordAgreement:
+    """How alike two OCR engines read one image (or, summed, several): `words` text regions, of which
+    `identical` were read identically by both, `only_a` / `only_b` read by one engine alone."""
+
+    words: int = 0
+    identical: int = 0
+    only_a: int = 0
+    only_b: int = 0
+
+    @property
+    def share(self) -> float:
+        """identical / words (NaN when neither engine read anything)."""
+        return self.identical / self.words if self.words else math.nan
+
+    def __add__(self, other: "WordAgreement") -> "WordAgreement":
+        return WordAgreement(self.words + other.words, self.identical + other.identical,
+                             self.only_a + other.only_a, self.only_b + other.only_b)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"words": self.words, "identical": self.identical, "only_a": self.only_a, "only_b": self.only_b,
+                "share": _json_float(self.share)}
+
+
+def word_agreement(
+    words_a: Iterable[Any],
+    words_b: Iterable[Any],
+    profile: str | NormalizationProfile = "paper",
+    iou_threshold: float = IOU_THRESHOLD,
+) -> WordAgreement:
+    """The words two OCR engines read identically in one image, matched as the CER matches words.
+
+    The words of both engines are joined when their polygons have IoU >= `iou_threshold` (0.1, the
+    profile's polygon rule), and each connected component of that graph is one text region (a word,
+    or a line where one engine reads a line as one box and the other word by word). A region is read
+    identically when both engines read something there and their texts, normalised by the profile and
+    concatenated in reading order (mean x or mean y of the polygons, as the CER orders them), are
+    equal. Regions read by one engine only count as not identical; regions whose text is empty after
+    normalisation on both sides are not counted. `share` = identical / regions.
+    """
+    prof = get_profile(profile)
+    a = [_as_word(w) for w in words_a]
+    b = [_as_word(w) for w in words_b]
+    a_text = [prof.normalize(w.text) for w in a]
+    b_text = [prof.normalize(w.text) for w in b]
+    n, m = len(a), len(b)
+    if n + m == 0:
+        return WordAgreement()
+    rule = prof.polygons
+    edges = iou_edges([polygon_geometry(w.polygon, rule) for w in a], [polygon_geometry(w.polygon, rule) for w in b],
+                      iou_threshold)
+    graph = coo_matrix((np.ones(len(edges)), ([i for i, _ in edges], [n + j for _, j in edges])), shape=(n + m, n + m))
+    _, labels = connected_components(graph, directed=False)
+    members: dict[int, tuple[list[int], list[int]]] = {}
+    for i in range(n):
+        members.setdefault(int(labels[i]), ([], []))[0].append(i)
+    for j in range(m):
+        members.setdefault(int(labels[n + j]), ([], []))[1].append(j)
+    a_centres, b_centres = [_mean_xy(w) for w in a], [_mean_xy(w) for w in b]
+    words = identical = only_a = only_b = 0
+    for a_idx, b_idx in members.values():
+        if not any(a_text[i] for i in a_idx) and not any(b_text[j] for j in b_idx):
+            continue
+        words += 1
+        if not a_idx:
+            only_b += 1
+        elif not b_idx:
+            only_a += 1
+        elif _component_distance(a_idx, b_idx, a_text, b_text, a_centres, b_centres)[0] == 0:
+            identical += 1
+    return WordAgreement(words, identical, only_a, only_b)
 
 
 def text_height_px(polygon: Any) -> float:

@@ -105,7 +105,7 @@ def read_model(path: str | Path) -> ColmapModel:
     _check_model_files(model_dir)
     # pycolmap can spend minutes on a truncated .bin before failing without naming the file;
     # a record-by-record walk of the binary layout names the file and the record at once.
-    problems = diagnose_binary_model(model_dir)
+    problems = diagnose_binary_model(model_dir) or diagnose_text_model(model_dir)
     if problems:
         raise DatasetError("corrupt COLMAP model: " + "; ".join(problems),
                            hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified")
@@ -118,6 +118,10 @@ def read_model(path: str | Path) -> ColmapModel:
             hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified",
         ) from exc
 
+    problems = value_problems(rec, model_dir)
+    if problems:
+        raise DatasetError("invalid values in the COLMAP model: " + "; ".join(problems),
+                           hint="re-export the model from COLMAP, or re-run `strings-bench prepare`; your files were not modified")
     reg = [im for im in rec.images.values() if im.has_pose]
     if not reg:
         raise DatasetError(f"the COLMAP model in {model_dir} has no registered images", hint="SfM failed; check the photos")
@@ -162,6 +166,54 @@ def read_model(path: str | Path) -> ColmapModel:
         track_xy=np.asarray(xys, dtype=np.float64).reshape(-1, 2),
         point_ids=point_ids,
     )
+
+
+def model_file(model_dir: Path, stem: str) -> Path:
+    """The file of `stem` (cameras, images, points3D) that pycolmap reads in `model_dir`: .bin when present."""
+    binary = Path(model_dir) / f"{stem}.bin"
+    return binary if binary.exists() else Path(model_dir) / f"{stem}.txt"
+
+
+def _list_ids(ids: list, n: int = 5) -> str:
+    return ", ".join(str(i) for i in ids[:n]) + (f" ... ({len(ids)} in all)" if len(ids) > n else "")
+
+
+def value_problems(rec, model_dir: Path) -> list[str]:
+    """Values no scene can use, each naming its file: non-finite or non-positive intrinsics and image
+    sizes of the cameras registered images use, non-finite poses of registered images, non-finite point coordinates (a NaN would reach every
+    Gaussian through the scene extent and the initial model)."""
+    model_dir = Path(model_dir)
+    problems = []
+    bad_cams = []
+    used = {im.camera_id for im in rec.images.values() if im.has_pose}  # COLMAP keeps cameras of dropped images
+    for cam_id, cam in sorted(rec.cameras.items()):
+        if cam_id not in used:
+            continue
+        params = np.asarray(cam.params, dtype=np.float64)
+        if not np.all(np.isfinite(params)) or int(cam.width) <= 0 or int(cam.height) <= 0:
+            bad_cams.append(cam_id)
+        elif cam.model.name in PINHOLE_MODELS and np.any(params[: 2 if cam.model.name == "PINHOLE" else 1] <= 0):
+            bad_cams.append(cam_id)
+    if bad_cams:
+        problems.append(f"{model_file(model_dir, 'cameras')}: camera(s) {_list_ids(bad_cams)} have a non-finite or "
+                        f"non-positive focal length, principal point or image size")
+    bad_poses = []
+    for image_id, im in sorted(rec.images.items()):
+        if not im.has_pose:
+            continue
+        pose = im.cam_from_world()
+        values = np.concatenate([np.asarray(pose.rotation.quat, dtype=np.float64).ravel(),
+                                 np.asarray(pose.translation, dtype=np.float64).ravel()])
+        if not np.all(np.isfinite(values)) or np.linalg.norm(values[:4]) == 0:
+            bad_poses.append(im.name)
+    if bad_poses:
+        problems.append(f"{model_file(model_dir, 'images')}: image(s) {_list_ids(bad_poses)} have a non-finite pose "
+                        f"(NaN or Inf rotation or translation)")
+    bad_points = [pid for pid, p in rec.points3D.items() if not np.all(np.isfinite(np.asarray(p.xyz, dtype=np.float64)))]
+    if bad_points:
+        problems.append(f"{model_file(model_dir, 'points3D')}: point(s) {_list_ids(sorted(bad_points))} have NaN or Inf "
+                        f"coordinates")
+    return problems
 
 
 def write_model(model: ColmapModel, out_dir: str | Path, binary: bool = True) -> Path:
@@ -303,4 +355,86 @@ def diagnose_binary_model(model_dir: Path) -> list[str]:
                     found.append(f"{path}: {len(r.data) - r.pos} unexpected bytes after the last of {total} records")
         except EOFError:
             found.append(f"{path} is truncated: it ends ({len(r.data)} bytes) inside record {k + 1} of {total}")
+    return found
+
+
+# ---- text model diagnosis ---------------------------------------------------------------------
+def _camera_param_counts_by_name() -> dict[str, int]:
+    import pycolmap
+
+    by_id = _camera_param_counts()
+    return {name: by_id[int(mid)] for name, mid in pycolmap.CameraModelId.__members__.items() if int(mid) in by_id}
+
+
+def _numbers(tokens: list[str], kinds: str) -> str | None:
+    """None when each token parses as its kind ('i' integer, 'f' float), else the first bad token."""
+    for tok, kind in zip(tokens, kinds):
+        try:
+            int(tok) if kind == "i" else float(tok)
+        except ValueError:
+            return tok
+    return None
+
+
+def diagnose_text_model(model_dir: Path) -> list[str]:
+    """Check cameras.txt, images.txt and points3D.txt line by line (COLMAP's text layout: token counts,
+    numbers, camera models) and say which file and line is malformed. Returns one message per bad file.
+    pycolmap's own errors on these files name a line of its C++ source, not of the file."""
+    found = []
+    model_dir = Path(model_dir)
+    if any((model_dir / f"{n}.bin").exists() for n in MODEL_FILES):
+        return found  # pycolmap reads the binary model
+    counts = None
+    for stem in MODEL_FILES:
+        path = model_dir / f"{stem}.txt"
+        if not path.exists():
+            continue
+        try:
+            lines = path.read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            found.append(f"{path} cannot be read as text: {exc}")
+            continue
+        problem = None
+        k = 0
+        while k < len(lines) and problem is None:
+            line = lines[k].strip()
+            k += 1
+            if not line or line.startswith("#"):
+                continue
+            tok = line.split()
+            where = f"{path} line {k}"
+            if stem == "cameras":
+                if counts is None:
+                    counts = _camera_param_counts_by_name()
+                if len(tok) < 4:
+                    problem = f"{where} has {len(tok)} values; a camera needs ID MODEL WIDTH HEIGHT PARAMS"
+                elif tok[1] not in counts:
+                    problem = f"{where} names an unknown camera model {tok[1]!r}"
+                elif len(tok) != 4 + counts[tok[1]]:
+                    problem = f"{where}: model {tok[1]} takes {counts[tok[1]]} parameters, the line has {len(tok) - 4}"
+                elif (bad := _numbers([tok[0], tok[2], tok[3]] + tok[4:], "iii" + "f" * (len(tok) - 4))) is not None:
+                    problem = f"{where}: {bad!r} is not a number"
+            elif stem == "images":
+                if len(tok) < 10:
+                    problem = f"{where} has {len(tok)} values; an image needs ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"
+                elif (bad := _numbers(tok[:9], "ifffffffi")) is not None:
+                    problem = f"{where}: {bad!r} is not a number"
+                else:
+                    # The next line lists the image's 2D points as X Y POINT3D_ID triples (it may be empty).
+                    points = lines[k].split() if k < len(lines) else None
+                    k += 1
+                    if points is None:
+                        problem = f"{path} ends after line {k - 1}: the 2D points line of image {tok[9]!r} is missing"
+                    elif len(points) % 3:
+                        problem = f"{path} line {k}: {len(points)} values, not X Y POINT3D_ID triples"
+                    elif (bad := _numbers(points, "ffi" * (len(points) // 3))) is not None:
+                        problem = f"{path} line {k}: {bad!r} is not a number"
+            else:
+                if len(tok) < 8 or (len(tok) - 8) % 2:
+                    problem = (f"{where} has {len(tok)} values; a point needs ID X Y Z R G B ERROR and "
+                               f"IMAGE_ID POINT2D_IDX pairs")
+                elif (bad := _numbers(tok, "ifffiiif" + "ii" * ((len(tok) - 8) // 2))) is not None:
+                    problem = f"{where}: {bad!r} is not a number"
+        if problem:
+            found.append(problem)
     return found

@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image
 
 from strings_bench.scene.camera import Camera
-from strings_bench.scene.colmap import ColmapModel, read_model
+from strings_bench.scene.colmap import ColmapModel, find_model_dir, model_file, read_model
 from strings_bench.core.errors import DatasetError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".JPG", ".JPEG", ".PNG")
@@ -92,7 +92,8 @@ class Scene:
         missing = [c.name for c in model.cameras if not (images_dir / c.name).exists()]
         if missing:
             raise DatasetError(
-                f"{len(missing)} image(s) listed in the COLMAP model of {root} are missing from {images_dir}: "
+                f"{len(missing)} image(s) listed in the COLMAP model of {root} "
+                f"({model_file(find_model_dir(root), 'images')}) are missing from {images_dir}: "
                 f"{', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}",
                 hint="copy the missing photos, or re-run SfM on the photos you have",
             )
@@ -108,19 +109,37 @@ class Scene:
         split_file = self.root / SPLIT_FILE
         if not split_file.exists():
             return default_split(names)
+        hint = 'expected {"test": [image names], "train": [image names] (optional)}; or delete split.json to use every 8th image'
         try:
-            spec = json.loads(split_file.read_text())
-            test_names = list(spec["test"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise DatasetError(f"cannot read {split_file}: {exc}", hint='expected {"test": [image names], "train": [...]}') from exc
+            spec = json.loads(split_file.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise DatasetError(f"cannot read {split_file}: {exc}", hint=hint) from exc
+        if not isinstance(spec, dict) or "test" not in spec:
+            raise DatasetError(f"{split_file} has no \"test\" list", hint=hint)
+        lists = {}
+        for key in ("test", "train"):
+            value = spec.get(key)
+            if value is None and key == "train":
+                continue
+            if not isinstance(value, list) or not all(isinstance(n, str) for n in value):
+                raise DatasetError(f"{split_file}: \"{key}\" must be a list of image names, got {json.dumps(value)[:80]}",
+                                   hint=hint)
+            lists[key] = value
         index = {n: i for i, n in enumerate(names)}
-        unknown = [n for n in test_names + list(spec.get("train", [])) if n not in index]
+        unknown = [n for n in lists["test"] + lists.get("train", []) if n not in index]
         if unknown:
             raise DatasetError(f"{split_file} names images that are not in the model: {unknown[:5]}",
                                hint="fix the names, or delete split.json to use every 8th image")
-        test = sorted(index[n] for n in test_names)
-        train_names = spec.get("train")
-        train = sorted(index[n] for n in train_names) if train_names else [i for i in range(len(names)) if i not in set(test)]
+        test = sorted({index[n] for n in lists["test"]})
+        train_names = lists.get("train")
+        train = sorted({index[n] for n in train_names}) if train_names else [i for i in range(len(names)) if i not in set(test)]
+        both = sorted(set(train) & set(test))
+        if both:
+            raise DatasetError(f"{split_file} puts {len(both)} view(s) in both train and test: "
+                               f"{[names[i] for i in both][:5]}", hint="a test view must not be trained on")
+        if not test or not train:
+            raise DatasetError(f"{split_file} leaves no {'test' if not test else 'training'} view "
+                               f"({len(test)} test, {len(train)} train of {len(names)})", hint=hint)
         return train, test
 
     # ---- geometry -------------------------------------------------------------------------
@@ -192,15 +211,31 @@ class Scene:
         return [KnownWord(k.text, k.polygon * s) for k in self.known_text.get(cam.name, [])]
 
 
+def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
+    """`im` in 8-bit `mode` ("RGB", "L"). 16-bit and 32-bit grayscale is scaled to 8 bit first: PIL's
+    convert clips those values at 255, which turns a 16-bit photo white."""
+    if im.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
+        arr = np.asarray(im, dtype=np.float64)
+        peak = 65535.0 if im.mode.startswith("I;16") or arr.max(initial=0) > 255 else 255.0
+        im = Image.fromarray(np.clip(arr / peak * 255.0 + 0.5, 0, 255).astype(np.uint8), mode="L")
+    return im.convert(mode)
+
+
 @lru_cache(maxsize=256)
 def _load_rgb(path: str, size: tuple[int, int]) -> np.ndarray:
     try:
         with Image.open(path) as im:
-            im = im.convert("RGB")
+            (iw, ih), (tw, th) = im.size, size
+            if abs(iw * th - ih * tw) > max(iw, ih, tw, th):
+                # Another resolution of the same picture is resized below; another aspect is another picture.
+                raise DatasetError(
+                    f"image {path} is {iw}x{ih} but its camera is {tw}x{th} at this resolution (different aspect ratio)",
+                    hint="the images and sparse/0 come from different runs (or the photo was cropped); keep them together")
+            im = _to_8bit(im, "RGB")
             if im.size != size:
                 im = im.resize(size, Image.Resampling.LANCZOS)
             arr = np.asarray(im, dtype=np.float32) / 255.0
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise DatasetError(f"cannot read image {path}: {exc}", hint="the file is missing or corrupt; replace it") from exc
     arr.setflags(write=False)
     return arr
@@ -210,7 +245,7 @@ def _load_rgb(path: str, size: tuple[int, int]) -> np.ndarray:
 def _load_mask(path: str, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
     try:
         with Image.open(path) as im:
-            im = im.convert("L")
+            im = _to_8bit(im, "L")
             msize = im.size
             if msize != size:
                 # Same aspect ratio (within a pixel of rounding) means the mask is just another resolution.
@@ -222,22 +257,39 @@ def _load_mask(path: str, full_size: tuple[int, int], size: tuple[int, int]) -> 
                     )
                 im = im.resize(size, Image.Resampling.NEAREST)
             arr = np.asarray(im) > 127
-    except OSError as exc:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise DatasetError(f"cannot read mask {path}: {exc}", hint="the file is corrupt; regenerate the masks") from exc
     arr.setflags(write=False)
     return arr
 
 
 def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
+    hint = 'expected {"views": {image_name: [{"text": ..., "polygon": [[x, y], ...]}]}}'
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        return {
-            name: [KnownWord(str(w["text"]), np.asarray(w["polygon"], dtype=np.float64).reshape(-1, 2)) for w in words]
-            for name, words in data["views"].items()
-        }
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DatasetError(f"cannot read text annotations {path}: {exc}",
-                           hint='expected {"views": {image_name: [{"text": ..., "polygon": [[x, y], ...]}]}}') from exc
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+        raise DatasetError(f"cannot read text annotations {path}: {exc}", hint=hint) from exc
+    views = data.get("views") if isinstance(data, dict) else None
+    if not isinstance(views, dict):
+        raise DatasetError(f"text annotations {path} hold no \"views\" object (got {type(data).__name__})", hint=hint)
+    out: dict[str, list[KnownWord]] = {}
+    for name, words in views.items():
+        if not isinstance(words, list) or not all(isinstance(w, dict) and "text" in w and "polygon" in w for w in words):
+            raise DatasetError(f"text annotations {path}: view {name!r} is not a list of {{\"text\", \"polygon\"}} words",
+                               hint=hint)
+        kept = []
+        for w in words:
+            try:
+                poly = np.asarray(w["polygon"], dtype=np.float64)
+            except (ValueError, TypeError) as exc:
+                raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not numbers: {exc}",
+                                   hint=hint) from exc
+            if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
+                raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not >= 3 finite [x, y] "
+                                   f"points (shape {poly.shape})", hint=hint)
+            kept.append(KnownWord(str(w["text"]), poly))
+        out[str(name)] = kept
+    return out
 
 
 def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> None:

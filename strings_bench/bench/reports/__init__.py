@@ -1,7 +1,7 @@
-"""The report of a run: tables (LaTeX/Markdown/CSV), figures, and a report.md index.
+"""The report of a run: tables (LaTeX/Markdown/CSV), figures, a report.md index and a static HTML page.
 
     from strings_bench.bench.reports import write_report
-    write_report("runs/default")      # -> runs/default/report/report.md
+    write_report("runs/default")      # -> runs/default/report/report.md (and report/index.html)
 
 Everything is rebuilt from RUN_DIR/results.csv and the cell result files, so a report can be
 regenerated at any time (`strings-bench report RUN_DIR`), also for a partly finished run.
@@ -9,10 +9,9 @@ regenerated at any time (`strings-bench report RUN_DIR`), also for a partly fini
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from strings_bench.bench.results import RESULTS_CSV, RUN_FILE, write_results_csv
+from strings_bench.bench.results import RESULTS_CSV, read_manifest, write_results_csv
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 
@@ -20,10 +19,12 @@ __all__ = ["write_report"]
 
 
 def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
-    """Write RUN_DIR/report/ (tables, figures, report.md); `metrics` picks the metrics of the scatter and
-    over-iterations figures (default: OCR-CER, word CER and text NLL where the run has them)."""
+    """Write RUN_DIR/report/ (tables, figures, report.md, index.html with its word-crop galleries);
+    `metrics` picks the metrics of the scatter and over-iterations figures (default: OCR-CER, word CER
+    and text NLL where the run has them). Returns report.md's path."""
     from strings_bench.bench.reports.figures import write_figures
-    from strings_bench.bench.reports.tables import load_results, write_tables
+    from strings_bench.bench.reports.html import write_html
+    from strings_bench.bench.reports.tables import build_tables, load_results, write_tables
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -32,9 +33,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
         write_results_csv(run_dir)  # always from the cell files: they are the truth
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
-    manifest = {}
-    if (run_dir / RUN_FILE).exists():
-        manifest = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
+    manifest = read_manifest(run_dir) or {}
     df = load_results(run_dir)
     out = run_dir / "report"
     tables = write_tables(df, out / "tables", manifest)
@@ -46,14 +45,19 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
                      f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
     lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
                  "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")
+    notes = []
     if not df.empty and df["ocr_failed"].fillna(0).astype(int).sum():
-        lines.append(f"\n**OCR failed on {int(df['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s)**; "
+        notes.append(f"OCR failed on {int(df['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s); "
                      "those views are left out of CER (see `ocr_failed` in results.csv).")
     if not df.empty and df["lpips"].isna().all():
         from strings_bench.eval.lpips_net import INSTALL_HINT, available
 
         why = "it was skipped (--no-lpips)" if available() else f"its weights are not installed (`{INSTALL_HINT}`)"
-        lines.append(f"\nLPIPS is n/a: {why}.")
+        notes.append(f"LPIPS is n/a: {why}.")
+    lines += [f"\n{n}" for n in notes]
+    lines.append("")
+    lines.append("The same report as one page with sortable tables and word-crop galleries per scene: `index.html` "
+                 "(open it in a browser; no server needed).")
     lines.append("")
     for name, files in tables.items():
         lines += [f"## {name.replace('_', ' ')}", "", files["md"].read_text(encoding="utf-8"),
@@ -66,4 +70,6 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
             if "_vs_time_" in name:
                 lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
-    return atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    write_html(run_dir, out, df, manifest, build_tables(df, manifest), figures, notes)
+    return md

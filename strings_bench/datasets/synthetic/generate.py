@@ -12,7 +12,9 @@ Layout written (COLMAP style, loadable with `Scene.load`):
 
 `key` hashes the generator version and every setting, so changing either builds a new folder.
 The scene is built in a hidden sibling folder and renamed into place: an interrupted build never
-leaves a half-written cache.
+leaves a half-written cache. scene_meta.json, written last, lists every file with its size; a cached
+scene whose files do not match (a copy cut short, a file lost) is rebuilt, and the build folders of
+killed processes are removed (`core.io.sweep_stale_temps`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import shutil
 import time
 import uuid
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,15 +37,18 @@ from tqdm.auto import tqdm
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, read_model, write_model
 from strings_bench.core.errors import DatasetError
-from strings_bench.core.io import atomic_write_json, cache_root
+from strings_bench.core.io import atomic_write_json, cache_root, sweep_stale_temps, writer_tag
 from strings_bench.scene.scene import KnownWord, write_annotations
+from strings_bench.datasets.synthetic.photometric import apply_photometry, draw_view_photometry
 from strings_bench.datasets.synthetic.scenes import BUILDERS, SceneSpec
+from strings_bench.datasets.synthetic.scenes360 import BUILDERS_360, DEFAULT_TEXT_PX, RoomParams
 
 log = logging.getLogger(__name__)
 
 # Bump whenever rendering, scene content or SfM settings change what a build produces.
 GENERATOR_VERSION = "2"
-SCENE_NAMES = tuple(BUILDERS)
+SCENE_NAMES = tuple(BUILDERS)  # the `synthetic` dataset (easy: object-centred, clean images)
+SCENE_NAMES_360 = tuple(BUILDERS_360)  # the `synthetic360` dataset (room-scale)
 META_FILE = "scene_meta.json"
 
 
@@ -51,7 +56,7 @@ META_FILE = "scene_meta.json"
 class SyntheticSettings:
     width: int = 320
     height: int = 240
-    n_views: int = 48
+    n_views: int = 48  # views on the camera path (the paper's captures have 150-300)
     seed: int = 0
     supersample: int = 2  # s x s rays per pixel (3 is ~3x slower)
     max_features: int = 2048  # SIFT keypoints per image
@@ -59,6 +64,18 @@ class SyntheticSettings:
     min_points: int = 300  # fewer triangulated points than this triggers the relaxed retry, then the fallback
     min_word_px: float = 4.0  # words whose projected box is shorter than this are not annotated
     min_facing_cos: float = 0.2  # words seen more obliquely than ~78 degrees are not annotated
+    # Difficulty controls (docs/synthetic.md, "Difficulty controls"). At their defaults every image is
+    # the one generator version 2 made; the scene content ones apply to synthetic360 scenes only.
+    room_scale: float = 1.0  # synthetic360: multiplies the room, the clutter ring and the orbit radius (text shrinks ~1/x)
+    text_px: tuple[float, float] | None = None  # synthetic360: word box heights (lo, hi) in pixels at room_scale 1; None: (6, 16) x width/320
+    bg_frequency: float = 1.0  # synthetic360: multiplies the spatial frequency of floor, wall and clutter textures
+    clutter: int = 10  # synthetic360: textured objects without text around the room
+    exposure_sd: float = 0.0  # per-view exposure: sd of the gain in stops (gain 2 ** N(0, sd))
+    white_balance_sd: float = 0.0  # per-view white balance: sd of the log gain of red and of blue (green fixed)
+    vignetting: float = 0.0  # gain 1 - v r^2 with r = 1 at the image corners (0.3: corners 30 % darker)
+    noise_sigma: float = 0.0  # additive Gaussian sensor noise, sd in 8-bit levels
+    defocus_px: float = 0.0  # Gaussian defocus blur of every view, sd in pixels
+    motion_blur_px: float = 0.0  # linear motion blur, length uniform in [0, this] pixels per view, random direction
 
     def __post_init__(self):
         if self.width < 32 or self.height < 24:
@@ -67,15 +84,54 @@ class SyntheticSettings:
             raise DatasetError(f"n_views={self.n_views} is out of range", hint="use 8..400 views (default 48)")
         if self.supersample < 1:
             raise DatasetError("supersample must be >= 1", hint="use 2 or 3")
+        if not 0.5 <= self.room_scale <= 6:
+            raise DatasetError(f"room_scale={self.room_scale} is out of range", hint="use 0.5..6 (1: the default room)")
+        if self.text_px is not None:
+            tp = tuple(float(v) for v in self.text_px)
+            if len(tp) != 2 or not (2 <= tp[0] <= tp[1] <= self.width / 4):
+                raise DatasetError(f"text_px={self.text_px} is not a (lo, hi) pair with 2 <= lo <= hi <= width/4",
+                                   hint="e.g. text_px=(7, 20) at 320 px width")
+            object.__setattr__(self, "text_px", tp)
+        if not 0.1 <= self.bg_frequency <= 10:
+            raise DatasetError(f"bg_frequency={self.bg_frequency} is out of range", hint="use 0.1..10 (1: default)")
+        if not 0 <= self.clutter <= 60:
+            raise DatasetError(f"clutter={self.clutter} is out of range", hint="use 0..60 objects (default 10)")
+        for name in ("exposure_sd", "white_balance_sd", "noise_sigma", "defocus_px", "motion_blur_px"):
+            if not getattr(self, name) >= 0:
+                raise DatasetError(f"{name}={getattr(self, name)} must be >= 0", hint="0 turns the effect off")
+        if not 0 <= self.vignetting < 1:
+            raise DatasetError(f"vignetting={self.vignetting} is out of range", hint="use 0..0.9 (0: none)")
 
     def key(self, scene: str) -> str:
-        blob = json.dumps({"version": GENERATOR_VERSION, "scene": scene, **asdict(self)}, sort_keys=True)
+        # Difficulty controls at their defaults are left out, so scenes built before they existed keep their key.
+        fields = asdict(self)
+        for name in DIFFICULTY_FIELDS:
+            if fields[name] == _DEFAULTS[name]:
+                del fields[name]
+        blob = json.dumps({"version": GENERATOR_VERSION, "scene": scene, **fields}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+    def photometric(self) -> bool:
+        """Whether any per-view photometric or sensor effect is on."""
+        return any(getattr(self, n) != _DEFAULTS[n] for n in PHOTOMETRIC_FIELDS)
+
+    def room_params(self) -> RoomParams:
+        """The synthetic360 scene parameters these settings ask for."""
+        text_px = self.text_px if self.text_px is not None else tuple(v * self.width / 320 for v in DEFAULT_TEXT_PX)
+        return RoomParams(room_scale=self.room_scale, text_px=text_px, width=self.width, bg_frequency=self.bg_frequency,
+                          clutter=self.clutter)
+
+
+CONTENT_FIELDS = ("room_scale", "text_px", "bg_frequency", "clutter")
+PHOTOMETRIC_FIELDS = ("exposure_sd", "white_balance_sd", "vignetting", "noise_sigma", "defocus_px", "motion_blur_px")
+DIFFICULTY_FIELDS = CONTENT_FIELDS + PHOTOMETRIC_FIELDS
+_DEFAULTS = {f.name: f.default for f in fields(SyntheticSettings)}
 
 
 def check_scene_name(scene: str) -> None:
-    if scene not in BUILDERS:
-        raise DatasetError(f"unknown synthetic scene {scene!r}", hint=f"synthetic scenes: {', '.join(SCENE_NAMES)}")
+    if scene not in BUILDERS and scene not in BUILDERS_360:
+        raise DatasetError(f"unknown synthetic scene {scene!r}",
+                           hint=f"synthetic scenes: {', '.join(SCENE_NAMES)}; synthetic360: {', '.join(SCENE_NAMES_360)}")
 
 
 def scene_dir(scene: str, settings: SyntheticSettings | None = None) -> Path:
@@ -86,7 +142,35 @@ def scene_dir(scene: str, settings: SyntheticSettings | None = None) -> Path:
 
 
 def is_built(scene: str, settings: SyntheticSettings | None = None) -> bool:
-    return (scene_dir(scene, settings) / META_FILE).exists()
+    """Whether the scene's cache folder is complete (its meta file, and every file it lists at its size)."""
+    return intact_problem(scene_dir(scene, settings)) is None
+
+
+def _file_sizes(folder: Path) -> dict[str, int]:
+    return {str(p.relative_to(folder)): p.stat().st_size for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != META_FILE}
+
+
+def intact_problem(folder: Path) -> str | None:
+    """None when `folder` is a complete scene build, else what is wrong with it."""
+    meta_path = Path(folder) / META_FILE
+    if not meta_path.is_file():
+        return f"{meta_path} is missing (the build did not finish)"
+    try:
+        files = json.loads(meta_path.read_text(encoding="utf-8")).get("files")
+    except (OSError, ValueError, AttributeError) as exc:
+        return f"{meta_path} is unreadable: {exc}"
+    if files is None:
+        return None  # built before the file list was recorded: trusted as before
+    if not isinstance(files, dict):
+        return f"{meta_path} has a malformed file list"
+    for rel, size in files.items():
+        p = Path(folder) / rel
+        if not p.is_file():
+            return f"{p} is missing"
+        if p.stat().st_size != size:
+            return f"{p} has {p.stat().st_size} bytes, the build wrote {size}"
+    return None
 
 
 def read_meta(path: str | Path) -> dict:
@@ -102,11 +186,14 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     """Build (or reuse from the cache) one synthetic scene and return its folder."""
     settings = settings or SyntheticSettings()
     final = scene_dir(scene, settings)
+    sweep_stale_temps(final.parent)  # build folders of killed processes
     if final.exists() and not force:
-        if (final / META_FILE).exists():
+        problem = intact_problem(final)
+        if problem is None:
             return final
-        shutil.rmtree(final, ignore_errors=True)  # a folder without its meta file is not ours to trust
-    tmp = final.parent / f".build-{final.name}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+        log.warning("synthetic/%s: the cached scene is incomplete (%s); rebuilding it", scene, problem)
+        shutil.rmtree(final, ignore_errors=True)  # not ours to trust
+    tmp = final.parent / f".build-{final.name}-~{writer_tag()}-{uuid.uuid4().hex[:6]}"
     tmp.mkdir(parents=True)
     try:
         _build_into(scene, settings, tmp, progress)
@@ -147,7 +234,7 @@ def orbit_cameras(spec: SceneSpec, settings: SyntheticSettings, rng: np.random.G
         el = e_lo + (e_hi - e_lo) * (0.5 + 0.5 * np.sin(4 * np.pi * i / n + ph_e))
         rad = spec.radius * (1 + 0.06 * np.sin(6 * np.pi * i / n + ph_r))
         center = spec.target + rad * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        target = spec.target + rng.normal(0, 0.02, 3)
+        target = spec.target + rng.normal(0, spec.target_jitter, 3)
         R, t = look_at(center, target)
         cams.append(Camera(fx, fx, w / 2, h / 2, w, h, R, t, name=f"view_{i:03d}.png"))
     return cams
@@ -368,29 +455,51 @@ def count_text_points(model: ColmapModel, masks: dict[str, np.ndarray]) -> int:
 
 
 # ---- the build -------------------------------------------------------------------------------
-def make_spec(scene: str, seed: int) -> SceneSpec:
+def make_spec(scene: str, seed: int, settings: SyntheticSettings | None = None) -> SceneSpec:
+    """The scene's content (geometry, textures, words) for `seed`; synthetic360 scenes also read the
+    content controls of `settings` (room_scale, text_px, bg_frequency, clutter)."""
     check_scene_name(scene)
+    settings = settings or SyntheticSettings()
     # The scene content and the orbit draw from separate streams of the same seed.
-    return BUILDERS[scene](np.random.default_rng([seed, 1]))
+    rng = np.random.default_rng([seed, 1])
+    if scene in BUILDERS_360:
+        return BUILDERS_360[scene](rng, settings.room_params())
+    changed = [n for n in CONTENT_FIELDS if getattr(settings, n) != _DEFAULTS[n]]
+    if changed:
+        raise DatasetError(f"synthetic/{scene} has no setting {', '.join(changed)}",
+                           hint=f"room size, text height, background frequency and clutter are controls of the "
+                                f"synthetic360 scenes ({', '.join(SCENE_NAMES_360)}); the photometric ones apply to all")
+    return BUILDERS[scene](rng)
 
 
 def render_views(spec: SceneSpec, settings: SyntheticSettings, progress: bool = False):
-    """Yield (camera, RenderResult, visible words) for every view of the orbit."""
+    """Yield (camera, RenderResult, visible words) for every view of the orbit.
+
+    With photometric controls on, RenderResult.rgb is the degraded photo and RenderResult.photometry
+    the parameters drawn for the view; masks and words stay those of the clean render."""
     cams = orbit_cameras(spec, settings, np.random.default_rng([settings.seed, 2]))
-    for cam in tqdm(cams, desc=f"render {spec.name}", unit="view", disable=not progress, leave=False):
+    for i, cam in enumerate(tqdm(cams, desc=f"render {spec.name}", unit="view", disable=not progress, leave=False)):
         res = spec.world.render(cam, settings.supersample)
+        if settings.photometric():
+            # Each view's camera effects from its own stream: the content and the path never move.
+            rng = np.random.default_rng([settings.seed, 4, i])
+            view = draw_view_photometry(settings, rng)
+            res.rgb = apply_photometry(res.linear, view, rng)
+            res.photometry = view
         yield cam, res, visible_words(spec, cam, settings)
 
 
 def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bool) -> None:
     t_start = time.perf_counter()
-    spec = make_spec(scene, settings.seed)
+    spec = make_spec(scene, settings.seed, settings)
     images_dir, masks_dir = out / "images", out / "masks"
     images_dir.mkdir()
     masks_dir.mkdir()
-    cameras, depths, images, annotations, masks = [], [], [], {}, {}
+    cameras, depths, images, annotations, masks, photometry = [], [], [], {}, {}, {}
     t0 = time.perf_counter()
     for cam, res, words in render_views(spec, settings, progress):
+        if res.photometry is not None:
+            photometry[cam.name] = res.photometry.as_dict()
         Image.fromarray(res.rgb).save(images_dir / cam.name)
         stem = Path(cam.name).stem
         Image.fromarray((res.text_mask * 255).astype(np.uint8)).save(masks_dir / f"{stem}.png")
@@ -433,6 +542,8 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
     sfm_s = sum(a.get("features_s", 0) + a.get("matching_s", 0) + a.get("triangulation_s", 0) for a in attempts)
     counts = model.visibility_counts()
     n_words = [len(v) for v in annotations.values()]
+    heights = [0.5 * (np.linalg.norm(w.polygon[0] - w.polygon[3]) + np.linalg.norm(w.polygon[1] - w.polygon[2]))
+               for v in annotations.values() for w in v]
     meta = {
         "generator_version": GENERATOR_VERSION,
         "scene": scene,
@@ -447,10 +558,15 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
         "words_in_scene": len(spec.words),
         "visible_words_per_view": {"mean": float(np.mean(n_words)), "min": int(np.min(n_words)), "max": int(np.max(n_words))},
         "text_pixel_fraction": float(np.mean([m.mean() for m in masks.values()])),
+        "word_height_px": ({"p10": float(np.percentile(heights, 10)), "median": float(np.median(heights)),
+                            "p90": float(np.percentile(heights, 90))} if heights else None),
+        "text_px": list(settings.room_params().text_px) if scene in BUILDERS_360 else None,
+        "photometry": photometry or None,
         "fallback": fallback,
         "sfm_attempts": attempts,
         "timings_s": {"render": render_s, "sfm": sfm_s, "total": time.perf_counter() - t_start},
         "cpu_count": os.cpu_count(),
+        "files": _file_sizes(out),  # checked on reuse (intact_problem)
     }
     atomic_write_json(out / META_FILE, meta)
 

@@ -271,6 +271,8 @@ class RenderResult:
     rgb: np.ndarray  # (H, W, 3) uint8
     text_mask: np.ndarray  # (H, W) bool
     depth: np.ndarray  # (H, W) float64 camera-space depth of the centre-most subsample (inf = background)
+    linear: np.ndarray | None = None  # (H, W, 3) float32 colour in [0, 1] before rounding (photometric.py starts here)
+    photometry: object = None  # the ViewPhotometry applied to rgb by the generator, None for a clean render
 
 
 @dataclass
@@ -349,7 +351,8 @@ class World:
         rgb = color.reshape(cam.height, s, cam.width, s, 3).mean(axis=(1, 3))
         frac = text.reshape(cam.height, s, cam.width, s).mean(axis=(1, 3))
         depth = tbuf[s // 2::s, s // 2::s].astype(np.float64)
-        return RenderResult(rgb=np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8), text_mask=frac >= 0.5, depth=depth)
+        return RenderResult(rgb=np.clip(np.rint(rgb * 255), 0, 255).astype(np.uint8), text_mask=frac >= 0.5, depth=depth,
+                            linear=rgb)
 
 
 def _screen_rect(cam: Camera, corners: np.ndarray, s: int, W: int, H: int):

@@ -39,6 +39,7 @@ class SceneSpec:
     elevation: tuple[float, float]  # degrees, min and max over the orbit
     fov_x: float  # horizontal field of view, degrees
     description: str = ""
+    target_jitter: float = 0.02  # sd of the per-view look-at point jitter, world units
 
 
 class Builder:

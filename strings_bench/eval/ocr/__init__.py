@@ -29,6 +29,7 @@ __all__ = [
     "available_backends",
     "backend_class",
     "get_backend",
+    "parse_engines",
     "load_image",
     "load_mask",
     "BACKENDS",
@@ -54,6 +55,28 @@ def backend_class(name: str) -> type[OCRBackend]:
         raise OCRError(f"unknown OCR backend {name!r}", hint=f"choose one of: {', '.join(BACKENDS)}")
     module, cls = BACKENDS[key].split(":")
     return getattr(importlib.import_module(module), cls)
+
+
+def parse_engines(spec: str | list[str] | tuple[str, ...], strict: bool = True) -> list[str]:
+    """`run --ocr`: one engine or a comma-separated list ("rapidocr,tesseract"), as canonical backend
+    names (aliases resolved); the first is the primary engine. Repeated names, and with `strict` unknown
+    ones, raise OCRError (strict=False keeps an unknown name as given: a backend object passed in code
+    may carry any name)."""
+    items = [x.strip() for x in (spec.split(",") if isinstance(spec, str) else spec) if str(x).strip()]
+    if not items:
+        raise OCRError(f"no OCR engine in {spec!r}", hint=f"e.g. --ocr rapidocr or --ocr rapidocr,tesseract; engines: {', '.join(BACKENDS)}")
+    names = []
+    for item in items:
+        key = ALIASES.get(item.lower(), item.lower())
+        if key not in BACKENDS:
+            if strict:
+                raise OCRError(f"unknown OCR backend {item!r}",
+                               hint=f"choose from: {', '.join(BACKENDS)} (comma-separated for several)")
+            key = item
+        if key in names:
+            raise OCRError(f"OCR engine {key!r} is named twice in {spec!r}", hint="name each engine once")
+        names.append(key)
+    return names
 
 
 def get_backend(name: str = "rapidocr", cache: bool | OCRCache = True, **settings: Any) -> OCRBackend:

@@ -27,14 +27,18 @@ class Word:
 
     def __post_init__(self) -> None:
         self.text = str(self.text)
-        poly = np.asarray(self.polygon, dtype=np.float64)
+        try:
+            poly = np.asarray(self.polygon, dtype=np.float64)
+            self.confidence = float(self.confidence)
+        except (ValueError, TypeError) as exc:
+            raise OCRError(f"word {self.text!r}: polygon or confidence is not numbers: {exc}",
+                           hint="give the polygon as a list of [x, y] pairs and the confidence as a number") from None
         if poly.ndim != 2 or poly.shape[1] != 2:
             raise OCRError(
                 f"word {self.text!r}: polygon has shape {poly.shape}, expected (K, 2) points",
                 hint="give the polygon as a list of [x, y] pairs",
             )
         self.polygon = poly
-        self.confidence = float(self.confidence)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Word):

@@ -6,13 +6,23 @@ environment (STRINGS_BENCH_GCV_KEY, then GOOGLE_API_KEY) or a key file (STRINGS_
 default ~/.config/strings-bench/gcv_key). It is held in a `_Secret` that never prints, is not a
 setting (settings are stored with results), and is scrubbed from every error message.
 
-Answers 429 and 5xx, time-outs and dropped connections are retried with exponential backoff
-(honouring Retry-After); 401/403 stop at once with a clear error.
+Answers 429 and 5xx, time-outs (also a body that trickles in past the time-out), dropped connections
+(also mid-body), answers that are not JSON or hold no response for the image, and per-image errors
+Google marks as transient are retried with exponential backoff (honouring Retry-After, capped);
+401/403 stop at once with a clear error. After the last attempt the image fails (an OCRError: the
+runner counts it under the CER's `ignored.failed`). One image takes at most about
+(max_retries + 1) x 2 x timeout + max_retries x max_backoff seconds.
+
+Settings from the environment, for runs started from the command line (`strings-bench run --ocr gcv`):
+STRINGS_BENCH_GCV_ENDPOINT (the `endpoint` setting, e.g. a proxy or a test server), and the runtime
+options STRINGS_BENCH_GCV_TIMEOUT, STRINGS_BENCH_GCV_RETRIES, STRINGS_BENCH_GCV_BACKOFF and
+STRINGS_BENCH_GCV_MAX_BACKOFF (seconds). Arguments win over the environment.
 """
 
 from __future__ import annotations
 
 import base64
+import http.client
 import io
 import json
 import logging
@@ -36,6 +46,29 @@ KEY_ENV_VARS = ("STRINGS_BENCH_GCV_KEY", "GOOGLE_API_KEY")
 KEY_FILE_ENV = "STRINGS_BENCH_GCV_KEY_FILE"
 MAX_REQUEST_BYTES = 10 * 1024 * 1024  # the API's JSON request size limit
 RETRY_STATUS = {429, 500, 502, 503, 504}
+# Per-image error codes (google.rpc.Code) worth another try: DEADLINE_EXCEEDED, RESOURCE_EXHAUSTED, INTERNAL, UNAVAILABLE.
+RETRY_RPC_CODES = {4, 8, 13, 14}
+ENDPOINT_ENV = "STRINGS_BENCH_GCV_ENDPOINT"
+RUNTIME_ENV = {"timeout": "STRINGS_BENCH_GCV_TIMEOUT", "max_retries": "STRINGS_BENCH_GCV_RETRIES",
+               "backoff": "STRINGS_BENCH_GCV_BACKOFF", "max_backoff": "STRINGS_BENCH_GCV_MAX_BACKOFF"}
+READ_CHUNK = 1 << 16
+
+
+class _Retry(Exception):
+    """One attempt failed in a way worth another try; the message says how (never holds the key)."""
+
+
+def _env_number(name: str, default: float) -> float:
+    value = os.environ.get(name, "").strip()
+    if not value:
+        return default
+    try:
+        number = float(value)
+    except ValueError:
+        raise OCRError(f"{name}={value!r} is not a number", hint="give seconds (or a count of retries)") from None
+    if not number >= 0:
+        raise OCRError(f"{name}={value!r} must be >= 0", hint="give seconds (or a count of retries)")
+    return number
 
 DEFAULTS: dict[str, Any] = {
     "endpoint": DEFAULT_ENDPOINT,
@@ -89,7 +122,11 @@ def find_api_key(api_key: str | None = None, key_file: str | os.PathLike | None 
 
 def _vertex_xy(v: Mapping[str, Any]) -> tuple[float, float]:
     # The API omits a coordinate that is 0 (proto3 JSON), so a missing x or y means 0.
-    return float(v.get("x", 0) or 0), float(v.get("y", 0) or 0)
+    try:
+        return float(v.get("x", 0) or 0), float(v.get("y", 0) or 0)
+    except (AttributeError, ValueError, TypeError):
+        raise OCRError(f"Google Vision answer holds a vertex that is not {{x, y}} numbers: {json.dumps(v)[:80]}",
+                       hint="pass the annotate response as saved") from None
 
 
 def parse_gcv_response(obj: Mapping[str, Any]) -> list[Word]:
@@ -134,12 +171,14 @@ class GoogleVisionBackend(OCRBackend):
         cache: Any = None,
         api_key: str | None = None,
         key_file: str | os.PathLike | None = None,
-        timeout: float = 60.0,
-        max_retries: int = 5,
-        backoff: float = 1.0,
-        max_backoff: float = 32.0,
+        timeout: float | None = None,
+        max_retries: int | None = None,
+        backoff: float | None = None,
+        max_backoff: float | None = None,
         **settings: Any,
     ):
+        if "endpoint" not in settings and os.environ.get(ENDPOINT_ENV, "").strip():
+            settings["endpoint"] = os.environ[ENDPOINT_ENV].strip()
         merged = _Settings(DEFAULTS, settings).merged(self.name)
         if merged["image_format"] not in ("png", "jpeg"):
             raise OCRError(f"gcv setting image_format={merged['image_format']!r} is not 'png' or 'jpeg'", hint="use png (default) or jpeg")
@@ -150,10 +189,15 @@ class GoogleVisionBackend(OCRBackend):
         found = find_api_key(api_key, key_file)
         self._key: _Secret | None = found[0] if found else None
         self.key_source: str | None = found[1] if found else None
-        self.timeout = float(timeout)
-        self.max_retries = int(max_retries)
-        self.backoff = float(backoff)
-        self.max_backoff = float(max_backoff)
+        given = {"timeout": timeout, "max_retries": max_retries, "backoff": backoff, "max_backoff": max_backoff}
+        fallback = {"timeout": 60.0, "max_retries": 5, "backoff": 1.0, "max_backoff": 32.0}
+        runtime = {k: (float(v) if v is not None else _env_number(RUNTIME_ENV[k], fallback[k])) for k, v in given.items()}
+        if not runtime["timeout"] > 0:
+            raise OCRError(f"gcv timeout {runtime['timeout']} must be > 0", hint="seconds, e.g. 60")
+        self.timeout = runtime["timeout"]
+        self.max_retries = int(runtime["max_retries"])
+        self.backoff = runtime["backoff"]
+        self.max_backoff = runtime["max_backoff"]
 
     @classmethod
     def status(cls) -> BackendStatus:
@@ -220,43 +264,12 @@ class GoogleVisionBackend(OCRBackend):
         attempts = self.max_retries + 1
         last_problem = ""
         for attempt in range(attempts):
-            req = urllib.request.Request(
-                endpoint,
-                data=data,
-                method="POST",
-                headers={"Content-Type": "application/json", "X-Goog-Api-Key": self._key.reveal()},
-            )
             retry_after: float | None = None
             try:
-                with opener.open(req, timeout=self.timeout) as resp:
-                    body = resp.read()
-                try:
-                    answer = json.loads(body)
-                except ValueError as exc:
-                    raise OCRError(
-                        f"Google Vision at {endpoint} answered with something that is not JSON: {self._redact(body[:200].decode('utf-8', 'replace'))!r}",
-                        hint="check the endpoint setting",
-                    ) from None
-                return parse_gcv_response(answer)
-            except urllib.error.HTTPError as exc:
-                status = exc.code
-                message = self._error_message(exc)
-                if status in (401, 403):
-                    raise OCRError(
-                        f"Google Vision refused the request (HTTP {status}): {message}",
-                        hint="check the API key (source: "
-                        f"{self.key_source}), that the Cloud Vision API is enabled for its project, and billing",
-                    ) from None
-                if status not in RETRY_STATUS:
-                    raise OCRError(f"Google Vision answered HTTP {status}: {message}", hint="check the request settings") from None
-                last_problem = f"HTTP {status}: {message}"
-                retry_after = _retry_after_seconds(exc.headers.get("Retry-After") if exc.headers else None)
-            except (TimeoutError, urllib.error.URLError, ConnectionError, OSError) as exc:
-                reason = getattr(exc, "reason", exc)
-                if isinstance(reason, TimeoutError) or isinstance(exc, TimeoutError):
-                    last_problem = f"no answer within {self.timeout:g} s (timed out)"
-                else:
-                    last_problem = f"connection failed: {self._redact(str(reason))}"
+                return self._attempt(opener, endpoint, data)
+            except _Retry as exc:
+                last_problem = str(exc)
+                retry_after = getattr(exc, "retry_after", None)
             if attempt + 1 < attempts:
                 wait = min(self.max_backoff, self.backoff * (2**attempt))
                 if retry_after is not None:
@@ -267,6 +280,65 @@ class GoogleVisionBackend(OCRBackend):
             f"Google Vision at {endpoint} failed after {attempts} attempt(s): {last_problem}",
             hint="try again later, or raise timeout/max_retries",
         )
+
+    def _read_body(self, resp) -> bytes:
+        """The answer's body, read in chunks against a deadline: a server that trickles bytes would
+        otherwise hold the socket time-out off for ever."""
+        deadline = time.monotonic() + self.timeout
+        chunks = []
+        while block := resp.read(READ_CHUNK):
+            chunks.append(block)
+            if time.monotonic() > deadline:
+                raise TimeoutError("the answer's body took longer than the time-out")
+        return b"".join(chunks)
+
+    def _attempt(self, opener, endpoint: str, data: bytes) -> list[Word]:
+        """One request: the words, an OCRError that retrying cannot fix, or _Retry."""
+        req = urllib.request.Request(
+            endpoint,
+            data=data,
+            method="POST",
+            headers={"Content-Type": "application/json", "X-Goog-Api-Key": self._key.reveal()},
+        )
+        try:
+            with opener.open(req, timeout=self.timeout) as resp:
+                body = self._read_body(resp)
+        except urllib.error.HTTPError as exc:
+            status = exc.code
+            message = self._error_message(exc)
+            if status in (401, 403):
+                raise OCRError(
+                    f"Google Vision refused the request (HTTP {status}): {message}",
+                    hint="check the API key (source: "
+                    f"{self.key_source}), that the Cloud Vision API is enabled for its project, and billing",
+                ) from None
+            if status not in RETRY_STATUS:
+                raise OCRError(f"Google Vision answered HTTP {status}: {message}", hint="check the request settings") from None
+            retry = _Retry(f"HTTP {status}: {message}")
+            retry.retry_after = _retry_after_seconds(exc.headers.get("Retry-After") if exc.headers else None)
+            raise retry from None
+        except (TimeoutError, urllib.error.URLError, http.client.HTTPException, OSError) as exc:
+            reason = getattr(exc, "reason", exc)
+            if isinstance(reason, TimeoutError) or isinstance(exc, TimeoutError):
+                raise _Retry(f"no answer within {self.timeout:g} s (timed out)") from None
+            if isinstance(exc, http.client.IncompleteRead):
+                raise _Retry(f"the connection closed mid-answer ({len(exc.partial)} bytes read)") from None
+            raise _Retry(f"connection failed: {self._redact(f'{type(reason).__name__}: {reason}')}") from None
+        try:
+            answer = json.loads(body)
+        except ValueError:
+            raise _Retry(f"the answer is not JSON: {self._redact(body[:120].decode('utf-8', 'replace'))!r}") from None
+        responses = answer.get("responses") if isinstance(answer, dict) else None
+        if not isinstance(responses, list) or len(responses) != 1:
+            count = len(responses) if isinstance(responses, list) else "no"
+            raise _Retry(f"the answer holds {count} responses for 1 image")
+        err = responses[0].get("error") if isinstance(responses[0], dict) else None
+        if isinstance(err, dict) and err.get("code") in RETRY_RPC_CODES:
+            raise _Retry(f"the image's response is error {err.get('code')} {self._redact(str(err.get('message', '')))}")
+        try:
+            return parse_gcv_response(answer)
+        except OCRError as exc:
+            raise type(exc)(self._redact(exc.message), hint=exc.hint) from None
 
     def _error_message(self, exc: urllib.error.HTTPError) -> str:
         try:
