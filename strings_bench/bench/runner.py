@@ -23,9 +23,9 @@ Run folder (see docs/running.md):
       report/                           tables, figures, index.html (strings_bench.bench.reports.write_report)
 
 Execution goes through an `Executor` (`submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one
-after another in this process. A distributed executor only has to run `run_job(job)` somewhere that
-sees RUN_DIR (jobs are plain data) — cells are independent files, and results.csv is rebuilt from
-them.
+after another in this process, `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job
+as a Ray task. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
+are plain data) — cells are independent files, and results.csv is rebuilt from them on the driver.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ import math
 import numbers
 import platform
 import time
-from concurrent.futures import Future
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Protocol
@@ -46,6 +46,7 @@ from PIL import Image
 
 from strings_bench import __version__
 from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.bench.ray_executor import RayExecutor
 from strings_bench.bench.results import iteration_label, write_results_csv
 from strings_bench.core.io import atomic_write, atomic_write_json
 from strings_bench.core.method import Method
@@ -173,7 +174,13 @@ class Job:
 
 
 class Executor(Protocol):
-    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value."""
+    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value.
+
+    Optional members `execute` uses when an executor has them: `in_process` (False: jobs run in other
+    processes, so the driver follows progress from the run folder and rebuilds results.csv itself),
+    `start(run_dir, jobs)` (before the first submit: connect, check that workers see the run folder),
+    `cancel()` (on Ctrl-C: stop every job still running) and `close()` (after the run).
+    """
 
     def submit(self, job: Job) -> Future: ...
 
@@ -182,6 +189,8 @@ class Executor(Protocol):
 
 class LocalExecutor:
     """Runs each job in this process, one after another (the default)."""
+
+    in_process = True
 
     def __init__(self, runner: Callable[[Job], Any]):
         self.runner = runner
@@ -200,13 +209,21 @@ class LocalExecutor:
         return [self.submit(j).result() for j in jobs]
 
 
-EXECUTORS: dict[str, Callable[[Callable[[Job], Any]], Executor]] = {"local": LocalExecutor}
+# name -> factory(runner, **options); the Ray executor imports ray only when it is built.
+EXECUTORS: dict[str, Callable[..., Executor]] = {"local": LocalExecutor, "ray": RayExecutor}
 
 
-def get_executor(name: str, runner: Callable[[Job], Any]) -> Executor:
+def executor_factory(name: str) -> Callable[..., Executor]:
+    """The factory registered under `name` in EXECUTORS; a clear error for an unknown name."""
     if name not in EXECUTORS:
         raise StringsBenchError(f"unknown executor {name!r}", hint=f"executors: {', '.join(EXECUTORS)}")
-    return EXECUTORS[name](runner)
+    return EXECUTORS[name]
+
+
+def get_executor(name: str, runner: Callable[[Job], Any], **options) -> Executor:
+    """The executor `name` running jobs with `runner`; `options` go to its factory (e.g. the Ray
+    executor's `address`, `max_retries`)."""
+    return executor_factory(name)(runner, **options)
 
 
 # ---- helpers ----------------------------------------------------------------------------------
@@ -516,11 +533,16 @@ def _get_ocr(name_or_backend) -> list:
 
 
 class Runner:
-    """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests)."""
+    """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests).
+
+    `results_csv`: rebuild results.csv after every cell (in-process runs); a worker of a distributed
+    executor leaves it to the driver.
+    """
 
     def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress: bool = True,
-                 on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last"):
+                 on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last", results_csv: bool = True):
         self.run_dir = Path(run_dir)
+        self.results_csv = results_csv
         self.ocr = ocr
         self.with_lpips = with_lpips
         if lpips_at not in LPIPS_AT:
@@ -596,7 +618,7 @@ class Runner:
         # the paper reports it at 30K.
         lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
         ev = evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here)
-        cell_dir = key.path(self.run_dir)
+        cell_dir = key.path(Path(job.run_dir))  # the job's folder: absolute when it runs on a Ray worker
         for name, img in result.renders.items():
             if name in evaluator.names:
                 _write_png(cell_dir / "renders" / f"{Path(name).stem}.png", img)
@@ -629,7 +651,8 @@ class Runner:
             **ev,
         }
         atomic_write_json(cell_dir / RESULT_FILE, _jsonable(record))
-        write_results_csv(self.run_dir)
+        if self.results_csv:
+            write_results_csv(job.run_dir)
 
 
 def _preprocess_seconds(result) -> float:
@@ -806,14 +829,29 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
     return merged
 
 
+POLL_SECONDS = 2.0  # how often the driver looks at the run folder while jobs run elsewhere
+
+
 def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lpips: bool = True,
-            progress: bool = True, write_report: bool = True, lpips_at: str = "last") -> Path:
-    """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report."""
+            progress: bool = True, write_report: bool = True, lpips_at: str = "last",
+            executor_options: dict | None = None) -> Path:
+    """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report.
+
+    `executor` is a name in EXECUTORS (built with `executor_options`) or an executor object. A job
+    that fails does not stop the others; once all have ended, one StringsBenchError lists every cell
+    that was not written and why. Ctrl-C cancels the running jobs, removes their incomplete cells
+    and re-raises KeyboardInterrupt.
+    """
     run_dir = plan.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
     from strings_bench.core.io import cache_root, sweep_stale_temps
     from strings_bench.engine.trainer import resolve_device
 
+    if isinstance(executor, str):
+        factory = executor_factory(executor)
+        in_process = getattr(factory, "in_process", True)
+    else:
+        factory, in_process = None, getattr(executor, "in_process", True)
     # Temporary files of runs killed mid-write (kill -9, the OOM killer): finished files are never half-written,
     # but their temporaries would stay for ever. Compiled kernels are numba's own.
     sweep_stale_temps(run_dir)
@@ -821,7 +859,9 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 
     # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
     # workers resolve their own and record it in each result.json.
-    resolved = device_info(resolve_device(plan.manifest.get("device", "auto")))
+    asked = plan.manifest.get("device", "auto")
+    resolved = device_info(resolve_device(asked)) if in_process else {"device": "on each worker (see result.json)",
+                                                                       "gpu": None}
     atomic_write_json(run_dir / RUN_FILE, _jsonable({**check_manifest(run_dir, plan.manifest), "versions": versions(),
                                                      "resolved_device": resolved}))
     cells = plan.cells
@@ -837,25 +877,48 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             bar.update(1)
             bar.set_postfix_str(f"{key.method} {key.dataset}/{key.scene} @{key.iteration}")
 
-    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips, on_cell=on_cell,
-                    lpips_at=lpips_at, progress=progress)
-    ex = get_executor(executor, runner) if isinstance(executor, str) else executor
+    # Jobs run elsewhere get a runner without callbacks into this process; the driver follows them on disk.
+    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips,
+                    on_cell=on_cell if in_process else None, lpips_at=lpips_at,
+                    progress=progress if in_process else False, results_csv=in_process)
+    ex = factory(runner, **(executor_options or {})) if factory is not None else executor
+    pending = []
+    for job in plan.jobs:
+        if all(is_finished(run_dir, k) for k in job.cells()):
+            # A run killed between writing the last cell and removing the training state left the state.
+            job.state_path().unlink(missing_ok=True)
+        else:
+            pending.append(job)
     errors: list[tuple[Job, BaseException]] = []
     try:
-        pending = []
-        for job in plan.jobs:
-            if all(is_finished(run_dir, k) for k in job.cells()):
-                # A run killed between writing the last cell and removing the training state left the state.
-                job.state_path().unlink(missing_ok=True)
-            else:
-                pending.append(job)
-        futures = [(job, ex.submit(job)) for job in pending]
-        for job, fut in futures:
-            exc = fut.exception()
-            if exc is not None:
-                errors.append((job, exc))
-                log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
+        if pending and hasattr(ex, "start"):
+            ex.start(run_dir, pending)
+        futures = {ex.submit(job): job for job in pending}
+        waiting = set(futures)
+        while waiting:
+            finished, waiting = wait(waiting, timeout=POLL_SECONDS, return_when=FIRST_COMPLETED)
+            if not in_process:
+                now = sum(is_finished(run_dir, k) for k in cells)
+                if now != done:  # results.csv follows the cells as they arrive
+                    done = now
+                    write_results_csv(run_dir)
+                    if bar is not None:
+                        bar.n = now
+                        bar.refresh()
+            for fut in finished:
+                exc = fut.exception()
+                if exc is not None:
+                    job = futures[fut]
+                    errors.append((job, exc))
+                    log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
+    except KeyboardInterrupt:
+        if hasattr(ex, "cancel"):
+            ex.cancel()
+        discard_incomplete_cells(run_dir, [j for j in pending if not all(is_finished(run_dir, k) for k in j.cells())])
+        raise
     finally:
+        if hasattr(ex, "close"):
+            ex.close()
         if bar is not None:
             bar.close()
         write_results_csv(run_dir)
@@ -864,13 +927,55 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 
         _write_report(run_dir)
     if errors:
-        job, exc = errors[0]
-        if len(errors) == 1 and isinstance(exc, StringsBenchError):
-            raise exc
-        names = "; ".join(f"{j.method} on {j.dataset}/{j.scene}: {e}" for j, e in errors[:5])
-        raise StringsBenchError(f"{len(errors)} job(s) failed ({names})",
-                                hint="finished cells are kept; fix the cause and re-run the same command") from exc
+        raise failure_summary(run_dir, errors, total_jobs=len(pending))
     return run_dir
+
+
+def failure_summary(run_dir: Path, errors: list[tuple[Job, BaseException]], total_jobs: int) -> StringsBenchError:
+    """One error naming every cell of the failed jobs that was not written, with its job's reason."""
+    lines = []
+    n_cells = 0
+    for job, exc in errors:
+        reason = (exc.message if isinstance(exc, StringsBenchError) else f"{type(exc).__name__}: {exc}").strip()
+        first, *more = reason.splitlines() or [type(exc).__name__]
+        unwritten = []
+        for key in job.cells():
+            if not is_finished(run_dir, key):
+                label = job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration)))
+                unwritten.append(f"@{key.iteration} ({label})")
+        n_cells += len(unwritten)
+        lines.append(f"  {job.method} {job.dataset}/{job.scene} {', '.join(unwritten) or '(all cells written)'}: {first}")
+        lines.extend(f"      {line}" for line in more)
+    hint = "finished cells are kept; fix the cause and re-run the same command"
+    only = errors[0][1]
+    if len(errors) == 1 and isinstance(only, StringsBenchError) and only.hint:
+        hint = f"{only.hint}; {hint}"
+    err = StringsBenchError(f"{len(errors)} of {total_jobs} job(s) failed; {n_cells} cell(s) not written:\n"
+                            + "\n".join(lines), hint=hint)
+    err.__cause__ = only
+    return err
+
+
+def discard_incomplete_cells(run_dir: Path, jobs: Iterable[Job]) -> list[Path]:
+    """Remove what interrupted jobs left half-written: cell folders without result.json and the
+    temporary files of unfinished atomic writes in their state and ground-truth folders (the
+    training state itself is kept, to resume from). Returns the removed paths."""
+    import shutil
+
+    removed: list[Path] = []
+    for job in jobs:
+        for key in job.cells():
+            cell = key.path(run_dir)
+            if cell.is_dir() and not is_finished(run_dir, key):
+                shutil.rmtree(cell, ignore_errors=True)
+                removed.append(cell)
+        gt_dir = run_dir / "gt" / safe_name(job.dataset) / safe_name(job.scene)
+        for folder in (job.state_path().parent, gt_dir):
+            if folder.is_dir():
+                for tmp in folder.glob(".*.tmp"):  # core.io.atomic_write's temporary names
+                    tmp.unlink(missing_ok=True)
+                    removed.append(tmp)
+    return removed
 
 
 def run(methods: list[str], datasets: list[str] | None, run_dir: str | Path = DEFAULT_RUN_DIR,
@@ -879,17 +984,25 @@ def run(methods: list[str], datasets: list[str] | None, run_dir: str | Path = DE
         progress: bool = True, write_report: bool = True, ocr_backend=None,
         method_overrides: dict[str, dict] | None = None, lpips_at: str = "last", cer_profile: str = "paper",
         steps_scale: float | None = None, checkpoints: Iterable[int] | None = None, device: str = "auto",
-        save_every: str = "10", keep_models: bool = False) -> Path:
+        save_every: str = "10", keep_models: bool = False, executor_options: dict | None = None) -> Path:
     """Plan and execute a run; `method_overrides` maps a method name (or ALL_METHODS) to settings
     overriding its preset; steps_scale and checkpoints (paper iterations) replace the preset's schedule.
     `device` (auto, cpu, cuda, cuda:N) trains every method there; `save_every` saves the resumable
     training state every so many minutes ("10", "2.5min"), steps ("20steps") or never ("off");
     `keep_models` writes each cell's model.ply; `ocr` names one OCR engine or a comma-separated list (the
-    first is the primary; see `Evaluator`)."""
-    if executor == "local":  # jobs run here: a missing GPU is refused before any scene is built
+    first is the primary; see `Evaluator`). `executor` names where jobs run (EXECUTORS);
+    `executor_options` go to its factory (`--executor ray`: address, max_retries, cpus_per_job)."""
+    factory = executor_factory(executor)
+    if getattr(factory, "in_process", True):  # jobs run here: a missing GPU is refused before any scene is built
         from strings_bench.engine.trainer import resolve_device
 
         resolve_device(device)
+    check = getattr(factory, "check_options", None)
+    if check is not None:  # e.g. Ray not installed, or --device cuda:1: refused before any scene is built
+        check(device=device, **(executor_options or {}))
+    elif executor_options:
+        raise StringsBenchError(f"executor {executor!r} takes no options (given: {', '.join(sorted(executor_options))})",
+                                hint="--ray-address, --max-retries and --cpus-per-job apply to --executor ray")
     if ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
         from strings_bench.eval.ocr import parse_engines
 
@@ -898,4 +1011,4 @@ def run(methods: list[str], datasets: list[str] | None, run_dir: str | Path = DE
                     steps_scale=steps_scale, checkpoints=checkpoints, device=device, save_every=save_every,
                     keep_models=keep_models)
     return execute(plan, ocr=ocr_backend, executor=executor, with_lpips=with_lpips, progress=progress,
-                   write_report=write_report, lpips_at=lpips_at)
+                   write_report=write_report, lpips_at=lpips_at, executor_options=executor_options)

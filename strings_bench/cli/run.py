@@ -45,7 +45,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--cer-profile", default="paper",
                    help="OCR-CER profile (default paper: the authors' rules exactly; robust: repairs invalid polygons, "
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
-    p.add_argument("--executor", default="local", choices=sorted(EXECUTORS), help="where jobs run (default local)")
+    p.add_argument("--executor", default="local", choices=sorted(EXECUTORS),
+                   help="where jobs run: local (default; one after another in this process) or ray (each method x scene "
+                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/running.md)")
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                   help="with --executor ray: the Ray cluster to join (e.g. auto, HEAD_IP:6379, ray://HEAD_IP:10001); "
+                        "default: RAY_ADDRESS, else a local Ray is started")
+    p.add_argument("--max-retries", type=int, default=None, metavar="N",
+                   help="with --executor ray: run a job again up to N times when its worker dies (default 3); it continues "
+                        "from its saved training state. A job that fails by itself is not retried")
+    p.add_argument("--cpus-per-job", type=float, default=None, metavar="N",
+                   help="with --executor ray: CPUs each job asks Ray for (default 1; a GPU job also asks for 1 GPU)")
     p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the preset's, 1)")
     p.add_argument("--set", dest="settings", action="append", default=[], metavar="[METHOD.]KEY=VALUE",
                    help="override a method setting (VALUE parsed as JSON when it can be): KEY=VALUE for every method of "
@@ -70,16 +80,35 @@ def run(args: argparse.Namespace) -> int:
     """`strings-bench run`: plan and execute the run, print where its results and report are."""
     from strings_bench.bench.runner import run as run_bench
 
-    out = run_bench(_split(args.methods), _split(args.datasets) if args.datasets else None, run_dir=args.out, preset=args.preset, ocr=args.ocr,
-                    downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-                    progress=not args.no_progress, method_overrides=parse_settings(args.settings),
-                    lpips_at=args.lpips_at, cer_profile=args.cer_profile, steps_scale=args.steps_scale,
-                    checkpoints=args.checkpoints, device=args.device, save_every=args.save_every,
-                    keep_models=args.keep_models)
+    out = run_bench(executor_options=executor_options(args), **_run_arguments(args))
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     print(f"html:    {(out / 'report' / 'index.html').resolve().as_uri()}")
     return 0
+
+
+def executor_options(args: argparse.Namespace) -> dict | None:
+    """The --executor ray options given on the command line (None for the local executor); refused
+    with another executor."""
+    given = {"address": args.ray_address, "max_retries": args.max_retries, "cpus_per_job": args.cpus_per_job}
+    given = {k: v for k, v in given.items() if v is not None}
+    if args.executor != "ray":
+        if given:
+            names = {"address": "--ray-address", "max_retries": "--max-retries", "cpus_per_job": "--cpus-per-job"}
+            raise StringsBenchError(f"{', '.join(names[k] for k in given)} appl{'ies' if len(given) == 1 else 'y'} "
+                                    f"to --executor ray only", hint="add --executor ray, or leave the option out")
+        return None
+    return {**given, "log_to_driver": bool(getattr(args, "verbose", False))}
+
+
+def _run_arguments(args: argparse.Namespace) -> dict:
+    """The arguments of `strings_bench.bench.runner.run` given by the command line (executor options aside)."""
+    return dict(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None, run_dir=args.out, preset=args.preset,
+                ocr=args.ocr, downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
+                progress=not args.no_progress, method_overrides=parse_settings(args.settings),
+                lpips_at=args.lpips_at, cer_profile=args.cer_profile, steps_scale=args.steps_scale,
+                checkpoints=args.checkpoints, device=args.device, save_every=args.save_every,
+                keep_models=args.keep_models)
 
 
 def parse_checkpoints(text: str) -> list[int]:
