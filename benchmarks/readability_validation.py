@@ -8,6 +8,7 @@ folder is resumable; `--run DIR` only analyses an existing one.
 
     python benchmarks/readability_validation.py                       # train (long: ~1 h on 2 cores) and report
     python benchmarks/readability_validation.py --run runs/validate_x02   # report on a finished run
+    python benchmarks/readability_validation.py --run runs/validate_x02 --also runs/readability/seed0 runs/readability/seed1
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", default="strings,3dgs")
     ap.add_argument("--steps-scale", type=float, default=0.2)
     ap.add_argument("--checkpoints", default="1000,2000,3000,5000,7000", help="paper iterations")
+    ap.add_argument("--also", nargs="*", default=[], metavar="RUN_DIR",
+                    help="more finished run folders whose cells join the correlation (e.g. the seed runs of "
+                         "benchmarks/readability.py: runs/readability/seed0 ...)")
     args = ap.parse_args(argv)
 
     import pandas as pd
@@ -56,7 +60,7 @@ def main(argv=None) -> int:
         runner.run(args.methods.split(","), args.datasets.split(","), run_dir=run_dir, preset="quick",
                    steps_scale=args.steps_scale, checkpoints=[int(c) for c in args.checkpoints.split(",")],
                    progress=True)
-    df = pd.read_csv(run_dir / "results.csv")
+    df = pd.concat([pd.read_csv(Path(d) / "results.csv") for d in [run_dir, *args.also]], ignore_index=True)
     cols = ["method", "scene", "label", "iteration", "cer", "cer_known", "word_cer", "text_nll", "word_cer_gt"]
     print(df[cols].sort_values(["scene", "method", "iteration"]).to_string(index=False, float_format="%.3f"))
     n_read = int((df["cer"] < 1.0).sum())
