@@ -6,12 +6,12 @@ import base64
 import io
 import json
 import logging
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 
 import numpy as np
 import pytest
+from _local_http import LocalVisionServer
 
 from strings_bench.core.errors import OCRError
 from strings_bench.eval.ocr import OCRCache, get_backend
@@ -46,7 +46,7 @@ REAL_SHAPE = {
 }
 
 
-class FakeVision:
+class FakeVision(LocalVisionServer):
     """Serves scripted answers: a list of (status, json body or bytes, delay seconds, headers)."""
 
     def __init__(self):
@@ -77,15 +77,7 @@ class FakeVision:
             def log_message(self, *args):
                 pass
 
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1/images:annotate"
-        self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
+        self._serve(Handler)
 
 
 @pytest.fixture

@@ -14,13 +14,13 @@ from __future__ import annotations
 import json
 import logging
 import sys
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _local_http import LocalVisionServer
 
 sys.path.insert(0, str(Path(__file__).parent))
 
@@ -41,7 +41,7 @@ PARTIAL_WORDS = {"responses": [{"textAnnotations": WORDS["responses"][0]["textAn
 RETRIED = ["429", "429-retry-after", "500", "503", "stall", "mid-body", "not-json", "no-response", "unavailable"]
 
 
-class FaultyVision:
+class FaultyVision(LocalVisionServer):
     """Answers each request with the next action of `plan` (then "ok"); counts requests and closes."""
 
     def __init__(self, stall_seconds: float = 1.0):
@@ -108,15 +108,7 @@ class FaultyVision:
                 except (BrokenPipeError, ConnectionResetError):
                     pass  # the client gave up (time-out)
 
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1/images:annotate"
-        self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
+        self._serve(Handler)
 
 
 @pytest.fixture
