@@ -25,21 +25,11 @@ from strings_bench.datasets.synthetic import (SCENE_NAMES, SCENE_NAMES_360, SYNT
                                               settings_with)
 from strings_bench.datasets.synthetic.photometric import (ViewPhotometry, apply_photometry, draw_view_photometry,
                                                           motion_kernel)
-from strings_bench.datasets.synthetic.raycast import Cylinder, Quad
 from strings_bench.scene.scene import Scene
 
+from test_synthetic import surface_point  # the independent surface parametrisation, one copy
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def surface_point(prim, u: float, v: float) -> np.ndarray:
-    """A point of a text-bearing surface from its parameters (written here, not the generator's .point())."""
-    if isinstance(prim, Quad):
-        return prim.p0 + u * prim.eu + v * prim.ev
-    if isinstance(prim, Cylinder):
-        phi = 2 * np.pi * u
-        radial = np.cos(phi) * prim.e1 + np.sin(phi) * np.cross(prim.a, prim.e1)
-        return prim.c + prim.r * radial + (1 - v) * prim.h * prim.a
-    raise TypeError(type(prim))
 
 
 def box_height(polygon: np.ndarray) -> float:
