@@ -319,8 +319,9 @@ class Evaluator:
     same way and compared with the primary (`ocr_engines` in result.json). GT OCR is kept per engine."""
 
     def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True,
-                 cer_profile: str = "paper", device: str = "cpu"):
+                 cer_profile: str = "paper", device: str = "cpu", ocr_workers: int | None = None):
         self.scene = scene
+        self.ocr_workers = ocr_workers  # reads at once per engine (None: the engine's default_workers)
         self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
         self.engines = list(ocr_backend) if isinstance(ocr_backend, (list, tuple)) else [ocr_backend]
@@ -375,6 +376,25 @@ class Evaluator:
                 self._gt_ocr_error[key] = err
         return self._gt_ocr[key]
 
+    def read_views(self, renders: dict, engine=None) -> dict[str, tuple]:
+        """`engine`'s (default the primary's) reading of every test view's render, and of the GT views
+        not read yet (kept in gt_words), in one read_many pool: name -> (render words or None, error)."""
+        engine = engine or self.ocr
+        gt_todo = [n for n in self.names if (engine.name, n) not in self._gt_ocr]
+        images = [_to_uint8(self.gt(n)) for n in gt_todo]
+        images += [_to_uint8(np.clip(np.asarray(renders[n], dtype=np.float32), 0, 1)) for n in self.names]
+        masks = [self.mask(n) for n in gt_todo] + [self.mask(n) for n in self.names]
+        from strings_bench.eval.ocr.base import read_many
+
+        results = read_many(engine, images, masks, workers=self.ocr_workers)
+        for n, res in zip(gt_todo, results):
+            failed = isinstance(res, OCRError)
+            self._gt_ocr[(engine.name, n)] = None if failed else res
+            if failed:
+                self._gt_ocr_error[(engine.name, n)] = str(res)
+        return {n: ((None, str(res)) if isinstance(res, OCRError) else (res, None))
+                for n, res in zip(self.names, results[len(gt_todo):])}
+
     def check_renders(self, method: str, renders: dict) -> None:
         missing = [n for n in self.names if n not in renders]
         if missing:
@@ -423,6 +443,7 @@ class Evaluator:
         pairs: dict[str, tuple] = {}
         known_pairs: dict[str, tuple] = {}
         read_views: dict[str, tuple] = {}  # word-crop readability inputs: (render, gt, known words, GT OCR words)
+        render_reads = self.read_views(renders)
         for i, name in zip(self.views, self.names):
             gt = self.gt(name)
             r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
@@ -432,7 +453,7 @@ class Evaluator:
             per_view[name].update(metrics.text_region_metrics(r, gt, self.mask(name), with_lpips=with_lpips,
                                                               device=self.device))
             gt_words = self.gt_words(name)
-            render_words, render_err = self._read(r, self.mask(name))
+            render_words, render_err = render_reads[name]
             pairs[name] = (gt_words, render_words)
             ocr_views[name] = {
                 "mask": "whole image" if self.mask(name) is None else "dilated text mask",
@@ -479,10 +500,10 @@ class Evaluator:
         known_pairs: dict[str, tuple] = {}
         views: dict[str, dict] = {}
         agree_render = agree_gt = cer.WordAgreement()
+        render_reads = self.read_views(renders, engine)
         for i, name in zip(self.views, self.names):
-            r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
             gt_words = self.gt_words(name, engine)
-            render_words, render_err = self._read(r, self.mask(name), engine)
+            render_words, render_err = render_reads[name]
             pairs[name] = (gt_words, render_words)
             views[name] = {"gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
                            "render_words": None if render_words is None else [w.to_dict() for w in render_words],

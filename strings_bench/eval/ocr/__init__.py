@@ -16,7 +16,9 @@ from typing import Any
 from strings_bench.eval.ocr import _ort_guard  # noqa: F401  isort: skip
 
 from strings_bench.core.errors import OCRError  # noqa: E402
-from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, apply_mask, load_image, load_mask  # noqa: E402
+from strings_bench.eval.ocr.base import (  # noqa: E402
+    BackendStatus, OCRBackend, Word, apply_mask, load_image, load_mask, read_many,
+)
 from strings_bench.eval.ocr.cache import OCRCache  # noqa: E402
 
 __all__ = [
@@ -32,6 +34,7 @@ __all__ = [
     "parse_engines",
     "load_image",
     "load_mask",
+    "read_many",
     "BACKENDS",
 ]
 

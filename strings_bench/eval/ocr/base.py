@@ -8,13 +8,23 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Iterable, Mapping
+from typing import Any, ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from strings_bench.core.errors import OCRError
 
 log = logging.getLogger(__name__)
+
+OCR_WORKERS_ENV = "STRINGS_BENCH_OCR_WORKERS"
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity, e.g. a container's or Slurm's share)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
 
 
 @dataclass(eq=False)
@@ -172,6 +182,10 @@ class OCRBackend:
     """
 
     name: ClassVar[str] = "base"
+    # Whether `read` may run in several threads at once (read_many's pool). Engines that are one
+    # process per read (Tesseract) or release the GIL in a thread-safe session (ONNX Runtime) say so.
+    parallel_reads: ClassVar[bool] = False
+    threads: int = 1  # cores one read uses (the engine's own threads); read_many divides the cores by it
 
     def __init__(self, settings: dict[str, Any], cache: Any = None):
         self.settings: dict[str, Any] = dict(settings)
@@ -224,6 +238,90 @@ class OCRBackend:
 
     def _recognize(self, rgb: np.ndarray) -> list[Word]:  # pragma: no cover - overridden
         raise NotImplementedError
+
+    def default_workers(self) -> int:
+        """Reads run at once by read_many (see default_workers below)."""
+        return default_workers(self)
+
+    def read_many(self, images: Sequence[Any], masks: Sequence[Any] | None = None, workers: int | None = None,
+                  progress: bool = False, desc: str = "OCR") -> list[list[Word] | OCRError]:
+        """`read` of many images at once (see read_many below)."""
+        return read_many(self, images, masks, workers=workers, progress=progress, desc=desc)
+
+
+def default_workers(engine: Any) -> int:
+    """Reads run at once by read_many: STRINGS_BENCH_OCR_WORKERS when set, else the usable cores
+    divided by the cores one read takes (`engine.threads`); 1 for engines that are not thread-safe
+    (no `parallel_reads = True`, e.g. user-supplied engines)."""
+    if not getattr(engine, "parallel_reads", False):
+        return 1
+    env = os.environ.get(OCR_WORKERS_ENV, "").strip()
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise OCRError(f"{OCR_WORKERS_ENV}={env!r} is not a positive whole number",
+                           hint="e.g. 4; unset it to use the cores divided by the engine's threads")
+        return n
+    return max(1, usable_cores() // max(1, int(getattr(engine, "threads", 1) or 1)))
+
+
+def read_many(engine: Any, images: Sequence[Any], masks: Sequence[Any] | None = None, workers: int | None = None,
+              progress: bool = False, desc: str = "OCR") -> list[list[Word] | OCRError]:
+    """`engine.read` of every image (array, file, or a no-argument function that returns one, called
+    in the worker), with its mask, in a pool of `workers` threads (default: default_workers(engine);
+    engines without `parallel_reads = True` read one image at a time).
+
+    The results are in the order of `images`; a read that fails gives its OCRError in its place (the
+    other reads are kept). The words do not depend on the number of workers
+    (tests/test_ocr_parallel.py checks this against one-at-a-time reads).
+    """
+    images = list(images)
+    masks = [None] * len(images) if masks is None else list(masks)
+    if len(masks) != len(images):
+        raise OCRError(f"read_many: {len(images)} images but {len(masks)} masks", hint="give one mask (or None) per image")
+    workers = default_workers(engine) if workers is None else int(workers)
+    if workers < 1:
+        raise OCRError(f"read_many: workers={workers} must be at least 1", hint="1 reads one image at a time")
+    if not getattr(engine, "parallel_reads", False):
+        workers = 1
+
+    def one(k: int) -> list[Word] | OCRError:
+        img = images[k]
+        try:
+            return engine.read(img() if callable(img) else img, masks[k])
+        except OCRError as exc:
+            return exc
+
+    bar = None
+    if progress and len(images) > 1:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(images), desc=desc, unit="img", leave=False)
+    try:
+        if workers == 1 or len(images) <= 1:
+            out = []
+            for k in range(len(images)):
+                out.append(one(k))
+                if bar is not None:
+                    bar.update(1)
+            return out
+        from concurrent.futures import ThreadPoolExecutor, as_completed
+
+        results: list[Any] = [None] * len(images)
+        with ThreadPoolExecutor(max_workers=min(workers, len(images)),
+                                thread_name_prefix=f"ocr-{getattr(engine, 'name', 'engine')}") as pool:
+            futures = {pool.submit(one, k): k for k in range(len(images))}
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                if bar is not None:
+                    bar.update(1)
+        return results
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 @dataclass

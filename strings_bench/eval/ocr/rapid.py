@@ -282,6 +282,9 @@ def _engine_class():
 
 class RapidOCRBackend(OCRBackend):
     name = "rapidocr"
+    # ONNX Runtime sessions run concurrently; RapidOCR's per-call state lives in locals (and ours in
+    # the thread-local _tls above); the engine is shared only by backends of the same settings.
+    parallel_reads = True
 
     def __init__(self, cache: Any = None, threads: int | None = None, **settings: Any):
         merged = _Settings(DEFAULTS, settings).merged(self.name)
@@ -316,7 +319,9 @@ class RapidOCRBackend(OCRBackend):
     def _get_engine(self):
         if self._engine is not None:
             return self._engine
-        memo = json.dumps([{k: self.settings[k] for k in ENGINE_SETTINGS}, self.threads], sort_keys=True)
+        # word_boxes too: every call sets the engine's return_word_box, so backends that differ in it
+        # must not share an engine across threads.
+        memo = json.dumps([{k: self.settings[k] for k in (*ENGINE_SETTINGS, "word_boxes")}, self.threads], sort_keys=True)
         with _ENGINES_LOCK:
             if memo not in _ENGINES:
                 _ENGINES[memo] = self._new_engine()

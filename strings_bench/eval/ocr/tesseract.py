@@ -62,6 +62,7 @@ def parse_tesseract_tsv(tsv: str, min_confidence: float = 0.0) -> list[Word]:
 
 class TesseractBackend(OCRBackend):
     name = "tesseract"
+    parallel_reads = True  # one tesseract process per read
 
     def __init__(self, cache: Any = None, binary: str | None = None, timeout: float = 120.0, threads: int = 1, **settings: Any):
         super().__init__(_Settings(DEFAULTS, settings).merged(self.name), cache)

@@ -202,13 +202,20 @@ def tight_text_mask(scene: "Scene", i: int, downscale: float = 1, settings: "Mas
 _backends: dict[str, object] = {}
 
 
-def _ocr_polygons(scene: "Scene", i: int, backend_name: str) -> list[np.ndarray]:
+def _backend(name: str):
     from strings_bench.eval.ocr import get_backend
 
-    if backend_name not in _backends:
-        _backends[backend_name] = get_backend(backend_name)
-    img = scene.load_image(i, 1)
-    words = _backends[backend_name].read((np.clip(img, 0, 1) * 255).round().astype(np.uint8))
+    if name not in _backends:
+        _backends[name] = get_backend(name)  # with the on-disk OCR cache (_prefetch_ocr relies on it)
+    return _backends[name]
+
+
+def _full_image_uint8(scene: "Scene", i: int) -> np.ndarray:
+    return (np.clip(scene.load_image(i, 1), 0, 1) * 255).round().astype(np.uint8)
+
+
+def _ocr_polygons(scene: "Scene", i: int, backend_name: str) -> list[np.ndarray]:
+    words = _backend(backend_name).read(_full_image_uint8(scene, i))
     return [np.asarray(wd.polygon, dtype=np.float64) for wd in words]
 
 
@@ -240,6 +247,11 @@ def mask_cache_dir(scene: "Scene", settings: "MaskSettings | Mapping | None" = N
     return cache_root() / "masks" / _scene_hash(scene) / _settings_hash(settings)
 
 
+def _mask_cache_path(scene: "Scene", i: int, downscale: float, settings: MaskSettings) -> Path:
+    stem = Path(scene.names[i]).stem
+    return mask_cache_dir(scene, settings) / f"ds{downscale:g}" / f"{stem}-{_input_hash(scene, i, settings)}.png"
+
+
 def _write_png(path: Path, mask: np.ndarray) -> None:
     from PIL import Image
 
@@ -267,8 +279,7 @@ def dilated_text_mask(scene: "Scene", i: int, downscale: float = 1,
     w, h = _image_size(scene, i, downscale)
     path = None
     if use_cache:
-        stem = Path(scene.names[i]).stem
-        path = mask_cache_dir(scene, settings) / f"ds{downscale:g}" / f"{stem}-{_input_hash(scene, i, settings)}.png"
+        path = _mask_cache_path(scene, i, downscale, settings)
         if path.exists():
             try:
                 cached = _read_png(str(path))
@@ -299,7 +310,21 @@ def text_masks(scene: "Scene", views: Iterable[int], downscale: float = 1,
         from tqdm import tqdm
 
         it = tqdm(views, desc=f"text masks ({settings.source})", unit="view", leave=False)
+    if settings.source == "ocr":
+        _prefetch_ocr(scene, views, downscale, settings, progress)
     return {i: dilated_text_mask(scene, i, downscale, settings) for i in it}
+
+
+def _prefetch_ocr(scene: "Scene", views: list[int], downscale: float, settings: MaskSettings, progress: bool) -> None:
+    """Run the OCR detector on the views whose mask is not cached yet, on all cores at once
+    (eval.ocr.read_many). The reads land in the OCR disk cache, where tight_text_mask's one-at-a-time
+    read finds them; a failed read is left to that read to raise."""
+    from strings_bench.eval.ocr import read_many
+
+    todo = [i for i in views if not _mask_cache_path(scene, i, downscale, settings).exists()]
+    if len(todo) > 1:
+        read_many(_backend(settings.ocr_backend), [lambda i=i: _full_image_uint8(scene, i) for i in todo],
+                  progress=progress, desc="text masks (ocr)")
 
 
 def with_source(settings: "MaskSettings | Mapping | None", source: str) -> MaskSettings:
