@@ -6,7 +6,7 @@ reports the Spearman rank correlation of `word_cer` and of `text_nll` with known
 OCR-CER over the cells where OCR-CER is below 1 (where the detector reads something). The run
 folder is resumable; `--run DIR` only analyses an existing one.
 
-    python benchmarks/readability_validation.py                       # train (long: ~1 h on 2 cores) and report
+    python benchmarks/readability_validation.py                       # train (~20 min on 2 idle cores) and report
     python benchmarks/readability_validation.py --run runs/validate_x02   # report on a finished run
     python benchmarks/readability_validation.py --run runs/validate_x02 --also runs/readability/seed0 runs/readability/seed1
 """
