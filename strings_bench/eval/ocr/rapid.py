@@ -65,7 +65,12 @@ def _rapidocr_version() -> str:
         return "unknown"
 
 
-DEFAULT_THREADS = 2
+# ONNX Runtime threads of one detector+recogniser read. 1: the runner reads a cell's views with
+# read_many, one read per core, which beat 2 threads x half the reads at once on a cell's 12 reads by
+# 1.51x at 320x240 and 1.13x at 1280x960 on 2 cores, with the same words (benchmarks/ocr_parallel.py).
+DEFAULT_THREADS = 1
+# The recogniser alone (word-crop readability) runs its crops in batches, one call at a time.
+REC_DEFAULT_THREADS = 2
 
 
 def _check_upscale(value: Any) -> float:
@@ -301,8 +306,8 @@ class RapidOCRBackend(OCRBackend):
             raise OCRError(f"rapidocr setting mask_fill={merged['mask_fill']!r} must be an integer grey level 0..255",
                            hint="0 = black, as image x mask in the paper; the default is 128")
         super().__init__(merged, cache)
-        # Runtime only (does not change results, so not a setting). Default 2: the benchmark machines
-        # are small and several jobs may share them; onnxruntime's default takes every core.
+        # Runtime only (does not change results, so not a setting). Default 1 (DEFAULT_THREADS); read_many
+        # runs cores / threads reads at once. onnxruntime's own default would take every core per read.
         self.threads = DEFAULT_THREADS if threads is None else threads
         self._engine = None
         self._version: str | None = None
@@ -462,7 +467,7 @@ class Recognizer:
             raise OCRError(f"RapidOCR's recognition model {path} is missing",
                            hint="reinstall the wheel: pip install --force-reinstall rapidocr==3.10.0")
         opts = onnxruntime.SessionOptions()
-        opts.intra_op_num_threads = int(DEFAULT_THREADS if threads is None else threads)
+        opts.intra_op_num_threads = int(REC_DEFAULT_THREADS if threads is None else threads)
         opts.inter_op_num_threads = 1
         self.session = onnxruntime.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
         self.input_name = self.session.get_inputs()[0].name
@@ -509,7 +514,7 @@ _RECOGNIZERS: dict[int, Recognizer] = {}
 
 def get_recognizer(threads: int | None = None) -> Recognizer:
     """A shared Recognizer (loading the ONNX session takes a while)."""
-    key = int(DEFAULT_THREADS if threads is None else threads)
+    key = int(REC_DEFAULT_THREADS if threads is None else threads)
     with _ENGINES_LOCK:
         if key not in _RECOGNIZERS:
             _RECOGNIZERS[key] = Recognizer(threads=key)
