@@ -186,40 +186,19 @@ def test_missing_single_mask_file(tmp_path):
 def test_ocr_masks_read_each_view_once_on_several_cores(tmp_path, monkeypatch):
     """mask_source="ocr": the detector runs on all views at once (eval.ocr.read_many), each view once,
     and every mask is the filled word box dilated, as the one-at-a-time path makes it."""
-    import threading
-    import time
-
-    from strings_bench.eval.ocr import OCRBackend, OCRCache, Word
-    from strings_bench.eval.ocr.base import OCR_WORKERS_ENV, BackendStatus
+    from strings_bench.eval.ocr import OCRCache, Word
+    from strings_bench.eval.ocr.base import OCR_WORKERS_ENV
     from strings_bench.scene.polygons import fill_polygons
+    from test_ocr_parallel import SlowBackend
 
-    class BoxDetector(OCRBackend):  # one word, the scene's text box, in every view; slow as a detector
+    class BoxDetector(SlowBackend):  # one word, the scene's text box, in every view; slow as a detector
         name = "boxes"
-        parallel_reads = True
 
-        def __init__(self, cache):
-            super().__init__({}, cache)
-            self.calls, self.running, self.most_at_once = 0, 0, 0
-            self._lock = threading.Lock()
-
-        version = "1"
-
-        @classmethod
-        def status(cls):
-            return BackendStatus(cls.name, True, "1")
-
-        def _recognize(self, rgb):
-            with self._lock:
-                self.calls += 1
-                self.running += 1
-                self.most_at_once = max(self.most_at_once, self.running)
-            time.sleep(0.05)
-            with self._lock:
-                self.running -= 1
+        def words(self, rgb):
             return [Word.from_box("HELLO", 20, 14, 44, 30)]
 
     scene = make_scene(tmp_path, n_views=6, with_masks=False)
-    det = BoxDetector(OCRCache(tmp_path / "ocr"))
+    det = BoxDetector(cache=OCRCache(tmp_path / "ocr"))
     monkeypatch.setitem(M._backends, "boxes", det)
     monkeypatch.setenv(OCR_WORKERS_ENV, "3")
     s = M.MaskSettings(source="ocr", ocr_backend="boxes", dilation_fraction=0.1)

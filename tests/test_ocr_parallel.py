@@ -27,8 +27,9 @@ class SlowBackend(OCRBackend):
     name = "slow"
     parallel_reads = True
 
-    def __init__(self, delay=0.05):
-        super().__init__({}, None)
+    def __init__(self, delay=0.05, cache=None):
+        super().__init__({}, cache)
+        self.calls = 0
         self.delay = delay
         self.running = 0
         self.most_at_once = 0
@@ -44,16 +45,20 @@ class SlowBackend(OCRBackend):
 
     def _recognize(self, rgb):
         with self._lock:
+            self.calls += 1
             self.running += 1
             self.most_at_once = max(self.most_at_once, self.running)
         try:
             time.sleep(self.delay)
-            if rgb[0, 0, 0] == 13:
-                raise OCRError("unlucky image", hint="test")
-            return [Word.from_box(f"v{int(rgb[1, 1, 0])}", 0, 0, 4, 4, 0.9)]
+            return self.words(rgb)
         finally:
             with self._lock:
                 self.running -= 1
+
+    def words(self, rgb):
+        if rgb[0, 0, 0] == 13:
+            raise OCRError("unlucky image", hint="test")
+        return [Word.from_box(f"v{int(rgb[1, 1, 0])}", 0, 0, 4, 4, 0.9)]
 
 
 def _images(values):
