@@ -32,7 +32,7 @@ def main() -> None:
     from strings_bench.bench.runner import _to_uint8, eval_mask, eval_mask_settings
     from strings_bench.datasets.synthetic import build_scene, settings_with
     from strings_bench.eval.ocr import read_many
-    from strings_bench.eval.ocr.base import usable_cores
+    from strings_bench.core.cpus import usable_cores
     from strings_bench.eval.ocr.rapid import RapidOCRBackend
     from strings_bench.scene.scene import Scene
 

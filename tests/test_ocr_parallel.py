@@ -15,7 +15,8 @@ import pytest
 
 from strings_bench.core.errors import OCRError
 from strings_bench.eval.ocr import OCRBackend, Word, read_many
-from strings_bench.eval.ocr.base import OCR_WORKERS_ENV, BackendStatus, default_workers, usable_cores
+from strings_bench.core.cpus import usable_cores
+from strings_bench.eval.ocr.base import OCR_WORKERS_ENV, BackendStatus, default_workers
 from strings_bench.eval.ocr.rapid import RapidOCRBackend
 from strings_bench.eval.ocr.sample import random_text_image
 

@@ -321,3 +321,51 @@ def test_calibrate_grid_and_regime_checks():
     md = cal.tables(rows, ["pantry", "office"])
     assert "| s360-r1 | 7K | 2/2 | 0.750 |" in md and md.rstrip().endswith("| 0.736 | yes |")
     json.dumps(points)  # grid points are plain data
+
+
+def test_views_rendered_in_worker_processes_equal_the_one_process_render(monkeypatch):
+    """render_views(workers=2): each worker rebuilds the scene from its name and settings; every view
+    (pixels, mask, depth, camera effects drawn, words) must equal the one-process render, in order."""
+    st = settings_with(width=96, height=72, n_views=8, **SYNTHETIC360_DEFAULTS)
+    spec = generate.make_spec("office", st.seed, st)
+    one = list(generate.render_views(spec, st))
+    two = list(generate.render_views(spec, st, workers=2))
+    assert [c.name for c, _, _ in two] == [c.name for c, _, _ in one]
+    for (_, a, wa), (_, b, wb) in zip(one, two):
+        assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.text_mask, b.text_mask)
+        assert np.array_equal(a.depth, b.depth) and a.photometry == b.photometry
+        assert [(w.text, w.polygon.tolist()) for w in wa] == [(w.text, w.polygon.tolist()) for w in wb]
+    # The build's choice: every core for large views, one process for small ones; the variable wins.
+    monkeypatch.delenv(generate.RENDER_WORKERS_ENV, raising=False)
+    assert generate.render_workers(settings_with(width=320, height=240)) == 1
+    from strings_bench.core.cpus import usable_cores
+    assert generate.render_workers(settings_with(width=1600, height=1200)) == usable_cores()
+    monkeypatch.setenv(generate.RENDER_WORKERS_ENV, "3")
+    assert generate.render_workers(st) == 3
+    monkeypatch.setenv(generate.RENDER_WORKERS_ENV, "0")
+    with pytest.raises(DatasetError, match="positive whole number"):
+        generate.render_workers(st)
+
+
+def test_sfm_points_do_not_depend_on_the_thread_count(tmp_path):
+    """The build runs pycolmap on every core and the cache key leaves the thread count out, so 1 and 4
+    threads must triangulate the same points with the same tracks from the same images. pycolmap is not
+    bit-reproducible even at one count (a track's observation order and ~1e-16 of the coordinates vary
+    run to run), so tracks are compared as sets and coordinates to 1e-9."""
+    st = settings_with(width=320, height=240, n_views=16, **SYNTHETIC360_DEFAULTS)
+    spec = generate.make_spec("pantry", st.seed, st)
+    (tmp_path / "images").mkdir()
+    cams = []
+    for cam, res, _ in generate.render_views(spec, st):
+        Image.fromarray(res.rgb).save(tmp_path / "images" / cam.name)
+        cams.append(cam)
+
+    def points(threads):
+        m = generate.triangulate_with_known_poses(tmp_path / "images", tmp_path / f"sfm{threads}", cams, st,
+                                                  threads=threads)[0]
+        return sorted((tuple(np.round(m.xyz[i], 9)), tuple(m.rgb[i]),
+                       tuple(sorted(m.track_view[m.track_ptr[i]:m.track_ptr[i + 1]].tolist())))
+                      for i in range(m.num_points))
+
+    one, four = points(1), points(4)
+    assert len(one) > 300 and one == four

@@ -310,10 +310,20 @@ def _write_pairs(path: Path, names: list[str], overlap: int) -> int:
     return len(pairs)
 
 
+
+
 def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Camera], settings: SyntheticSettings,
-                                 relaxed: bool = False) -> tuple[ColmapModel, dict]:
+                                 relaxed: bool = False, threads: int | None = None) -> tuple[ColmapModel, dict]:
     """SIFT features + matching on the rendered images, then pycolmap.triangulate_points with the
-    known cameras. Returns the triangulated model and stage timings."""
+    known cameras, on `threads` threads (default: the usable cores). Returns the triangulated model
+    and stage timings.
+
+    pycolmap is not bit-reproducible run to run at any thread count (measured at 2 threads, the old
+    fixed count: the order of a track's observations and the last bits of coordinates, ~5e-16, vary);
+    the points and their tracks as sets do not, at 1 or 4 threads alike (tests/test_synthetic360.py),
+    so the thread count stays out of the cache key."""
+    from strings_bench.core.cpus import usable_cores
+
     import pycolmap
 
     work.mkdir(parents=True, exist_ok=True)
@@ -322,7 +332,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
     names = [c.name for c in cameras]
     cam0 = cameras[0]
     timings = {}
-    threads = min(2, os.cpu_count() or 1)
+    threads = usable_cores() if threads is None else int(threads)
     with _quiet_colmap():
         t0 = time.perf_counter()
         reader = pycolmap.ImageReaderOptions()
@@ -472,21 +482,89 @@ def make_spec(scene: str, seed: int, settings: SyntheticSettings | None = None) 
     return BUILDERS[scene](rng)
 
 
-def render_views(spec: SceneSpec, settings: SyntheticSettings, progress: bool = False):
-    """Yield (camera, RenderResult, visible words) for every view of the orbit.
+def render_views(spec: SceneSpec, settings: SyntheticSettings, progress: bool = False, workers: int = 1):
+    """Yield (camera, RenderResult, visible words) for every view of the orbit, in orbit order.
 
     With photometric controls on, RenderResult.rgb is the degraded photo and RenderResult.photometry
-    the parameters drawn for the view; masks and words stay those of the clean render."""
+    the parameters drawn for the view; masks and words stay those of the clean render.
+
+    workers > 1 renders views in that many fresh processes at once. Each worker rebuilds the scene
+    with make_spec(spec.name, settings.seed, settings) (the content is a function of those), so give
+    only specs made by make_spec; every view's pixels are the same as with one worker (each view's
+    camera effects come from its own random stream)."""
     cams = orbit_cameras(spec, settings, np.random.default_rng([settings.seed, 2]))
-    for i, cam in enumerate(tqdm(cams, desc=f"render {spec.name}", unit="view", disable=not progress, leave=False)):
-        res = spec.world.render(cam, settings.supersample)
-        if settings.photometric():
-            # Each view's camera effects from its own stream: the content and the path never move.
-            rng = np.random.default_rng([settings.seed, 4, i])
-            view = draw_view_photometry(settings, rng)
-            res.rgb = apply_photometry(res.linear, view, rng)
-            res.photometry = view
-        yield cam, res, visible_words(spec, cam, settings)
+    bar = tqdm(total=len(cams), desc=f"render {spec.name}", unit="view", disable=not progress, leave=False)
+    try:
+        if workers <= 1 or len(cams) < 2:
+            for i, cam in enumerate(cams):
+                res = _render_view(spec, settings, cam, i)
+                bar.update(1)
+                yield cam, res, visible_words(spec, cam, settings)
+            return
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a fresh interpreter, so no thread pool of the parent (torch, numba, BLAS) is forked.
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(cams)), mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_worker_init, initargs=(spec.name, settings))
+        try:
+            futures = [pool.submit(_worker_render, i) for i in range(len(cams))]
+            for i, cam in enumerate(cams):
+                res = futures[i].result()
+                futures[i] = None  # the result is the caller's now: do not keep it here too
+                bar.update(1)
+                yield cam, res, visible_words(spec, cam, settings)
+        finally:  # a caller that stops early (or an error) does not wait for the views not started
+            pool.shutdown(wait=True, cancel_futures=True)
+    finally:
+        bar.close()
+
+
+def _render_view(spec: SceneSpec, settings: SyntheticSettings, cam: Camera, i: int):
+    res = spec.world.render(cam, settings.supersample)
+    if settings.photometric():
+        # Each view's camera effects from its own stream: the content and the path never move.
+        rng = np.random.default_rng([settings.seed, 4, i])
+        view = draw_view_photometry(settings, rng)
+        res.rgb = apply_photometry(res.linear, view, rng)
+        res.photometry = view
+    return res
+
+
+_WORKER: dict = {}  # in a render worker process: the scene, its settings and cameras
+
+
+def _worker_init(scene: str, settings: SyntheticSettings) -> None:
+    spec = make_spec(scene, settings.seed, settings)
+    _WORKER.update(spec=spec, settings=settings,
+                   cams=orbit_cameras(spec, settings, np.random.default_rng([settings.seed, 2])))
+
+
+def _worker_render(i: int):
+    res = _render_view(_WORKER["spec"], _WORKER["settings"], _WORKER["cams"][i], i)
+    res.linear = None  # the build does not use it: 4 bytes a channel less to send back
+    return res
+
+
+# Rays per view from which views are rendered in parallel: below it, starting the workers (a fresh
+# interpreter each, which rebuilds the scene's textures) costs more than it saves.
+PARALLEL_RENDER_MIN_RAYS = 640 * 480 * 4
+RENDER_WORKERS_ENV = "STRINGS_BENCH_RENDER_WORKERS"
+
+
+def render_workers(settings: SyntheticSettings) -> int:
+    """Processes that render a build's views: STRINGS_BENCH_RENDER_WORKERS when set, else the usable
+    cores for views of at least PARALLEL_RENDER_MIN_RAYS rays (640x480 at 2x2 samples), else 1."""
+    from strings_bench.core.cpus import usable_cores
+
+    env = os.environ.get(RENDER_WORKERS_ENV, "").strip()
+    if env:
+        if not env.isdigit() or int(env) < 1:
+            raise DatasetError(f"{RENDER_WORKERS_ENV}={env!r} is not a positive whole number",
+                               hint="e.g. 8; unset it to use every core for large views")
+        return int(env)
+    rays = settings.width * settings.height * settings.supersample ** 2
+    return usable_cores() if rays >= PARALLEL_RENDER_MIN_RAYS else 1
 
 
 def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bool) -> None:
@@ -497,7 +575,7 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
     masks_dir.mkdir()
     cameras, depths, images, annotations, masks, photometry = [], [], [], {}, {}, {}
     t0 = time.perf_counter()
-    for cam, res, words in render_views(spec, settings, progress):
+    for cam, res, words in render_views(spec, settings, progress, workers=render_workers(settings)):
         if res.photometry is not None:
             photometry[cam.name] = res.photometry.as_dict()
         Image.fromarray(res.rgb).save(images_dir / cam.name)

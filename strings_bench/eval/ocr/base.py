@@ -12,19 +12,12 @@ from typing import Any, ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from strings_bench.core.cpus import usable_cores
 from strings_bench.core.errors import OCRError
 
 log = logging.getLogger(__name__)
 
 OCR_WORKERS_ENV = "STRINGS_BENCH_OCR_WORKERS"
-
-
-def usable_cores() -> int:
-    """Cores this process may run on (its CPU affinity, e.g. a container's or Slurm's share)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
 
 
 @dataclass(eq=False)
