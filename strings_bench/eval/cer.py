@@ -291,33 +291,39 @@ def image_cer(
     gt_text = [prof.normalize(w.text) for w in gt]
     pred_text = [prof.normalize(w.text) for w in pred]
     chars = sum(len(t) for t in gt_text)
-    n, m = len(gt), len(pred)
     if not iou_threshold > 0:
         raise StringsBenchError(f"IoU threshold {iou_threshold!r} must be > 0", hint="the paper uses 0.1")
-    if n == 0:
+    if not gt:
         return ImageCER(0, 0, ())
-    rule = prof.polygons
-    edges = iou_edges([polygon_geometry(w.polygon, rule) for w in gt], [polygon_geometry(w.polygon, rule) for w in pred],
-                      iou_threshold)
-    rows = [a for a, _ in edges]
-    cols = [n + b for _, b in edges]
-    graph = coo_matrix((np.ones(len(edges)), (rows, cols)), shape=(n + m, n + m))
-    _, labels = connected_components(graph, directed=False)
     gt_centres = [_mean_xy(w) for w in gt]
     pred_centres = [_mean_xy(w) for w in pred]
     total = 0
     comps: list[ComponentMatch] = []
-    members: dict[int, tuple[list[int], list[int]]] = {}
-    for i in range(n):
-        members.setdefault(int(labels[i]), ([], []))[0].append(i)
-    for j in range(m):
-        if int(labels[n + j]) in members:  # predicted words outside GT components cost nothing
-            members[int(labels[n + j])][1].append(j)
-    for g_idx, p_idx in members.values():  # components holding at least one GT word
+    for g_idx, p_idx in _iou_components(gt, pred, prof.polygons, iou_threshold):
+        if not g_idx:  # predicted words outside GT components cost nothing
+            continue
         d, g_str, p_str = _component_distance(g_idx, p_idx, gt_text, pred_text, gt_centres, pred_centres)
         total += d
         comps.append(ComponentMatch(tuple(g_idx), tuple(p_idx), g_str, p_str, d))
     return ImageCER(total, chars, tuple(comps))
+
+
+def _iou_components(a: list[Word], b: list[Word], rule: str, iou_threshold: float) -> list[tuple[list[int], list[int]]]:
+    """The connected components of the graph joining a word of `a` and a word of `b` when their
+    polygons (under the profile's polygon `rule`) have IoU >= `iou_threshold`: (indices into a,
+    indices into b) per component, the components holding a word of `a` first, in the order of their
+    first `a` word."""
+    n, m = len(a), len(b)
+    edges = iou_edges([polygon_geometry(w.polygon, rule) for w in a], [polygon_geometry(w.polygon, rule) for w in b],
+                      iou_threshold)
+    graph = coo_matrix((np.ones(len(edges)), ([i for i, _ in edges], [n + j for _, j in edges])), shape=(n + m, n + m))
+    _, labels = connected_components(graph, directed=False)
+    members: dict[int, tuple[list[int], list[int]]] = {}
+    for i in range(n):
+        members.setdefault(int(labels[i]), ([], []))[0].append(i)
+    for j in range(m):
+        members.setdefault(int(labels[n + j]), ([], []))[1].append(j)
+    return list(members.values())
 
 
 def _component_distance(a_idx, b_idx, a_text, b_text, a_centres, b_centres) -> tuple[int, str, str]:
@@ -382,22 +388,11 @@ def word_agreement(
     b = [_as_word(w) for w in words_b]
     a_text = [prof.normalize(w.text) for w in a]
     b_text = [prof.normalize(w.text) for w in b]
-    n, m = len(a), len(b)
-    if n + m == 0:
+    if not a and not b:
         return WordAgreement()
-    rule = prof.polygons
-    edges = iou_edges([polygon_geometry(w.polygon, rule) for w in a], [polygon_geometry(w.polygon, rule) for w in b],
-                      iou_threshold)
-    graph = coo_matrix((np.ones(len(edges)), ([i for i, _ in edges], [n + j for _, j in edges])), shape=(n + m, n + m))
-    _, labels = connected_components(graph, directed=False)
-    members: dict[int, tuple[list[int], list[int]]] = {}
-    for i in range(n):
-        members.setdefault(int(labels[i]), ([], []))[0].append(i)
-    for j in range(m):
-        members.setdefault(int(labels[n + j]), ([], []))[1].append(j)
     a_centres, b_centres = [_mean_xy(w) for w in a], [_mean_xy(w) for w in b]
     words = identical = only_a = only_b = 0
-    for a_idx, b_idx in members.values():
+    for a_idx, b_idx in _iou_components(a, b, prof.polygons, iou_threshold):
         if not any(a_text[i] for i in a_idx) and not any(b_text[j] for j in b_idx):
             continue
         words += 1
