@@ -382,7 +382,7 @@ class Evaluator:
         engine = engine or self.ocr
         gt_todo = [n for n in self.names if (engine.name, n) not in self._gt_ocr]
         images = [_to_uint8(self.gt(n)) for n in gt_todo]
-        images += [_to_uint8(np.clip(np.asarray(renders[n], dtype=np.float32), 0, 1)) for n in self.names]
+        images += [_to_uint8(renders[n]) for n in self.names]  # _to_uint8 clips to [0, 1]
         masks = [self.mask(n) for n in gt_todo] + [self.mask(n) for n in self.names]
         from strings_bench.eval.ocr.base import read_many
 
