@@ -32,7 +32,7 @@ def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: st
     """Train `method` for `steps` steps on books at `size` on `device`, then evaluate the checkpoint."""
     import torch
 
-    import strings_bench.bench.runner as runner
+    from strings_bench.eval.protocol import Evaluator
     from strings_bench.datasets.synthetic import build_scene, settings_with
     from strings_bench.engine.trainer import Trainer, peak_memory_mb
     from strings_bench.eval.ocr import get_backend
@@ -45,8 +45,7 @@ def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: st
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
     (result,) = list(Trainer(adapter, scene, [steps], device=device, progress=False).train())
-    evaluator = runner.Evaluator(scene, get_backend(ocr), 1.0, run_dir, "synthetic", with_lpips=with_lpips,
-                                 device=device)
+    evaluator = Evaluator.for_scene(scene, get_backend(ocr), 1.0, with_lpips=with_lpips, device=device)
     t0 = time.perf_counter()
     evaluator.evaluate(method, result.renders)
     eval_s = time.perf_counter() - t0

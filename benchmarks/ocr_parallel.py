@@ -29,7 +29,8 @@ def main() -> None:
 
     from scipy.ndimage import gaussian_filter
 
-    from strings_bench.bench.runner import _to_uint8, eval_mask, eval_mask_settings
+    from strings_bench.eval.protocol import to_uint8 as _to_uint8
+    from strings_bench.eval.text_masks import eval_mask, eval_mask_settings
     from strings_bench.datasets.synthetic import build_scene, settings_with
     from strings_bench.eval.ocr import read_many
     from strings_bench.core.cpus import usable_cores

@@ -29,7 +29,7 @@ def main() -> None:
 
     from scipy.ndimage import gaussian_filter
 
-    import strings_bench.bench.runner as runner
+    from strings_bench.eval.protocol import Evaluator
     from strings_bench.datasets.synthetic import build_scene, settings_with
     from strings_bench.eval.ocr import OCRCache, get_backend
     from strings_bench.scene.scene import Scene
@@ -42,7 +42,7 @@ def main() -> None:
     for engines in (["rapidocr"], ["rapidocr", "tesseract"]):
         with tempfile.TemporaryDirectory() as tmp:
             backends = [get_backend(e, cache=OCRCache(Path(tmp) / "ocr")) for e in engines]
-            ev = runner.Evaluator(scene, backends, 1.0, Path(tmp) / "run", "synthetic", with_lpips=False)
+            ev = Evaluator.for_scene(scene, backends, 1.0, with_lpips=False)
             times = []
             for renders in cells:  # two cells of one scene: the second reuses the GT reads
                 t0 = time.perf_counter()

@@ -48,7 +48,7 @@ SYNTHETIC_SCENES = ["books", "extinguisher", "globe", "chemicals", "shelf"]
 def synthetic_table(scenes: list[str], settings: dict, threads: int | None, min_h: float) -> list[dict]:
     """Known-text CER of RapidOCR on the GT test views of synthetic scenes (unmasked and masked)."""
     from strings_bench.datasets import resolve_scenes
-    from strings_bench.bench.runner import eval_mask, eval_mask_settings
+    from strings_bench.eval.text_masks import eval_mask, eval_mask_settings
     from strings_bench.scene.scene import Scene
 
     kwargs = dict(settings)

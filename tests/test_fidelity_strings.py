@@ -135,7 +135,7 @@ def test_position_lr_scale_rows_use_the_counter(text_scene):
 def test_strings_reports_preprocess_time(text_scene, monkeypatch):
     import time
 
-    import strings_bench.methods.strings.masks as masks_mod
+    import strings_bench.eval.text_masks as masks_mod
 
     real = masks_mod.text_masks
 
@@ -378,7 +378,7 @@ def test_engine_doc_has_no_placeholder():
 
 # ---- §4 --no-progress --------------------------------------------------------------------------------
 def test_no_progress_reaches_trainer_and_mask_bar(text_scene, monkeypatch):
-    import strings_bench.methods.strings.masks as masks_mod
+    import strings_bench.eval.text_masks as masks_mod
 
     seen = []
     real = masks_mod.text_masks

@@ -54,6 +54,7 @@ CHILD = textwrap.dedent("""
     import strings_bench.datasets.synthetic.generate as generate
     from strings_bench.engine.splatting import GaussianSplatting
     import strings_bench.bench.runner as runner
+    import strings_bench.eval.protocol as protocol
 
     spec = json.loads(os.environ.get("KILL_SPEC") or "null")
     counts = {}
@@ -82,7 +83,7 @@ CHILD = textwrap.dedent("""
     for name in ("triangulate_with_known_poses", "write_model", "write_annotations"):
         wrap(generate, name, "prep")
     wrap(GaussianSplatting, "train_step", "train")
-    wrap(runner.Evaluator, "evaluate", "eval")
+    wrap(protocol.Evaluator, "evaluate", "eval")
 
     class _Os:  # os for core.io: a kill between writing a temporary file and renaming it
         def __getattr__(self, name):

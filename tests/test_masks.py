@@ -14,7 +14,7 @@ from skimage.morphology import disk
 def binary_dilation(mask, footprint):
     return _nd_dilation(mask, structure=footprint)
 
-import strings_bench.methods.strings.masks as M
+import strings_bench.eval.text_masks as M
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, write_model
 from strings_bench.scene.scene import Scene

@@ -156,18 +156,19 @@ class Counting:
 
 
 def test_gt_ocr_is_read_once_per_engine(tmp_path):
+    from strings_bench.eval.protocol import Evaluator
     from strings_bench.scene.scene import Scene
 
     scene = Scene.load(rf.make_scene(tmp_path))
     one, two = Counting("one", "hello"), Counting("two", "hallo")
-    ev = runner.Evaluator(scene, [one, two], 1.0, tmp_path / "run", "toy", with_lpips=False)
+    ev = Evaluator.for_scene(scene, [one, two], 1.0, with_lpips=False)
     name = ev.names[0]
     assert [w.text for w in ev.gt_words(name)] == ["hello"]
     assert [w.text for w in ev.gt_words(name, two)] == ["hallo"]
     ev.gt_words(name), ev.gt_words(name, two)
     assert (one.calls, two.calls) == (1, 1)
     with pytest.raises(StringsBenchError, match="twice"):
-        runner.Evaluator(scene, [one, Counting("one", "x")], 1.0, tmp_path / "run", "toy")
+        Evaluator.for_scene(scene, [one, Counting("one", "x")], 1.0)
 
 
 # --------------------------------------------------------------------------- real engines, end to end

@@ -272,7 +272,7 @@ def test_default_backend_reads_synthetic_books_ground_truth():
     views with the default backend and legibility filter <= 0.10, unmasked and masked as the runner does."""
     from strings_bench.datasets import resolve_scenes
     from strings_bench.eval.ocr import get_backend
-    from strings_bench.bench.runner import eval_mask, eval_mask_settings
+    from strings_bench.eval.text_masks import eval_mask, eval_mask_settings
     from strings_bench.scene.scene import Scene
 
     scene = Scene.load(resolve_scenes(["synthetic/books"])[0].path)

@@ -138,7 +138,7 @@ import math  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from _engine_helpers import make_tiny_scene, train  # noqa: E402
-from strings_bench.methods.strings.masks import MissingMasksError  # noqa: E402
+from strings_bench.eval.text_masks import MissingMasksError  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
 from strings_bench.methods.strings.method import Strings, text_lr_factor  # noqa: E402
 from strings_bench.scene.scene import Scene  # noqa: E402

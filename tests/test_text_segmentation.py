@@ -68,7 +68,7 @@ def test_pixel_lookup_is_floor_of_projection():
 
 def test_scene_segmentation_with_downscaled_masks(tmp_path):
     scene = make_scene(tmp_path, n_points=200)
-    import strings_bench.methods.strings.masks as M
+    import strings_bench.eval.text_masks as M
 
     s = M.MaskSettings(dilation_fraction=0)
     full = {i: M.tight_text_mask(scene, i, 1, s) for i in scene.train_idx}

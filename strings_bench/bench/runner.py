@@ -45,13 +45,14 @@ import numpy as np
 from PIL import Image
 
 from strings_bench import __version__
-from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.core.errors import StringsBenchError
 from strings_bench.bench.ray_executor import RayExecutor
 from strings_bench.bench.results import iteration_label, write_results_csv
 from strings_bench.core.io import atomic_write, atomic_write_json
 from strings_bench.core.method import Method
 from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
 from strings_bench.core.schedules import SCHEDULE_SCALES
+from strings_bench.eval.protocol import Evaluator, to_uint8
 
 log = logging.getLogger(__name__)
 
@@ -227,15 +228,21 @@ def get_executor(name: str, runner: Callable[[Job], Any], **options) -> Executor
 
 
 # ---- helpers ----------------------------------------------------------------------------------
-def _to_uint8(img: np.ndarray) -> np.ndarray:
-    return (np.clip(np.asarray(img, dtype=np.float32), 0, 1) * 255.0 + 0.5).astype(np.uint8)
-
-
 def _write_png(path: Path, img: np.ndarray) -> None:
+    """`img` as the 8-bit PNG the evaluation scores (eval.protocol.to_uint8), written atomically."""
     def write(tmp: Path) -> None:
-        Image.fromarray(_to_uint8(img)).save(tmp, format="PNG")
+        Image.fromarray(to_uint8(img)).save(tmp, format="PNG")
 
     atomic_write(path, write)
+
+
+def write_gt_pngs(run_dir: Path, dataset: str, scene_name: str, evaluator: Evaluator) -> None:
+    """RUN_DIR/gt/<dataset>/<scene>/<view stem>.png: the ground truth as scored, for the report's crops."""
+    folder = Path(run_dir) / "gt" / safe_name(dataset) / safe_name(scene_name)
+    for name in evaluator.names:
+        path = folder / f"{Path(name).stem}.png"
+        if not path.exists():
+            _write_png(path, evaluator.gt(name))
 
 
 def _nan_to_none(x):
@@ -283,247 +290,6 @@ def device_info(device: str) -> dict:
     if str(device).startswith("cuda") and torch.cuda.is_available():
         gpu = torch.cuda.get_device_name(torch.device(device))
     return {"device": str(device), "gpu": gpu}
-
-
-# ---- masks used for OCR ------------------------------------------------------------------------
-def eval_mask_settings(scene) -> dict | None:
-    """Mask settings for OCR-CER: the scene's `eval_masks` setting, else its masks/ folder, else
-    (synthetic scenes without masks/) the known-word polygons; None = whole image."""
-    given = scene.settings.get("eval_masks") if isinstance(scene.settings, dict) else None
-    if given is not None:
-        return dict(given)
-    if scene.masks_dir is not None:
-        return {"source": "dataset"}
-    if scene.known_text is not None:
-        return {"source": "gt"}
-    return None
-
-
-def eval_mask(scene, i: int, downscale: float, settings: dict | None) -> np.ndarray | None:
-    if settings is None:
-        return None
-    import strings_bench.methods.strings.masks as masks
-
-    try:
-        return masks.dilated_text_mask(scene, i, downscale, settings)
-    except masks.MissingMasksError:
-        return None  # this view has no mask: OCR the whole image (recorded per view)
-
-
-# ---- evaluation of one checkpoint ------------------------------------------------------------
-class Evaluator:
-    """Computes everything about one checkpoint of one scene. GT-side work is done once per scene.
-
-    `ocr_backend` is one OCR backend or a list of them (`run --ocr rapidocr,tesseract`): the first is
-    the primary engine (`cer`, `cer_known`, the word-crop readability); each further one is scored the
-    same way and compared with the primary (`ocr_engines` in result.json). GT OCR is kept per engine."""
-
-    def __init__(self, scene, ocr_backend, downscale: float, run_dir: Path, dataset: str, with_lpips: bool = True,
-                 cer_profile: str = "paper", device: str = "cpu", ocr_workers: int | None = None):
-        self.scene = scene
-        self.ocr_workers = ocr_workers  # reads at once per engine (None: the engine's default_workers)
-        self.device = device  # where LPIPS runs
-        self.cer_profile = cer_profile
-        self.engines = list(ocr_backend) if isinstance(ocr_backend, (list, tuple)) else [ocr_backend]
-        if not self.engines:
-            raise StringsBenchError("no OCR engine given", hint="e.g. --ocr rapidocr")
-        names = [e.name for e in self.engines]
-        if len(set(names)) != len(names):
-            raise StringsBenchError(f"OCR engines {names} name one engine twice", hint="name each engine once")
-        self.ocr = self.engines[0]
-        self.downscale = downscale
-        self.run_dir = Path(run_dir)
-        self.dataset = dataset
-        self.with_lpips = with_lpips
-        self.views = list(scene.test_idx)
-        self.names = [scene.names[i] for i in self.views]
-        self.mask_settings = eval_mask_settings(scene)
-        self._gt: dict[str, np.ndarray] = {}
-        self._masks: dict[str, np.ndarray | None] = {}
-        self._gt_ocr: dict[tuple[str, str], list | None] = {}  # (engine, view) -> GT words (None: OCR failed)
-        self._gt_ocr_error: dict[tuple[str, str], str] = {}
-        self._lpips_ref: dict[str, object] = {}
-        self._readability = None  # eval.readability.SceneReadability: GT-side word crops, made once per scene
-
-    def gt(self, name: str) -> np.ndarray:
-        if name not in self._gt:
-            i = self.views[self.names.index(name)]
-            self._gt[name] = self.scene.load_image(i, self.downscale)
-            self._masks[name] = eval_mask(self.scene, i, self.downscale, self.mask_settings)
-            gt_png = self.run_dir / "gt" / safe_name(self.dataset) / safe_name(self.scene.name) / f"{Path(name).stem}.png"
-            if not gt_png.exists():
-                _write_png(gt_png, self._gt[name])
-        return self._gt[name]
-
-    def mask(self, name: str) -> np.ndarray | None:
-        self.gt(name)
-        return self._masks[name]
-
-    def _read(self, img: np.ndarray, mask: np.ndarray | None, engine=None):
-        try:
-            return (engine or self.ocr).read(_to_uint8(img), mask=mask), None
-        except OCRError as exc:
-            return None, str(exc)
-
-    def gt_words(self, name: str, engine=None):
-        """The OCR words of test view `name`'s ground truth by `engine` (default the primary), read once."""
-        engine = engine or self.ocr
-        key = (engine.name, name)
-        if key not in self._gt_ocr:
-            words, err = self._read(self.gt(name), self.mask(name), engine)
-            self._gt_ocr[key] = words
-            if err:
-                self._gt_ocr_error[key] = err
-        return self._gt_ocr[key]
-
-    def read_views(self, renders: dict, engine=None) -> dict[str, tuple]:
-        """`engine`'s (default the primary's) reading of every test view's render, and of the GT views
-        not read yet (kept in gt_words), in one read_many pool: name -> (render words or None, error)."""
-        engine = engine or self.ocr
-        gt_todo = [n for n in self.names if (engine.name, n) not in self._gt_ocr]
-        images = [_to_uint8(self.gt(n)) for n in gt_todo]
-        images += [_to_uint8(renders[n]) for n in self.names]  # _to_uint8 clips to [0, 1]
-        masks = [self.mask(n) for n in gt_todo] + [self.mask(n) for n in self.names]
-        from strings_bench.eval.ocr.base import read_many
-
-        results = read_many(engine, images, masks, workers=self.ocr_workers)
-        for n, res in zip(gt_todo, results):
-            failed = isinstance(res, OCRError)
-            self._gt_ocr[(engine.name, n)] = None if failed else res
-            if failed:
-                self._gt_ocr_error[(engine.name, n)] = str(res)
-        return {n: ((None, str(res)) if isinstance(res, OCRError) else (res, None))
-                for n, res in zip(self.names, results[len(gt_todo):])}
-
-    def check_renders(self, method: str, renders: dict) -> None:
-        missing = [n for n in self.names if n not in renders]
-        if missing:
-            raise StringsBenchError(
-                f"method {method} returned no render for test view(s) {', '.join(missing[:5])} of scene {self.scene.name}",
-                hint="an adapter must render every view in scene.test_idx, keyed by image name")
-        for n in self.names:
-            r = np.asarray(renders[n])
-            g = self.gt(n)
-            if r.shape != g.shape:
-                raise StringsBenchError(
-                    f"method {method}: render of {n} ({self.scene.name}) is {r.shape}, the ground truth is {g.shape}",
-                    hint="render at scene.camera(i, downscale) size")
-            if not np.all(np.isfinite(r)):
-                raise StringsBenchError(f"method {method}: render of {n} ({self.scene.name}) has NaN/Inf pixels",
-                                        hint="training diverged; run with -v for details")
-
-    def lpips_ref(self, name: str):
-        import strings_bench.eval.metrics as metrics
-
-        if name not in self._lpips_ref:
-            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name), device=self.device)
-        return self._lpips_ref[name]
-
-    def readability(self, views: dict) -> dict | None:
-        """Word-crop readability of a cell (eval.readability); None, logged, when the recogniser cannot load."""
-        import strings_bench.eval.readability as readability
-
-        if self._readability is None:
-            try:
-                self._readability = readability.SceneReadability()
-            except OCRError as exc:
-                log.warning("word-crop readability is not computed: %s", exc)
-                self._readability = False
-        return self._readability.evaluate(views) if self._readability else None
-
-    def evaluate(self, method: str, renders: dict, with_lpips: bool | None = None) -> dict:
-        import strings_bench.eval.cer as cer
-        import strings_bench.eval.metrics as metrics
-
-        with_lpips = self.with_lpips if with_lpips is None else with_lpips
-
-        self.check_renders(method, renders)
-        per_view: dict[str, dict] = {}
-        ocr_views: dict[str, dict] = {}
-        pairs: dict[str, tuple] = {}
-        known_pairs: dict[str, tuple] = {}
-        read_views: dict[str, tuple] = {}  # word-crop readability inputs: (render, gt, known words, GT OCR words)
-        render_reads = self.read_views(renders)
-        for i, name in zip(self.views, self.names):
-            gt = self.gt(name)
-            r = np.clip(np.asarray(renders[name], dtype=np.float32), 0, 1)
-            per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
-                                                   gt_reference=self.lpips_ref(name) if with_lpips else None,
-                                                   device=self.device)
-            per_view[name].update(metrics.text_region_metrics(r, gt, self.mask(name), with_lpips=with_lpips,
-                                                              device=self.device))
-            gt_words = self.gt_words(name)
-            render_words, render_err = render_reads[name]
-            pairs[name] = (gt_words, render_words)
-            ocr_views[name] = {
-                "mask": "whole image" if self.mask(name) is None else "dilated text mask",
-                "gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
-                "render_words": None if render_words is None else [w.to_dict() for w in render_words],
-                "gt_error": self._gt_ocr_error.get((self.ocr.name, name)),
-                "render_error": render_err,
-            }
-            known = self.scene.known_words(i, self.downscale)
-            read_views[name] = (r, gt, known, gt_words)
-            if known:
-                known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
-                ocr_views[name]["known_words"] = [{"text": k.text, "polygon": np.asarray(k.polygon).tolist()} for k in known]
-        scene_cer = cer.scene_cer(pairs, profile=self.cer_profile)
-        # Known-text CER leaves out words too small for any OCR (cer.KNOWN_TEXT_MIN_HEIGHT_PX); the result's
-        # `legibility` records the threshold and the excluded counts. The paper-protocol CER above is untouched.
-        known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
-
-        readability = self.readability(read_views)
-        engines = {e.name: self.second_opinion(e, renders, pairs) for e in self.engines[1:]}
-
-        def mean(key):
-            vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
-            return float(np.mean(vals)) if vals else math.nan
-
-        return {
-            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": mean("lpips"),
-                        **{k: mean(k) for k in metrics.TEXT_METRICS}, "per_view": per_view},
-            "readability": readability,
-            "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
-            "cer": scene_cer.to_dict(),
-            "cer_known": None if known_cer is None else known_cer.to_dict(),
-            **({"ocr_engines": engines} if engines else {}),
-        }
-
-    def second_opinion(self, engine, renders: dict, primary_pairs: dict) -> dict:
-        """A further OCR engine's reading of a cell: its words on every GT and render view, its CER and
-        known-text CER (same rules as the primary's), and its agreement with the primary engine
-        (`cer.word_agreement`) on the render views and on the GT views, summed over the views both
-        engines read without failing."""
-        import strings_bench.eval.cer as cer
-
-        pairs: dict[str, tuple] = {}
-        known_pairs: dict[str, tuple] = {}
-        views: dict[str, dict] = {}
-        agree_render = agree_gt = cer.WordAgreement()
-        render_reads = self.read_views(renders, engine)
-        for i, name in zip(self.views, self.names):
-            gt_words = self.gt_words(name, engine)
-            render_words, render_err = render_reads[name]
-            pairs[name] = (gt_words, render_words)
-            views[name] = {"gt_words": None if gt_words is None else [w.to_dict() for w in gt_words],
-                           "render_words": None if render_words is None else [w.to_dict() for w in render_words],
-                           "gt_error": self._gt_ocr_error.get((engine.name, name)), "render_error": render_err}
-            known = self.scene.known_words(i, self.downscale)
-            if known:
-                known_pairs[name] = ([(k.text, k.polygon) for k in known], render_words)
-            primary_gt, primary_render = primary_pairs[name]
-            if primary_render is not None and render_words is not None:
-                agree_render = agree_render + cer.word_agreement(primary_render, render_words, self.cer_profile)
-            if primary_gt is not None and gt_words is not None:
-                agree_gt = agree_gt + cer.word_agreement(primary_gt, gt_words, self.cer_profile)
-        scene_cer = cer.scene_cer(pairs, profile=self.cer_profile)
-        known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
-        return {"backend": engine.describe(), "views": views, "cer": scene_cer.to_dict(),
-                "cer_known": None if known_cer is None else known_cer.to_dict(),
-                "agreement": {"with": self.ocr.name, "renders": agree_render.to_dict(), "gt": agree_gt.to_dict(),
-                              "iou_threshold": cer.IOU_THRESHOLD,
-                              "rule": "text regions (IoU >= 0.1 components of both engines' words) read identically "
-                                      "after the CER profile's normalisation (cer.word_agreement)"}}
 
 
 # ---- running ------------------------------------------------------------------------------------
@@ -588,8 +354,9 @@ class Runner:
         from strings_bench.engine.trainer import resolve_device
 
         device = resolve_device(job.device)  # checked here, where the job runs
-        evaluator = Evaluator(scene, ocr, job.downscale, run_dir, job.dataset, with_lpips=self.with_lpips,
-                              cer_profile=job.cer_profile, device=device)
+        evaluator = Evaluator.for_scene(scene, ocr, job.downscale, with_lpips=self.with_lpips,
+                                        cer_profile=job.cer_profile, device=device)
+        write_gt_pngs(run_dir, job.dataset, job.scene, evaluator)
         wanted = set(job.checkpoints)
         written: list[CellKey] = []
         seen: set[int] = set()

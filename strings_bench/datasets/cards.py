@@ -66,21 +66,26 @@ def _locate_in_local_copy(dataset_id: str):
     return locate
 
 
+# The release's masks/ are its Hi-SAM script's output, already dilated (20 % of the width "for all
+# experiments"); its training and its OCR-CER read them as they are (eval/text_masks.py).
+_RELEASE_MASKS = {"masks_dilated": True}
+
 STRINGS360 = DatasetCard(
     id="strings360",
     locate=_locate_in_local_copy("strings360"),
     title="STRinGS-360 (text-rich indoor 360-degree captures, the paper's own dataset)",
     scenes=[
-        SceneCard("extinguisher", {"n_max": 25}, "instructional text on a curved cylinder"),
-        SceneCard("books", {"n_max": 25}, "flat, densely packed book titles and author names"),
-        SceneCard("chemicals", {"n_max": 25}, "chemical compositions on bottle labels on a lab shelf"),
-        SceneCard("globe", {"n_max": 25}, "place names on a sphere"),
-        SceneCard("shelf", {"n_max": 25}, "stacked academic books, repeated titles, occlusion"),
+        SceneCard("extinguisher", {"n_max": 25, **_RELEASE_MASKS}, "instructional text on a curved cylinder"),
+        SceneCard("books", {"n_max": 25, **_RELEASE_MASKS}, "flat, densely packed book titles and author names"),
+        SceneCard("chemicals", {"n_max": 25, **_RELEASE_MASKS}, "chemical compositions on bottle labels on a lab shelf"),
+        SceneCard("globe", {"n_max": 25, **_RELEASE_MASKS}, "place names on a sphere"),
+        SceneCard("shelf", {"n_max": 25, **_RELEASE_MASKS}, "stacked academic books, repeated titles, occlusion"),
     ],
     source=f"released by the STRinGS authors via Google Drive, linked from the project page {STRINGS_PROJECT_PAGE}",
     licence=f"see the paper's project page ({STRINGS_PROJECT_PAGE})",
     layout="<scene>/images/, <scene>/sparse/0/, <scene>/masks/ (Hi-SAM text masks), plus the Hi-SAM polygons",
-    notes="N_max = 25 for every scene (REFERENCE §2, the authors' release).",
+    notes="N_max = 25 for every scene (REFERENCE §2, the authors' release). Its masks/ are already dilated "
+    "(the release's Hi-SAM output): STRinGS trains with them and OCR-CER reads through them as they are.",
     download={
         "manual": True,
         "steps": [

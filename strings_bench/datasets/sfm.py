@@ -329,14 +329,12 @@ def _write_upright_resized(src: Path, dest: Path, max_size: int) -> None:
 def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr", progress: bool = True) -> tuple[int, int]:
     """One PNG per image, white inside the word polygons the OCR detector finds.
 
-    The masks are tight (filled polygons, not dilated): strings_bench.methods.strings.masks dilates them at use
+    The masks are tight (filled polygons, not dilated): strings_bench.eval.text_masks dilates them at use
     time with the chosen kernel (paper 5 % of the width), exactly as it does for Hi-SAM masks.
     Returns (masks written, masks with any text).
     """
-    from strings_bench.scene.polygons import fill_polygons
-    from strings_bench.eval.ocr import get_backend
-
-    from strings_bench.eval.ocr import read_many
+    from strings_bench.eval.ocr import get_backend, read_many
+    from strings_bench.eval.text_masks import word_polygon_mask
 
     ocr = get_backend(backend)
     masks_dir.mkdir(parents=True, exist_ok=True)
@@ -358,7 +356,7 @@ def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr
     for p, words in zip(photos, reads):
         if isinstance(words, Exception):
             raise words
-        mask = fill_polygons([wd.polygon for wd in words], sizes(p))
+        mask = word_polygon_mask(words, sizes(p))
         Image.fromarray((mask * 255).astype(np.uint8)).save(masks_dir / f"{p.stem}.png")
         written += 1
         with_text += int(mask.any())

@@ -56,10 +56,13 @@ class StringsSettings:
     # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
     # Gaussians at the first refinement of phase 2 (measured on synthetic/books), see docs/strings.md.
     phase2_schedules: str = "restart"  # "restart" (release) or "global" schedules in phase 2 (see above)
-    mask_source: str = "dataset"  # text masks: "dataset" (masks/), "ocr" (detector polygons), "known" (synthetic)
+    mask_source: str = "dataset"  # text masks: "dataset" (masks/), "ocr" (detector polygons), "gt" (synthetic)
     mask_dilation_fraction: float = 0.05  # dilation kernel diameter / image width (paper 5 %)
     mask_dilation_px: float | None = None  # dilation diameter in px at full size (release 225); overrides the fraction
     mask_ocr_backend: str = "rapidocr"  # detector for mask_source "ocr"
+    # "auto": masks/ shipped already dilated (the STRinGS release's layout, or the card's masks_dilated) are
+    # trained with as they are, as the release does; others are dilated. "yes"/"no" force either.
+    mask_predilated: str = "auto"  # are the dataset's masks/ already dilated: "auto", "yes" or "no"
     segmentation_downscale: float | None = None  # None: the training downscale
 
     def __post_init__(self):
@@ -74,10 +77,11 @@ class StringsSettings:
             raise StringsBenchError(f"phase1_position_lr must be >= 0, got {self.phase1_position_lr}")
 
     def mask_settings(self):
-        from strings_bench.methods.strings.masks import MaskSettings
+        from strings_bench.eval.text_masks import MaskSettings
 
         return MaskSettings(source=self.mask_source, dilation_fraction=self.mask_dilation_fraction,
-                            dilation_px=self.mask_dilation_px, ocr_backend=self.mask_ocr_backend)
+                            dilation_px=self.mask_dilation_px, ocr_backend=self.mask_ocr_backend,
+                            predilated=self.mask_predilated)
 
 
 def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> float:
@@ -111,7 +115,7 @@ class Strings(GaussianSplatting):
 
     # ---- preprocessing: masks and Algorithm 1 (timed as preprocess_seconds by the loop) ---------
     def prepare(self, scene: "Scene") -> None:
-        from strings_bench.methods.strings.masks import text_masks
+        from strings_bench.eval.text_masks import text_masks
         from strings_bench.methods.strings.segmentation import segment_text_points
 
         st, ds = self.st, self.downscale

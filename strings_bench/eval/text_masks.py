@@ -1,5 +1,9 @@
 """Text masks: where the text is in each view, for STRinGS training and for OCR-CER.
 
+One module for every text mask of the suite: STRinGS trains with `text_masks`, the evaluation
+protocol reads OCR through `eval_mask`, and `strings-bench prepare` (datasets/sfm.py) writes
+its OCR masks with `word_polygon_mask`. A metric therefore never depends on one method's package.
+
 Three providers make the *tight* mask of a view (text strokes / word boxes):
 
 - ``"dataset"``: the scene's ``masks/`` folder (one PNG per image, ``<image stem>.png``). This is
@@ -15,6 +19,14 @@ width (paper: 5 %; the release README says 20 %; the release script's default is
 transform: a pixel is in the dilated mask iff its centre lies within ``diameter / 2`` of the centre
 of a mask pixel, which equals binary dilation with ``skimage.morphology.disk(diameter / 2)`` for an
 integer radius (tested).
+
+Masks shipped *already dilated*: the STRinGS release's datasets ship masks/ that are the output of
+its Hi-SAM script (`text_segmentation.sh <dataset> <dilation>`, 20 % of the width "for all
+experiments"), and both its training (`view.gt_mask`) and its OCR-CER (`metrics_ocr`, image x
+mask > 127) read them as they are. ``MaskSettings.predilated`` says how the ``"dataset"`` provider
+treats a scene's masks/: ``"auto"`` (default) uses them undilated when the scene is in the release's
+layout (``hisam_jsons/`` and ``masks_vis/`` beside ``masks/``) or its card says ``masks_dilated``,
+and dilates them otherwise; ``"yes"`` / ``"no"`` force either.
 
 Dilated masks are cached as PNG under ``cache_root()/masks/<scene hash>/<settings hash>/``; the
 file name carries a hash of the inputs (mask file / image / annotation file size and mtime), so an
@@ -43,6 +55,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MASK_SOURCES = ("dataset", "ocr", "gt")
+PREDILATED = ("auto", "yes", "no")
+# Folders the STRinGS release ships beside masks/ (its Hi-SAM polygons and mask previews): a scene
+# folder holding them is the release's, whose masks are already dilated.
+RELEASE_LAYOUT_DIRS = ("hisam_jsons", "masks_vis")
 PAPER_DILATION_FRACTION = 0.05  # paper: kernel diameter = 5 % of the image width
 RELEASE_README_DILATION_FRACTION = 0.20  # authors' release README
 RELEASE_SCRIPT_DILATION_PX = 225.0  # authors' release script default (pixels at full resolution)
@@ -62,12 +78,15 @@ class MaskSettings:
     dilation_px: if set, an absolute kernel diameter in full-resolution pixels (release script: 225),
         scaled with the downscale factor; overrides dilation_fraction.
     ocr_backend: OCR backend name for source="ocr".
+    predilated: source="dataset" only: are the scene's masks/ already dilated (then used as they are)?
+        "auto" (the release's layout or the card's `masks_dilated` say so), "yes" or "no".
     """
 
     source: str = "dataset"
     dilation_fraction: float = PAPER_DILATION_FRACTION
     dilation_px: float | None = None
     ocr_backend: str = "rapidocr"
+    predilated: str = "auto"
 
     def __post_init__(self):
         if self.source not in MASK_SOURCES:
@@ -79,6 +98,9 @@ class MaskSettings:
         if self.dilation_px is not None and not (np.isfinite(self.dilation_px) and self.dilation_px >= 0):
             raise StringsBenchError(f"mask dilation_px must be >= 0, got {self.dilation_px}",
                                     hint="the release script uses 225 (pixels at full resolution)")
+        if self.predilated not in PREDILATED:
+            raise StringsBenchError(f"mask setting predilated must be one of {', '.join(PREDILATED)}, got {self.predilated!r}",
+                                    hint="auto: the STRinGS release's masks/ are used as shipped (already dilated)")
 
     @classmethod
     def coerce(cls, value: "MaskSettings | Mapping | None") -> "MaskSettings":
@@ -96,13 +118,34 @@ class MaskSettings:
         d = asdict(self)
         if self.source != "ocr":
             d.pop("ocr_backend")  # does not change dataset/gt masks
+        if self.source != "dataset" or self.predilated == "no":
+            d.pop("predilated")  # keeps the cache keys of masks made before the setting existed
         return d
+
+    def for_scene(self, scene: "Scene") -> "MaskSettings":
+        """These settings with `predilated` decided for `scene` ("yes" or "no"; see the module docstring)."""
+        if self.predilated != "auto":
+            return self
+        return replace(self, predilated="yes" if self.source == "dataset" and masks_shipped_dilated(scene) else "no")
+
+    def dilates(self) -> bool:
+        """False when the masks are used as they are (dataset masks shipped dilated)."""
+        return not (self.source == "dataset" and self.predilated == "yes")
 
     def kernel_diameter(self, width: int, full_width: int) -> float:
         """Kernel diameter in pixels for an image `width` pixels wide (full resolution: `full_width`)."""
         if self.dilation_px is not None:
             return float(self.dilation_px) * width / full_width
         return float(self.dilation_fraction) * width
+
+
+def masks_shipped_dilated(scene: "Scene") -> bool:
+    """Whether `scene`'s masks/ are already dilated: its card says so (`masks_dilated`), else the folder
+    is in the STRinGS release's layout (hisam_jsons/ and masks_vis/ beside masks/)."""
+    given = scene.settings.get("masks_dilated") if isinstance(scene.settings, dict) else None
+    if given is not None:
+        return bool(given)
+    return scene.masks_dir is not None and all((Path(scene.root) / d).is_dir() for d in RELEASE_LAYOUT_DIRS)
 
 
 # ---- primitives ------------------------------------------------------------------------------
@@ -193,10 +236,9 @@ def tight_text_mask(scene: "Scene", i: int, downscale: float = 1, settings: "Mas
         words = scene.known_words(i, downscale) or []
         return mask | fill_polygons([wd.polygon for wd in words], (h, w))
     # "ocr": detect at full resolution (small text survives), then scale the polygons.
-    polys = _ocr_polygons(scene, i, settings.ocr_backend)
+    words = _backend(settings.ocr_backend).read(_full_image_uint8(scene, i))
     full = scene.model.cameras[i]
-    s = np.array([w / full.width, h / full.height])
-    return fill_polygons([p * s for p in polys], (h, w))
+    return word_polygon_mask(words, (h, w), (w / full.width, h / full.height))
 
 
 _backends: dict[str, object] = {}
@@ -214,9 +256,12 @@ def _full_image_uint8(scene: "Scene", i: int) -> np.ndarray:
     return (np.clip(scene.load_image(i, 1), 0, 1) * 255).round().astype(np.uint8)
 
 
-def _ocr_polygons(scene: "Scene", i: int, backend_name: str) -> list[np.ndarray]:
-    words = _backend(backend_name).read(_full_image_uint8(scene, i))
-    return [np.asarray(wd.polygon, dtype=np.float64) for wd in words]
+def word_polygon_mask(words, shape: tuple[int, int], scale: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
+    """The tight mask of OCR words: their polygons (scaled by (sx, sy)) filled into an H x W bool mask.
+    The "ocr" provider and `strings-bench prepare`'s masks/ are both made by it."""
+    s = np.asarray(scale, dtype=np.float64)
+    return fill_polygons([np.asarray(wd.polygon, dtype=np.float64) * s for wd in words], shape)
+
 
 
 def _scene_hash(scene: "Scene") -> str:
@@ -243,7 +288,7 @@ def _input_hash(scene: "Scene", i: int, settings: MaskSettings) -> str:
 
 
 def mask_cache_dir(scene: "Scene", settings: "MaskSettings | Mapping | None" = None) -> Path:
-    settings = MaskSettings.coerce(settings)
+    settings = MaskSettings.coerce(settings).for_scene(scene)
     return cache_root() / "masks" / _scene_hash(scene) / _settings_hash(settings)
 
 
@@ -275,7 +320,7 @@ def dilated_text_mask(scene: "Scene", i: int, downscale: float = 1,
     This is the mask STRinGS trains with and the one OCR-CER multiplies images by.
     Raises MissingMasksError when the provider has no mask for the view.
     """
-    settings = MaskSettings.coerce(settings)
+    settings = MaskSettings.coerce(settings).for_scene(scene)
     w, h = _image_size(scene, i, downscale)
     path = None
     if use_cache:
@@ -292,7 +337,7 @@ def dilated_text_mask(scene: "Scene", i: int, downscale: float = 1,
         raise DatasetError(f"text mask of {scene.names[i]} is {tight.shape[1]}x{tight.shape[0]}, expected {w}x{h}",
                            hint="regenerate the masks from this scene's undistorted images")
     full_w = scene.model.cameras[i].width
-    mask = dilate_mask(tight, settings.kernel_diameter(w, full_w))
+    mask = dilate_mask(tight, settings.kernel_diameter(w, full_w)) if settings.dilates() else tight.copy()
     if path is not None:
         _write_png(path, mask)
     mask.setflags(write=False)
@@ -302,7 +347,7 @@ def dilated_text_mask(scene: "Scene", i: int, downscale: float = 1,
 def text_masks(scene: "Scene", views: Iterable[int], downscale: float = 1,
                settings: "MaskSettings | Mapping | None" = None, progress: bool = True) -> dict[int, np.ndarray]:
     """Dilated masks of several views; checks availability of all of them before making any."""
-    settings = MaskSettings.coerce(settings)
+    settings = MaskSettings.coerce(settings).for_scene(scene)
     views = list(views)
     check_masks_available(scene, views, settings)
     it = views
@@ -329,3 +374,29 @@ def _prefetch_ocr(scene: "Scene", views: list[int], downscale: float, settings: 
 
 def with_source(settings: "MaskSettings | Mapping | None", source: str) -> MaskSettings:
     return replace(MaskSettings.coerce(settings), source=source)
+
+
+# ---- the masks OCR-CER reads through -----------------------------------------------------------
+def eval_mask_settings(scene: "Scene") -> dict | None:
+    """Mask settings for OCR-CER: the scene's `eval_masks` setting, else its masks/ folder, else
+    (synthetic scenes without masks/) the known-word polygons; None = whole image. Dataset masks shipped
+    dilated (the STRinGS release's) are used as they are, as its metrics_ocr does."""
+    given = scene.settings.get("eval_masks") if isinstance(scene.settings, dict) else None
+    if given is not None:
+        return dict(given)
+    if scene.masks_dir is not None:
+        return {"source": "dataset"}
+    if scene.known_text is not None:
+        return {"source": "gt"}
+    return None
+
+
+def eval_mask(scene: "Scene", i: int, downscale: float, settings: dict | None) -> np.ndarray | None:
+    """The mask OCR reads view i through for OCR-CER, or None (whole image: no settings, or no mask for this
+    view, which the evaluation records per view)."""
+    if settings is None:
+        return None
+    try:
+        return dilated_text_mask(scene, i, downscale, settings)
+    except MissingMasksError:
+        return None
