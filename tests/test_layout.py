@@ -98,3 +98,18 @@ def test_graph_sees_imports_inside_functions():
 def test_no_import_cycles():
     found = cycles(import_graph())
     assert not found, "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_eval_depends_on_no_method_and_no_runner():
+    """A metric must not depend on one method's package, nor on the runner that calls it (issue 26)."""
+    g = import_graph()
+    bad = sorted((m, t) for m, ts in g.items() if m.startswith("strings_bench.eval")
+                 for t in ts if t.startswith(("strings_bench.methods", "strings_bench.bench")))
+    assert not bad, "eval/ imports: " + ", ".join(f"{m} -> {t}" for m, t in bad)
+
+
+def test_eval_layer_rule_can_fail():
+    g = import_graph()
+    g["strings_bench.eval.protocol"] = g["strings_bench.eval.protocol"] | {"strings_bench.methods.strings.method"}
+    bad = [t for t in g["strings_bench.eval.protocol"] if t.startswith("strings_bench.methods")]
+    assert bad  # the planted import is seen

@@ -38,6 +38,8 @@ class Command:
 COMMANDS: dict[str, Command] = {
     "run": Command("strings_bench.cli.run", "train and evaluate methods on scenes, write results.csv and a report"),
     "report": Command("strings_bench.cli.report", "(re)write the tables, figures and HTML page of a run folder"),
+    "evaluate": Command("strings_bench.cli.evaluate",
+                        "score renders made anywhere (a folder, Inria 3DGS output, nerfbaselines predictions)"),
     "methods": Command("strings_bench.cli.methods", "methods available to `run`"),
     "datasets": Command("strings_bench.cli.datasets",
                         "list datasets, prepare scenes (build synthetic ones), add/check/download real data"),

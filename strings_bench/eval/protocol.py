@@ -108,10 +108,12 @@ class Evaluator:
     primary engine (`cer`, `cer_known`, the word-crop readability); each further one is scored the same way
     and compared with the primary (`ocr_engines` in the result). GT OCR is kept per engine.
     `mask_settings` is recorded in the result (how the masks were made; None: whole images or given masks).
+    `with_readability` False leaves out the word-crop metrics (their recogniser takes seconds to load).
     """
 
     def __init__(self, views: Sequence[EvalView], ocr_backend, *, with_lpips: bool = True, cer_profile: str = "paper",
-                 device: str = "cpu", ocr_workers: int | None = None, mask_settings: dict | None = None):
+                 device: str = "cpu", ocr_workers: int | None = None, mask_settings: dict | None = None,
+                 with_readability: bool = True):
         self.ocr_workers = ocr_workers  # reads at once per engine (None: the engine's default_workers)
         self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
@@ -132,7 +134,7 @@ class Evaluator:
         self._gt_ocr: dict[tuple[str, str], list | None] = {}  # (engine, view) -> GT words (None: OCR failed)
         self._gt_ocr_error: dict[tuple[str, str], str] = {}
         self._lpips_ref: dict[str, object] = {}
-        self._readability = None  # eval.readability.SceneReadability: GT-side word crops, made once
+        self._readability = None if with_readability else False  # eval.readability.SceneReadability, made once
 
     @classmethod
     def for_scene(cls, scene: "Scene", ocr_backend, downscale: float, **kwargs) -> "Evaluator":
