@@ -171,7 +171,7 @@ def main(argv=None) -> int:
 
 
     import strings_bench.bench.runner as runner
-    from strings_bench.bench.results import cell_row, iter_cells
+    from strings_bench.reports.results import cell_row, iter_cells
     from strings_bench.cli.run import parse_checkpoints
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.core.io import atomic_write_text

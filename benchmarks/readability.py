@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
-    from strings_bench.bench.results import cell_row, iter_cells
+    from strings_bench.reports.results import cell_row, iter_cells
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]

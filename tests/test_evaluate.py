@@ -397,7 +397,7 @@ def test_output_folder_of_another_evaluation_is_refused(tmp_path, toy_run):
 
 
 def test_report_on_an_evaluation_folder(tmp_path, toy_run):
-    from strings_bench.bench.reports import write_report
+    from strings_bench.reports import write_report
 
     scene, renders = _toy_renders(tmp_path, toy_run)
     out = evaluate(renders, EvaluateOptions(scene=str(scene), out=tmp_path / "ev", ocr=rf.FakeOCR(), with_lpips=False,

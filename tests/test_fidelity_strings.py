@@ -178,8 +178,8 @@ def _fake_registry():
 
 def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     import strings_bench.bench.runner as runner
-    import strings_bench.bench.reports.figures as figures
-    import strings_bench.bench.reports.tables as tables
+    import strings_bench.reports.figures as figures
+    import strings_bench.reports.tables as tables
 
     rf = _fake_registry()
     scene_dir = rf.make_scene(tmp_path / "scenes" / "toyset")

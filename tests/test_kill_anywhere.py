@@ -146,7 +146,7 @@ def kill_schedule(rng: random.Random, per_stage: dict[str, int]) -> list[dict]:
 
 
 def run_kill_harness(tmp_path: Path, per_stage: dict[str, int], seed: int, monkeypatch) -> dict:
-    from strings_bench.bench.results import check_cell
+    from strings_bench.reports.results import check_cell
 
     cache, run_dir = tmp_path / "cache", tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(REPO), "STRINGS_BENCH_CACHE": str(cache)}

@@ -92,7 +92,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_graph_sees_imports_inside_functions():
     g = import_graph()
     # the runner imports the report writer inside a function
-    assert "strings_bench.bench.reports" in g["strings_bench.bench.runner"]
+    assert "strings_bench.reports" in g["strings_bench.bench.runner"]
 
 
 def test_no_import_cycles():
@@ -113,3 +113,47 @@ def test_eval_layer_rule_can_fail():
     g["strings_bench.eval.protocol"] = g["strings_bench.eval.protocol"] | {"strings_bench.methods.strings.method"}
     bad = [t for t in g["strings_bench.eval.protocol"] if t.startswith("strings_bench.methods")]
     assert bad  # the planted import is seen
+
+
+# The layers of docs/architecture.md, top to bottom; one row's folders may import each other.
+LAYERS = [["cli"], ["bench"], ["reports"], ["datasets"], ["methods"], ["engine"], ["eval", "raster", "scene"], ["core"]]
+
+
+def _layer_of(module: str) -> int | None:
+    parts = module.split(".")
+    if len(parts) < 2:
+        return None  # strings_bench itself, __main__
+    for rank, row in enumerate(LAYERS):
+        if parts[1] in row:
+            return rank
+    return None
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    out = []
+    for mod, targets in graph.items():
+        lm = _layer_of(mod)
+        for t in targets:
+            lt = _layer_of(t)
+            if lm is not None and lt is not None and lt < lm:
+                out.append((mod, t))
+    return sorted(out)
+
+
+def test_every_folder_has_a_layer():
+    folders = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    assert folders == {f for row in LAYERS for f in row}
+
+
+def test_folders_import_only_folders_below():
+    # docs/architecture.md, "Arrows that run back up": core/method.py names scene.Scene for type checking only;
+    # eval/metrics.py scores with the training loss's own SSIM/PSNR (one implementation of each).
+    allowed = {("strings_bench.core.method", "strings_bench.scene.scene"),
+               ("strings_bench.eval.metrics", "strings_bench.engine.losses")}
+    bad = [e for e in upward_imports(import_graph()) if e not in allowed]
+    assert not bad, "imports of a folder above: " + ", ".join(f"{m} -> {t}" for m, t in bad)
+
+
+def test_upward_import_finder_finds_a_planted_one():
+    g = {"strings_bench.core.io": {"strings_bench.bench.runner"}, "strings_bench.bench.runner": set()}
+    assert upward_imports(g) == [("strings_bench.core.io", "strings_bench.bench.runner")]

@@ -13,8 +13,8 @@ from PIL import Image
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.bench.reports.tables import build_tables, ocr_agreement, to_csv, to_markdown
-from strings_bench.bench.results import iter_cells
+from strings_bench.reports.tables import build_tables, ocr_agreement, to_csv, to_markdown
+from strings_bench.reports.results import iter_cells
 from strings_bench.core.errors import OCRError, StringsBenchError
 from strings_bench.core.io import atomic_write_json
 from strings_bench.core.method import CheckpointResult, MethodAdapter

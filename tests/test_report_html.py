@@ -1,4 +1,4 @@
-"""The HTML report (bench/reports/html.py): shading, escaping, links, crops; and the page in a real browser.
+"""The HTML report (reports/html.py): shading, escaping, links, crops; and the page in a real browser.
 
 The browser test drives Debian's chromium through Playwright (never a downloaded browser) and is
 skipped only when one of the two cannot be found.
@@ -19,9 +19,9 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from strings_bench.bench.reports import html as report_html
-from strings_bench.bench.reports import tables
-from strings_bench.bench.reports.tables import Column, Table
+from strings_bench.reports import html as report_html
+from strings_bench.reports import tables
+from strings_bench.reports.tables import Column, Table
 
 
 class Parsed(HTMLParser):

@@ -12,7 +12,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.bench.reports import tables, write_report
+from strings_bench.reports import tables, write_report
 
 
 def test_rank_classes_ties_and_nan():
@@ -158,7 +158,7 @@ def test_readability_tables_and_metric_figures(tmp_path):
     assert "0.2" in written["text_nll"]["csv"].read_text()
     region = written["text_region"]["md"].read_text()
     assert "20.00" in region and "n/a" in region
-    from strings_bench.bench.reports import figures
+    from strings_bench.reports import figures
 
     out = figures.write_figures(df, tmp_path, tmp_path / "f", metrics=["text_nll"])
     assert {"text_nll_vs_time_7K", "text_nll_vs_time_30K", "text_nll_over_iterations"} <= set(out)

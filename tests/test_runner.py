@@ -91,7 +91,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     assert (out / "report" / "report.md").exists()
     # Word-crop readability and text-region metrics (issue 14): fake-a's last render is the GT view, so
     # the render scores exactly its ceiling; the known word "hello" (18 px high) is the one headline word.
-    from strings_bench.bench.results import READABILITY_COLUMNS
+    from strings_bench.reports.results import READABILITY_COLUMNS
 
     assert set(READABILITY_COLUMNS) <= set(rows[0])
     assert final["word_cer"] == final["word_cer_gt"] != "" and final["text_nll"] == final["text_nll_gt"] != ""

@@ -459,7 +459,7 @@ def check_method(method: str | Any, overrides: dict | None = None, *, devices: l
             record(CheckResult("trains (cuda)", SKIP, "torch sees no CUDA GPU"))
 
         def end_to_end() -> str:
-            from strings_bench.bench.results import RESULTS_CSV, iter_cells
+            from strings_bench.reports.results import RESULTS_CSV, iter_cells
             from strings_bench.bench.runner import execute, plan_run
 
             run_dir = work / "run"

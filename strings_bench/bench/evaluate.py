@@ -371,7 +371,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
                     _write_png(cell_dir / "renders" / f"{stem}.png", renders[name])
                 if not (gt_dir / f"{stem}.png").exists():
                     _write_png(gt_dir / f"{stem}.png", evaluator.gt(name))
-            from strings_bench.bench.results import iteration_label
+            from strings_bench.reports.results import iteration_label
 
             train = opts.train_seconds
             record = {
@@ -392,11 +392,11 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             c = result["cer"]["cer"]
             say(f"  {ck.iteration}: OCR-CER {c if c is None else f'{c:.3f}'}, PSNR {result['metrics']['psnr']:.2f}"
                 + (f", {len(missing)} render(s) missing, scored as unread" if missing else ""))
-    from strings_bench.bench.results import write_results_csv
+    from strings_bench.reports.results import write_results_csv
 
     write_results_csv(out)
     if opts.report:
-        from strings_bench.bench.reports import write_report
+        from strings_bench.reports import write_report
 
         write_report(out)
     return out

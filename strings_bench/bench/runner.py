@@ -20,7 +20,7 @@ Run folder (see docs/running.md):
       state/<method>/<dataset>/<scene>/training_state.pt
                                         the resumable training state; removed when the (method, scene) is done
       gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
-      report/                           tables, figures, index.html (strings_bench.bench.reports.write_report)
+      report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
 Execution goes through an `Executor` (`submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one
 after another in this process, `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job
@@ -47,7 +47,7 @@ from PIL import Image
 from strings_bench import __version__
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.bench.ray_executor import RayExecutor
-from strings_bench.bench.results import iteration_label, write_results_csv
+from strings_bench.reports.results import iteration_label, write_results_csv
 from strings_bench.core.io import atomic_write, atomic_write_json
 from strings_bench.core.method import Method
 from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
@@ -565,7 +565,7 @@ def _fmt_schedule(x) -> str:
 
 def check_manifest(run_dir: Path, manifest: dict) -> dict:
     """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
-    from strings_bench.bench.results import read_manifest
+    from strings_bench.reports.results import read_manifest
 
     old = read_manifest(run_dir)
     if old is None:
@@ -711,7 +711,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             bar.close()
         write_results_csv(run_dir)
     if write_report:
-        from strings_bench.bench.reports import write_report as _write_report
+        from strings_bench.reports import write_report as _write_report
 
         _write_report(run_dir)
     if errors:

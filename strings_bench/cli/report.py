@@ -19,7 +19,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Write RUN_DIR/report/ from the run folder's cells and print where (report.md and index.html)."""
-    from strings_bench.bench.reports import write_report
+    from strings_bench.reports import write_report
 
     path = write_report(args.run_dir, metrics=args.metric)
     print(f"report: {path}")

@@ -1,6 +1,6 @@
 """The report of a run: tables (LaTeX/Markdown/CSV), figures, a report.md index and a static HTML page.
 
-    from strings_bench.bench.reports import write_report
+    from strings_bench.reports import write_report
     write_report("runs/default")      # -> runs/default/report/report.md (and report/index.html)
 
 Everything is rebuilt from RUN_DIR/results.csv and the cell result files, so a report can be
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from strings_bench.bench.results import RESULTS_CSV, read_manifest, write_results_csv
+from strings_bench.reports.results import RESULTS_CSV, read_manifest, write_results_csv
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 
@@ -22,9 +22,9 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     """Write RUN_DIR/report/ (tables, figures, report.md, index.html with its word-crop galleries);
     `metrics` picks the metrics of the scatter and over-iterations figures (default: OCR-CER, word CER
     and text NLL where the run has them). Returns report.md's path."""
-    from strings_bench.bench.reports.figures import write_figures
-    from strings_bench.bench.reports.html import write_html
-    from strings_bench.bench.reports.tables import build_tables, load_results, write_tables
+    from strings_bench.reports.figures import write_figures
+    from strings_bench.reports.html import write_html
+    from strings_bench.reports.tables import build_tables, load_results, write_tables
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from strings_bench.bench.results import ENGINE_COLUMNS, READABILITY_COLUMNS
+from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from strings_bench.bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title, with_total_seconds
-from strings_bench.bench.results import read_cell
+from strings_bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title, with_total_seconds
+from strings_bench.reports.results import read_cell
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
 

@@ -1,6 +1,6 @@
 """The run's report as static HTML: `report/index.html` and one word-crop gallery page per scene.
 
-    from strings_bench.bench.reports.html import write_html    # called by write_report
+    from strings_bench.reports.html import write_html    # called by write_report
 
 Offline from the file system: no server, no CDN, no external script; CSS and a small vanilla
 script are inline. Everything shown comes from the run folder:
@@ -39,9 +39,9 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from strings_bench.bench.reports.tables import (GT_CEILING, Table, _fmt3, dataset_title, label_value,
+from strings_bench.reports.tables import (GT_CEILING, Table, _fmt3, dataset_title, label_value,
                                                 method_order, method_title)
-from strings_bench.bench.results import RESULT_FILE, CellKey, safe_name
+from strings_bench.reports.results import RESULT_FILE, CellKey, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
 __all__ = ["write_html", "table_html", "GALLERY_PAGE_SIZE", "CELLS_PAGE_SIZE"]
