@@ -53,7 +53,7 @@ def build(method: str, preset: str, paper_checkpoints, **settings):
     from strings_bench.methods.registry import get_method
     from strings_bench.core.schedules import SCHEDULE_SCALES
 
-    adapter = get_method(method).build(preset, **settings)
+    adapter = get_method(method).build(schedule=preset, **settings)
     s = float(adapter.settings.get("steps_scale", SCHEDULE_SCALES[preset]))
     return adapter, s, sorted({max(1, round(c * s)) for c in paper_checkpoints})
 

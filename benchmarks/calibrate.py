@@ -202,7 +202,7 @@ def main(argv=None) -> int:
             specs += [f"{label}/{s}" for s in scenes]
         run_dir = Path(args.out)
         methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-        runner.run(methods, specs, run_dir=run_dir, preset="paper", ocr=args.ocr, with_lpips=False, write_report=False,
+        runner.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False, write_report=False,
                    steps_scale=args.steps_scale, checkpoints=checkpoints, device=device)
     except StringsBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -63,13 +63,15 @@ def main(argv=None) -> int:
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
-    args.preset = args.preset or runner.DEFAULT_PRESET
+    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, get_schedule
+
+    args.preset = args.preset or DEFAULT_SCHEDULE
     if args.datasets:
         datasets = args.datasets.split(",")
     elif args.scenes:
         datasets = [f"synthetic/{s}" for s in args.scenes.split(",")]
     else:
-        datasets = runner.get_preset(args.preset).default_datasets()
+        datasets = get_schedule(args.preset).default_datasets()
     # per_seed[(method, label)][metric][seed] = mean over scenes
     per_seed: dict = defaultdict(lambda: defaultdict(dict))
     costs = defaultdict(list)  # method -> [(eval seconds, recogniser seconds)]
@@ -77,7 +79,7 @@ def main(argv=None) -> int:
     for seed in seeds:
         run_dir = Path(args.out) / f"seed{seed}"
         print(f"== seed {seed}: {run_dir}", file=sys.stderr, flush=True)
-        runner.run(methods, datasets, run_dir=run_dir, preset=args.preset, ocr=args.ocr, downscale=args.downscale,
+        runner.run(methods, datasets, run_dir=run_dir, schedule=args.preset, ocr=args.ocr, downscale=args.downscale,
                    with_lpips=not args.no_lpips, progress=False, method_overrides={runner.ALL_METHODS: {"seed": seed}})
         cells = defaultdict(lambda: defaultdict(list))
         for rec in iter_cells(run_dir):

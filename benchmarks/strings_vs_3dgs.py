@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         name += "-" + "-".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in paper_its)
     run_dir = Path(args.out) / name
     overrides = parse_settings(args.set)  # the CLI's --set parsing
-    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, preset=args.preset, ocr=args.ocr,
+    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, schedule=args.preset, ocr=args.ocr,
                with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None,
                steps_scale=args.steps_scale, checkpoints=paper_its, device=args.device)
     preset = args.preset + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (

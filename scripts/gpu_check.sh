@@ -71,7 +71,7 @@ scene=$($py -c "
 from strings_bench.datasets.synthetic import build_scene, settings_with
 print(build_scene('books', settings_with(width=1280, height=960), progress=False))")
 step paper_run paper_run.log $py -m strings_bench run --device cuda --methods strings,3dgs --datasets "$scene" \
-    --preset paper --checkpoints 3000,7000 "${scale_args[@]}" --out "$out/paper_run"
+    --schedule paper --checkpoints 3000,7000 "${scale_args[@]}" --out "$out/paper_run"
 if [[ -f "$out/paper_run/results.csv" ]]; then cp "$out/paper_run/results.csv" "$out/paper_results.csv"; fi
 
 failed=0

@@ -97,10 +97,10 @@ def test_strings360_style_copy_registers_and_loads(scene_copy):
     assert tree_hash(root) == before
 
     refs = resolve_scenes(["strings360/extinguisher", "strings360/books"])
-    assert refs[0].settings == {"n_max": 25, "masks_dilated": True} and refs[0].path == (root / "extinguisher").resolve()
+    assert refs[0].settings == {"masks_dilated": True} and refs[0].path == (root / "extinguisher").resolve()
     assert refs[1].path.name == "Books"
     scene = Scene.load(refs[0].path, settings=refs[0].settings)
-    assert scene.num_views == 56 and scene.settings["n_max"] == 25
+    assert scene.num_views == 56 and scene.settings["masks_dilated"] is True
     mask = scene.load_mask(0)
     cam = scene.camera(0)
     assert mask.shape == (cam.height, cam.width) and mask.dtype == bool

@@ -123,7 +123,7 @@ def test_runner_evaluation_with_meta_default_device(tmp_path):
 
     scene_dir = rf.make_scene(tmp_path / "scenes")
     with default_device_meta():
-        out = runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", preset="tiny", ocr="fake",
+        out = runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                          ocr_backend=rf.FakeOCR(), with_lpips=True, progress=False, steps_scale=1.0,
                          checkpoints=(3, 6), device="cpu", method_overrides={"3dgs": {"sh_degree": 0}})
     results = sorted((out / "cells").rglob("result.json"))

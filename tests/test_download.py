@@ -313,12 +313,17 @@ def test_manual_datasets_print_steps(dataset, tmp_path, monkeypatch):
     assert not (tmp_path / "cache" / "downloads").exists()
 
 
-def test_real_cards_carry_the_paper_settings():
+def test_real_cards_and_strings_presets_carry_the_paper_settings():
+    """N_max per scene of the release's full_eval.py: on STRinGS' spec (@apply presets), not on the cards."""
     from strings_bench.datasets.registry import get_dataset
+    from strings_bench.methods.registry import get_method
 
-    n_max = {c.id: {s.name: s.settings["n_max"] for s in c.scenes} for c in map(get_dataset, ["strings360", "tandt", "dl3dv"])}
+    spec = get_method("strings")
+    n_max = {c.id: {s.name: spec.resolve(spec.presets_for(c.id, s.name)).get("n_max") for s in c.scenes}
+             for c in map(get_dataset, ["strings360", "tandt", "dl3dv"])}
     assert n_max["strings360"] == dict.fromkeys(["extinguisher", "books", "chemicals", "globe", "shelf"], 25)
     assert n_max["tandt"] == {"truck": 20, "train": 15}
-    assert n_max["dl3dv"] == dict.fromkeys(["3", "21", "80", "92", "107", "132", "136"], 15)
+    assert n_max["dl3dv"] == {"3": 20, "21": 20, "80": 15, "92": 20, "107": 20, "132": 15, "136": 15}
+    assert not any("n_max" in s.settings for c in map(get_dataset, ["strings360", "tandt", "dl3dv"]) for s in c.scenes)
     tandt = get_dataset("tandt")
     assert tandt.download["url"].startswith("https://repo-sam.inria.fr/") and tandt.download["sha256"] is None

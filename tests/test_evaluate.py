@@ -252,7 +252,7 @@ def toy_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("agree")
     scene = rf.make_scene(root / "scenes", glyphs=True)
     out = root / "run"
-    runner.run(["fake-a"], [str(scene)], run_dir=out, preset="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+    runner.run(["fake-a"], [str(scene)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                with_lpips=True, lpips_at="all", progress=False, write_report=False)
     return scene, out
 

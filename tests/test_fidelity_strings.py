@@ -49,7 +49,8 @@ QUIET = dict(mask_dilation_fraction=0.0, mask_dilation_px=None, n_max=3, sh_degr
 
 
 def _strings_trainer(scene, preset, **settings):
-    m = get_method("strings").build(preset, **{**QUIET, **settings})
+    """STRinGS at the paper's schedule, as the paper ("paper") or with the release's preset ("release")."""
+    m = get_method("strings").build(None if preset == "paper" else preset, schedule="paper", **{**QUIET, **settings})
     m.progress = False
     m.setup(scene, downscale=1, device="cpu")
     return m
@@ -83,7 +84,7 @@ def test_gamma_full_schedule_both_presets(text_scene, preset):
 def test_release_preset_settings():
     rel = get_method("strings").build("release").settings
     assert rel["gamma"] == 12000 and rel["gamma_counter"] == "phase2"
-    paper = get_method("strings").build("paper").settings
+    paper = get_method("strings").build(schedule="paper").settings
     assert "gamma_counter" not in paper  # paper preset unchanged: default gamma 15000 on the global counter
     from strings_bench.methods.strings.method import StringsSettings
 
@@ -186,7 +187,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     out = tmp_path / "run"
 
     def run():
-        return runner.run(["fake-pre", "fake-a"], [str(scene_dir)], run_dir=out, preset="tiny", ocr="fake",
+        return runner.run(["fake-pre", "fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
                           ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
 
     run()
@@ -300,7 +301,7 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     config, strategy = config_from_settings({"seed": 7}, strategy_cls=MCMCStrategy)
     assert config.seed == 7 and strategy.seed == 7
     over = parse_settings(["mcmc.seed=11"])
-    trainer = get_method("mcmc").build("tiny", **over["mcmc"])
+    trainer = get_method("mcmc").build(schedule="tiny", **over["mcmc"])
     assert trainer.config.seed == 11 and trainer.strategy.seed == 11
     state = trainer.strategy.initialize_state(1.0, 0.005)
     # made at first use, on the model's device (a CPU generator cannot sample CUDA tensors)
@@ -308,10 +309,10 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     assert gen is not None and gen.initial_seed() == 11 and gen.device.type == "cpu"
     assert trainer.strategy.generator(state, torch.device("cpu")) is gen  # one stream for the whole run
     # Without a seed MCMC samples from torch's global RNG (seeded by the trainer's default 0), as documented.
-    plain = get_method("mcmc").build("tiny")
+    plain = get_method("mcmc").build(schedule="tiny")
     assert plain.config.seed == 0 and plain.strategy.seed is None
     # A seed for a method whose strategy has none still reaches only the trainer.
-    t3 = get_method("3dgs").build("tiny", seed=5)
+    t3 = get_method("3dgs").build(schedule="tiny", seed=5)
     assert t3.config.seed == 5
 
 
@@ -387,7 +388,7 @@ def test_no_progress_reaches_trainer_and_mask_bar(text_scene, monkeypatch):
 
     for name in ("3dgs", "mcmc", "mip-splatting", "absgs", "edc-absgs", "strings"):
         for progress in (False, True):
-            a = get_method(name).build("tiny", **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
+            a = get_method(name).build(schedule="tiny", **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
             next(iter(Trainer(a, text_scene, [2], progress=progress).train()))
             assert a.progress is progress, name  # the loop hands its setting to the method
     assert seen == [False, True]  # STRinGS' mask bar follows it
@@ -400,7 +401,7 @@ def test_no_progress_run_writes_no_training_bar(tmp_path, capfd):
     scene_dir = rf.make_scene(tmp_path / "scenes" / "toyset")
 
     def run(out, progress):
-        runner.run(["3dgs"], [str(scene_dir)], run_dir=out, preset="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+        runner.run(["3dgs"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                    with_lpips=False, progress=progress, write_report=False,
                    method_overrides={"3dgs": {"steps_scale": 0.0002, "sh_degree": 0}})  # checkpoints 1, 6
         return capfd.readouterr().err

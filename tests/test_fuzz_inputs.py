@@ -192,7 +192,7 @@ def base(tmp_path_factory):
                                       sh_degree=1)
     ply = write_ply(root / "model.ply", model)
     run_dir = root / "run"
-    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, preset="tiny", ocr="fuzzfake", ocr_backend=rf.FakeOCR(),
+    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="fuzzfake", ocr_backend=rf.FakeOCR(),
                with_lpips=False,
                progress=False, write_report=False)
     poly = [[8, 12], [56, 12], [56, 30], [8, 30]]

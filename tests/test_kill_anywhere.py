@@ -282,7 +282,7 @@ def test_a_state_left_after_the_last_cell_is_removed(tmp_path, monkeypatch):
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
     rf.register_fakes()
     scene = rf.make_scene(tmp_path, "scene")
-    plan = runner.plan_run(["fake-a"], [str(scene)], tmp_path / "run", "tiny")
+    plan = runner.plan_run(["fake-a"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny")
     job = plan.jobs[0]
     for key in job.cells():  # every cell finished (as the killed run left them)
         atomic_write_json(key.path(plan.run_dir) / "result.json", {

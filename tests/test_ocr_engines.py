@@ -47,20 +47,20 @@ def test_parse_engines():
 def test_resume_notices_a_changed_ocr_list(tmp_path):
     scene = rf.make_scene(tmp_path)
     run_dir = tmp_path / "run"
-    plan = runner.plan_run(["3dgs"], [str(scene)], run_dir, "tiny", ocr="rapid,tess")
+    plan = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapid,tess")
     assert plan.manifest["ocr"] == "rapidocr,tesseract" and plan.jobs[0].ocr == "rapidocr,tesseract"
     atomic_write_json(run_dir / "run.json", plan.manifest)
-    same = runner.plan_run(["3dgs"], [str(scene)], run_dir, "tiny", ocr="rapidocr,tesseract")
+    same = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapidocr,tesseract")
     runner.check_manifest(run_dir, same.manifest)  # the same list, spelt otherwise: resumes
     for other in ("rapidocr", "tesseract,rapidocr", "rapidocr,tesseract,gcv"):
-        changed = runner.plan_run(["3dgs"], [str(scene)], run_dir, "tiny", ocr=other)
+        changed = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr=other)
         with pytest.raises(StringsBenchError, match="--ocr engine list 'rapidocr,tesseract'"):
             runner.check_manifest(run_dir, changed.manifest)
 
 
 def test_run_refuses_an_unknown_engine_before_training(tmp_path):
     with pytest.raises(OCRError, match="unknown OCR backend 'nope'"):
-        runner.run(["3dgs"], [str(rf.make_scene(tmp_path))], tmp_path / "run", "tiny", ocr="rapidocr,nope")
+        runner.run(["3dgs"], [str(rf.make_scene(tmp_path))], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,nope")
     assert not (tmp_path / "run").exists()
 
 
@@ -217,7 +217,7 @@ def test_two_real_engines_end_to_end(tmp_path):
     register_method(MethodSpec("copy-views", CopyViews, "the GT views"))
     register_method(MethodSpec("erase-number", lambda **s: CopyViews(erase=True, **s), "the GT views without the number"))
     scene = _text_scene(tmp_path)
-    out = runner.run(["copy-views", "erase-number"], [str(scene)], tmp_path / "run", "tiny", ocr="rapidocr,tesseract",
+    out = runner.run(["copy-views", "erase-number"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,tesseract",
                      with_lpips=False, progress=False, checkpoints=[1000])
     cells = {c["method"]: c for c in iter_cells(out)}
     for c in cells.values():

@@ -14,6 +14,7 @@ with the test suite's deterministic OCR, so that both executors run the grid in 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -69,7 +70,7 @@ def scenes() -> list[Path]:
 
 
 def _plan(out: Path, scenes, methods=METHODS):
-    return runner.plan_run(list(methods), [str(s) for s in scenes], out, ocr="fake", save_every="4steps", **SCHEDULE)
+    return runner.plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
 
 
 def _rows(out: Path) -> dict[tuple, dict]:
@@ -198,7 +199,7 @@ def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, sc
 
 def test_workers_that_cannot_see_a_folder_fail_clearly(ray_session, scenes, tmp_path):
     plan = _plan(tmp_path / "run", scenes[:1], methods=["3dgs"])
-    job = runner.replace(plan.jobs[0], scene_path=str(tmp_path / "elsewhere" / "books"))
+    job = dataclasses.replace(plan.jobs[0], scene_path=str(tmp_path / "elsewhere" / "books"))
     ex = RayExecutor(runner.Runner(plan.run_dir, ocr=rf.FakeOCR()))
     with pytest.raises(StringsBenchError, match=r"cannot see the scene folder\(s\) .*elsewhere/books") as caught:
         ex.start(plan.run_dir, [job])

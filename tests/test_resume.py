@@ -162,7 +162,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
                 return real(self, step)
 
             GaussianSplatting.train_step = train_step
-            runner.run(["3dgs"], [{str(text_scene)!r}], run_dir={str(out)!r}, preset="tiny", ocr_backend=rf.FakeOCR(),
+            runner.run(["3dgs"], [{str(text_scene)!r}], run_dir={str(out)!r}, schedule="tiny", ocr_backend=rf.FakeOCR(),
                        with_lpips=False, progress=False, write_report=False, save_every="4steps",
                        keep_models={keep_models!r},
                        method_overrides={{"3dgs": {{"sh_degree": 0}}}})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -13,6 +14,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
+from strings_bench.bench.schedules import SCHEDULES
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
@@ -32,7 +34,7 @@ def _reset_calls():
 
 
 def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, **kw):
-    return runner.run(list(methods), [str(scene_dir)], run_dir=out, preset="tiny", ocr="fake",
+    return runner.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
                       ocr_backend=ocr or rf.FakeOCR(), with_lpips=kw.pop("with_lpips", False), progress=False, **kw)
 
 
@@ -45,7 +47,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     out = tmp_path / "run"
     _run(out, scene_dir, with_lpips=True)
     rows = _rows(out)
-    its = runner.PRESETS["tiny"].checkpoints()
+    its = SCHEDULES["tiny"].checkpoints()
     assert its == [15, 35, 150]
     assert len(rows) == 2 * len(its)
     required = {"method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
@@ -150,7 +152,7 @@ from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
 rf.register_fakes()
 register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
-runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, preset="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
            with_lpips=False, progress=False)
 """
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
@@ -163,8 +165,8 @@ runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, preset="tiny"
 def test_manifest_mismatch_refused(tmp_path, scene_dir):
     out = tmp_path / "run"
     _run(out, scene_dir, methods=["fake-a"], write_report=False)
-    with pytest.raises(StringsBenchError, match="preset"):
-        runner.run(["fake-a"], [str(scene_dir)], run_dir=out, preset="quick", ocr="fake", ocr_backend=rf.FakeOCR(),
+    with pytest.raises(StringsBenchError, match="schedule"):
+        runner.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="quick", ocr="fake", ocr_backend=rf.FakeOCR(),
                    with_lpips=False, progress=False)
 
 
@@ -186,10 +188,10 @@ def test_executor_seam(tmp_path, scene_dir):
 
     class Recording(runner.LocalExecutor):
         def submit(self, job):
-            submitted.append(json.loads(json.dumps(runner.asdict(job))))  # jobs are plain, serialisable data
+            submitted.append(json.loads(json.dumps(dataclasses.asdict(job))))  # jobs are plain, serialisable data
             return super().submit(job)
 
-    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], tmp_path / "run", "tiny", "fake")
+    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake")
     r = runner.Runner(plan.run_dir, ocr=rf.FakeOCR(), with_lpips=False)
     runner.execute(plan, ocr=rf.FakeOCR(), executor=Recording(r), progress=False, write_report=False)
     assert [s["method"] for s in submitted] == ["fake-a", "fake-b"]
@@ -279,7 +281,7 @@ def _external(tmp_path, scene_dir, mode, out_name="run"):
     script = tmp_path / "trainer.py"
     script.write_text(COPY_SCRIPT)
     cmd = f"{sys.executable} {script} {{scene}} {{out}} {{iteration}} {mode} {{test_views}}"
-    return runner.run(["external"], [str(scene_dir)], run_dir=tmp_path / out_name, preset="tiny", ocr="fake",
+    return runner.run(["external"], [str(scene_dir)], run_dir=tmp_path / out_name, schedule="tiny", ocr="fake",
                       ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                       method_overrides={"external": {"command": cmd}})
 
@@ -327,7 +329,7 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
     from strings_bench.cli.run import parse_settings
 
     over = parse_settings(["floor=0.05", "fake-b.floor=0.1", "fake-b.extra=1"])
-    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], tmp_path / "run", "tiny", "fake",
+    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                            method_overrides=over)
     by = {j.method: j for j in plan.jobs}
     assert by["fake-a"].method_overrides == {"floor": 0.05}
@@ -350,31 +352,32 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
 def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
     register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
-                               presets={"tiny": {"steps_scale": 0.005, "floor": 0.2}}))
-    plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], tmp_path, "tiny", "fake",
-                           steps_scale=0.02, checkpoints=[7000, 3000])
+                               presets={"blurry": {"steps_scale": 0.005, "floor": 0.2}}))
+    plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
+                           steps_scale=0.02, checkpoints=[7000, 3000], method_presets={"fake-scaled": ["blurry"]})
     by = {j.method: j for j in plan.jobs}
-    # 3000 x 0.02 = 60, 7000 x 0.02 = 140; the method's own tiny preset keeps its other settings.
+    # 3000 x 0.02 = 60, 7000 x 0.02 = 140: the schedule's scale wins over a preset's; its other settings stay.
     assert by["fake-scaled"].checkpoints == (60, 140) and by["fake-scaled"].labels == {60: "3K", 140: "7K"}
     assert by["fake-scaled"].method_overrides == {"steps_scale": 0.02}
     built = runner._build_method(by["fake-scaled"])
     assert built.settings["steps_scale"] == 0.02 and built.settings["floor"] == 0.2
+    assert by["fake-scaled"].method_presets == ("blurry",) and plan.manifest["method_presets"]["fake-scaled"] == ["blurry"]
     # A method without a steps_scale setting follows the run's scale.
     assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_overrides == {}
     assert plan.manifest["steps_scale"] == 0.02 and plan.manifest["checkpoints"] == [3000, 7000]
     assert plan.manifest["preset"]["name"] == "tiny" and plan.manifest["preset"]["steps_scale"] == 0.02
-    assert runner.PRESETS["tiny"].steps_scale == 0.005  # nothing global was changed
+    assert SCHEDULES["tiny"].steps_scale == 0.005  # nothing global was changed
     # Each option alone; a --set steps_scale for a method wins over --steps-scale.
-    only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", steps_scale=0.1)
+    only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)
     assert only_scale.jobs[0].checkpoints == (300, 700, 3000)
-    only_its = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", checkpoints=[3000])
+    only_its = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", checkpoints=[3000])
     assert only_its.jobs[0].checkpoints == (15,) and only_its.jobs[0].labels == {15: "3K"}
-    mine = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake", steps_scale=0.1,
+    mine = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1,
                            method_overrides={"fake-scaled": {"steps_scale": 0.01}})
     assert mine.jobs[0].checkpoints == (30, 70, 300)
     for bad in ({"steps_scale": 0}, {"steps_scale": float("nan")}, {"checkpoints": []}, {"checkpoints": [0]}):
         with pytest.raises(StringsBenchError):
-            runner.plan_run(["fake-a"], [str(scene_dir)], tmp_path, "tiny", "fake", **bad)
+            runner.plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", **bad)
 
 
 def test_steps_scale_and_checkpoints_recorded_and_kept_on_resume(tmp_path, scene_dir):
@@ -396,8 +399,8 @@ def test_steps_scale_and_checkpoints_recorded_and_kept_on_resume(tmp_path, scene
     plain = tmp_path / "plain"
     _run(plain, scene_dir, methods=["fake-a"], write_report=False)
     n_train = len(rf.CALLS["train"])
-    _run(plain, scene_dir, methods=["fake-a"], write_report=False, steps_scale=runner.PRESETS["tiny"].steps_scale,
-         checkpoints=list(runner.PRESETS["tiny"].paper_checkpoints))
+    _run(plain, scene_dir, methods=["fake-a"], write_report=False, steps_scale=SCHEDULES["tiny"].steps_scale,
+         checkpoints=list(SCHEDULES["tiny"].paper_checkpoints))
     assert len(rf.CALLS["train"]) == n_train
 
 
@@ -408,8 +411,8 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
 
     seen = {}
 
-    def fake_run(methods, datasets, **kw):
-        seen.update(kw, methods=methods, datasets=datasets)
+    def fake_run(config):  # the command line hands down one RunConfig
+        seen.update(dataclasses.asdict(config))
         return Path("out")
 
     monkeypatch.setattr(runner_mod, "run", fake_run)
@@ -417,10 +420,14 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
                  "--set", "lr_means=1e-3", "--set", "a.n_max=25", "--no-progress"]) == 0
     assert seen["steps_scale"] == 0.2 and seen["checkpoints"] == [3000, 7000] and seen["methods"] == ["a", "b"]
     assert seen["method_overrides"] == {"*": {"lr_means": 1e-3}, "a": {"n_max": 25}}
-    assert main(["run", "--no-progress"]) == 0
+    assert seen["schedule"] == "early" and seen["method_presets"] == {}
+    assert main(["run", "--no-progress", "--schedule", "quick", "--presets", "strings=release", "--presets", "a=x+y,b=z"]) == 0
     assert seen["steps_scale"] is None and seen["checkpoints"] is None and seen["method_overrides"] == {}
+    assert seen["schedule"] == "quick" and seen["method_presets"] == {"strings": ["release"], "a": ["x", "y"], "b": ["z"]}
+    assert main(["run", "--no-progress", "--preset", "tiny"]) == 0 and seen["schedule"] == "tiny"  # the former name
     with pytest.raises(SystemExit):
         main(["run", "--checkpoints", "7000,x"])
+    assert main(["run", "--presets", "strings"]) == 1  # not METHOD=PRESET
 
 
 # ---- the PLY adapter ---------------------------------------------------------------------------------
@@ -433,14 +440,14 @@ def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
     model = GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=1)
     n = model.params["means"].shape[0]
     write_ply(tmp_path / "models" / "toy" / "point_cloud.ply", model)
-    out = runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run", preset="tiny", ocr="fake",
+    out = runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                      ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                      method_overrides={"ply": {"ply_path": str(tmp_path / "models" / "{scene}" / "point_cloud.ply")}})
     rows = _rows(out)
     assert len(rows) == 1 and rows[0]["iteration"] == "30000" and rows[0]["label"] == "30K"
     assert int(rows[0]["gaussians"]) == n and rows[0]["train_seconds"] == ""
     with pytest.raises(StringsBenchError, match="does not exist"):
-        runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", preset="tiny", ocr="fake",
+        runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", schedule="tiny", ocr="fake",
                    ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                    method_overrides={"ply": {"ply_path": str(tmp_path / "nowhere.ply")}})
 
@@ -477,14 +484,45 @@ def test_lpips_at_all_checkpoints(tmp_path, scene_dir):
     assert lp[0] > lp[1] > lp[2] == pytest.approx(0.0, abs=1e-6)  # fades less with every checkpoint
 
 
-def test_run_preset_scales_methods_without_that_preset(tmp_path, scene_dir):
+def test_schedule_scales_every_method_and_never_picks_a_preset(tmp_path, scene_dir):
+    """A schedule and a method preset are different things: a preset named like the schedule is not taken."""
     register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
-                               presets={"quick": {"steps_scale": 0.05}}))
-    tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "tiny", "fake")
+                               presets={"quick": {"steps_scale": 0.5, "floor": 0.3}}))
+    tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
     assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}
-    quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], tmp_path, "quick", "fake")
-    assert quick.jobs[0].checkpoints == (350, 1500)
-    assert quick.jobs[0].labels == {350: "7K", 1500: "30K"}
+    quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="quick", ocr="fake")
+    assert quick.jobs[0].checkpoints == (70, 300) and quick.jobs[0].method_presets == ()  # x0.01, not the preset's 0.5
+    assert quick.jobs[0].labels == {70: "7K", 300: "30K"}
+    assert "floor" not in runner._build_method(quick.jobs[0]).settings
+    with pytest.raises(StringsBenchError, match="(?s)fake-scaled has no preset 'nope'.*presets of fake-scaled: quick"):
+        runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-scaled": ["nope"]})
+    with pytest.raises(StringsBenchError, match="--presets names method.*fake-a"):
+        runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-a": ["x"]})
+
+
+def test_presets_apply_per_dataset_and_the_release_preset_is_reachable(tmp_path, scene_dir):
+    """STRinGS' N_max per dataset comes from its spec's @apply presets (the release's full_eval.py values)."""
+    from strings_bench.methods.registry import get_method
+
+    spec = get_method("strings")
+    assert spec.presets_for("strings360", "books") == ["n-max-strings360"]
+    assert spec.presets_for("tandt", "truck") == ["n-max-truck"] and spec.presets_for("tandt", "train") == ["n-max-train"]
+    n_max = {s: spec.resolve(spec.presets_for("dl3dv", s))["n_max"] for s in ("3", "21", "80", "92", "107", "132", "136")}
+    assert n_max == {"3": 20, "21": 20, "80": 15, "92": 20, "107": 20, "132": 15, "136": 15}
+    assert spec.presets_for("synthetic", "books") == [] and spec.presets_for("dl3dv", "4") == []
+    plan = runner.plan_run(["strings", "3dgs"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny",
+                           method_presets={"strings": ["release"]})
+    by = {j.method: j for j in plan.jobs}
+    assert by["strings"].method_presets == ("release",) and by["3dgs"].method_presets == ()
+    built = runner._build_method(by["strings"])
+    assert built.st.gamma == 12000 and built.st.gamma_counter == "phase2"  # the release's, reached from the run
+    assert built.settings["steps_scale"] == SCHEDULES["tiny"].steps_scale  # the schedule still scales it
+    # resuming with other presets is refused, as with other --set values
+    from strings_bench.core.io import atomic_write_json
+
+    atomic_write_json(tmp_path / "run.json", {**plan.manifest})
+    with pytest.raises(StringsBenchError, match="presets"):
+        runner.check_manifest(tmp_path, {**plan.manifest, "method_presets": {"strings": [], "3dgs": []}})
 
 
 class _BowtieOCR(rf.FakeOCR):

@@ -29,7 +29,7 @@ def test_every_builtin_implementation_loads_under_its_name():
     for spec in BUILTIN_SPECS:
         impl = spec.load()
         assert isinstance(impl, type), spec.name
-        obj = spec.build(preset="tiny" if "tiny" in spec.presets else None)
+        obj = spec.build(schedule="tiny")
         assert obj.name == spec.name
 
 
@@ -69,21 +69,21 @@ def test_bad_set_is_refused_before_any_scene_is_built(monkeypatch, tmp_path):
 
     monkeypatch.setattr(datasets, "resolve_scenes", no_scenes)
     with pytest.raises(StringsBenchError, match="strings has no setting.*n_maxx"):
-        runner.plan_run(["strings", "3dgs"], ["synthetic"], tmp_path, method_overrides={"strings": {"n_maxx": 3}})
+        runner.plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strings": {"n_maxx": 3}})
     with pytest.raises(StringsBenchError, match="no method of this run has the setting.*n_maxx"):
-        runner.plan_run(["strings", "3dgs"], ["synthetic"], tmp_path, method_overrides={runner.ALL_METHODS: {"n_maxx": 3}})
+        runner.plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={runner.ALL_METHODS: {"n_maxx": 3}})
     with pytest.raises(StringsBenchError, match="does not train"):
-        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, method_overrides={"strngs": {"n_max": 3}})
+        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strngs": {"n_max": 3}})
     with pytest.raises(StringsBenchError, match="device"):
-        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, device="tpu")
+        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, device="tpu")
     with pytest.raises(StringsBenchError, match="save-every"):
-        runner.plan_run(["3dgs"], ["synthetic"], tmp_path, save_every="often")
+        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, save_every="often")
 
 
 def test_all_methods_setting_goes_to_the_methods_that_have_it(tmp_path):
     from strings_bench.bench import runner
 
-    plan = runner.plan_run(["strings", "ply"], ["synthetic/books"], tmp_path,
+    plan = runner.plan_run(["strings", "ply"], ["synthetic/books"], run_dir=tmp_path,
                            method_overrides={runner.ALL_METHODS: {"n_max": 20, "iteration": 7000}})
     by = {j.method: j.method_overrides for j in plan.jobs}
     assert by["strings"]["n_max"] == 20 and "iteration" not in by["strings"]

@@ -187,7 +187,8 @@ def _setup(method, scene):
 def test_registered_names_and_presets():
     for name in ("strings", "strings-no-densify", "strings-pos-lr"):
         spec = get_method(name)
-        assert {"paper", "quick", "release"} <= set(spec.presets)
+        assert {"release", "n-max-strings360"} <= set(spec.presets)
+        assert not {"paper", "quick"} & set(spec.presets)  # schedules are not method presets
     assert get_method("strings-no-densify").build().settings["text_densify"] is False
     assert get_method("strings-pos-lr").build().settings["phase1_position_lr"] == 1.0
     rel = get_method("strings").build("release").settings
@@ -227,7 +228,7 @@ PAPER_LR = [  # (t, eta_opt / extent, text eta_r), float64 values of the express
 def test_paper_preset_position_lr_by_hand(tiny_text_scene):
     scene = tiny_text_scene
     ext = _extent_by_hand(scene)
-    method = get_method("strings").build("paper", mask_dilation_fraction=0.0)
+    method = get_method("strings").build(schedule="paper", mask_dilation_fraction=0.0)
     trainer = _setup(method, scene)
     assert trainer.t1 == 3000 and trainer.extent == pytest.approx(ext, rel=1e-12)
     for t in (1, 1500, 3000):  # phase 1: positions locked
@@ -242,7 +243,7 @@ def test_paper_preset_position_lr_by_hand(tiny_text_scene):
         np.testing.assert_allclose(row_lr[is_text].numpy(), eta_opt * ext * eta_text, rtol=1e-6)
         np.testing.assert_allclose(row_lr[~is_text].numpy(), eta_opt * ext * 0.5, rtol=1e-6)
     # Ablation strings-pos-lr: 3DGS' own (unshifted) schedule in phase 1: 1.6e-4 * 100^(-1500/30000).
-    ablation = get_method("strings-pos-lr").build("paper", mask_dilation_fraction=0.0)
+    ablation = get_method("strings-pos-lr").build(schedule="paper", mask_dilation_fraction=0.0)
     assert _setup(ablation, scene).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
                                                                                        rel=1e-12)
 
@@ -502,11 +503,11 @@ def test_phase1_masked_l1_random_against_float64(tiny_text_scene):
 def test_default_run_exercises_both_phases(tiny_text_scene, monkeypatch):
     """Issue 14: under the default run's preset, STRinGS' phase 1 densifies at least twice and both
     phases train for more than 100 steps (the old quick preset's 30-step phase 1 never densified)."""
-    from strings_bench.bench.runner import DEFAULT_PRESET, get_preset
+    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, get_schedule
     from strings_bench.engine.strategies.default import DefaultStrategy
 
-    last = get_preset(DEFAULT_PRESET).checkpoints()[-1]
-    method = get_method("strings").build(preset=DEFAULT_PRESET, mask_dilation_fraction=0.0, sh_degree=0)
+    last = get_schedule(DEFAULT_SCHEDULE).checkpoints()[-1]
+    method = get_method("strings").build(schedule=DEFAULT_SCHEDULE, mask_dilation_fraction=0.0, sh_degree=0)
     refined = []
 
     def spy(self, model, optimizer, state, step):

@@ -223,7 +223,7 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
         from strings_bench.scene.scene import Scene
 
         ply = work / "stand_in" / "point_cloud.ply"
-        trainer = Trainer(get_method("3dgs").build(preset=CHECK_PRESET), Scene.load(scene_path), [CHECK_STEPS],
+        trainer = Trainer(get_method("3dgs").build(schedule=CHECK_PRESET), Scene.load(scene_path), [CHECK_STEPS],
                           device="cpu", progress=False, render_test=False, model_path=lambda step: ply)
         for _ in trainer.train():
             pass
@@ -337,14 +337,13 @@ def check_method(method: str | Any, overrides: dict | None = None, *, devices: l
                 raise CheckFailed(f"setting(s) without a meaning: {', '.join(no_help[:8])}"
                                   + (" ..." if len(no_help) > 8 else ""))
             format_settings(schema)
-            spec.check_keys(spec.resolve(CHECK_PRESET if CHECK_PRESET in spec.presets else None))
+            spec.check_keys(spec.resolve(schedule=CHECK_PRESET))
             return f"{len(schema)} settings, each with a default and a meaning"
 
         run_check("settings", (), settings_check)
 
         def build() -> Any:
-            preset = CHECK_PRESET if CHECK_PRESET in spec.presets else None
-            obj = spec.build(preset=preset, **state["settings"])
+            obj = spec.build(schedule=CHECK_PRESET, **state["settings"])
             if not isinstance(obj, (Method, MethodAdapter)):
                 raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
                                   "(strings_bench.core.method)")
@@ -464,7 +463,7 @@ def check_method(method: str | Any, overrides: dict | None = None, *, devices: l
 
             run_dir = work / "run"
             with _registered(spec):
-                plan = plan_run([spec.name], [str(scene_path)], run_dir=run_dir, preset=CHECK_PRESET, ocr=ocr,
+                plan = plan_run([spec.name], [str(scene_path)], run_dir=run_dir, schedule=CHECK_PRESET, ocr=ocr,
                                 method_overrides={spec.name: state["settings"]} if state["settings"] else None,
                                 checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off")
                 execute(plan, progress=False, write_report=False, with_lpips=with_lpips)

@@ -16,7 +16,9 @@ def _split(s: str) -> list[str]:
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from strings_bench.bench.runner import DEFAULT_PRESET, DEFAULT_RUN_DIR, EXECUTORS, PRESETS
+    from strings_bench.bench.executors import EXECUTORS
+    from strings_bench.bench.plan import DEFAULT_RUN_DIR
+    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, SCHEDULES
 
     p = subparsers.add_parser("run", help=command_help("run"),
                               description="Runs every method x scene x checkpoint not already finished in the run folder "
@@ -25,17 +27,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                                                               "see `strings-bench methods list`")
     p.add_argument("--datasets", default=None,
                    help="comma-separated dataset ids (synthetic, synthetic/books, strings360/globe) or scene folders "
-                        "(default: the preset's scenes: " + "; ".join(
-                            f"{n}: {','.join(pr.default_datasets())}" for n, pr in PRESETS.items()) + ")")
-    p.add_argument("--preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
-                   help=f"schedule (default {DEFAULT_PRESET}): " + "; ".join(
-                       f"{n} = {pr.description}" for n, pr in PRESETS.items()))
+                        "(default: the schedule's scenes: " + "; ".join(
+                            f"{n}: {','.join(pr.default_datasets())}" for n, pr in SCHEDULES.items()) + ")")
+    p.add_argument("--schedule", "--preset", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
+                   help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}; "
+                        "--preset is the former name): " + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
+    p.add_argument("--presets", dest="method_presets", action="append", default=[], metavar="METHOD=PRESET[+PRESET]",
+                   help="a named variant of one method's settings, e.g. --presets strings=release (the authors' release "
+                        "where it differs from the paper); repeatable; `strings-bench methods show METHOD` lists them. "
+                        "Presets that apply to a dataset by themselves (STRinGS' N_max) need no option")
     p.add_argument("--steps-scale", type=float, default=None, metavar="S",
-                   help="replace the preset's schedule scale for every method (e.g. 0.2: 7K = 1400 steps; 1 = the paper's); "
+                   help="replace the schedule's scale for every method (e.g. 0.2: 7K = 1400 steps; 1 = the paper's); "
                         "recorded in run.json, a run folder holds one scale")
     p.add_argument("--checkpoints", type=parse_checkpoints, default=None, metavar="ITERS",
                    help="paper iterations to evaluate, e.g. 3000,7000 or 3K,7K (each trained as round(it x scale)); "
-                        "default: the preset's; recorded in run.json")
+                        "default: the schedule's; recorded in run.json")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
     p.add_argument("--ocr", default="rapidocr",
@@ -56,7 +62,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "from its saved training state. A job that fails by itself is not retried")
     p.add_argument("--cpus-per-job", type=float, default=None, metavar="N",
                    help="with --executor ray: CPUs each job asks Ray for (default 1; a GPU job also asks for 1 GPU)")
-    p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the preset's, 1)")
+    p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the schedule's, 1)")
     p.add_argument("--set", dest="settings", action="append", default=[], metavar="[METHOD.]KEY=VALUE",
                    help="override a method setting (VALUE parsed as JSON when it can be): KEY=VALUE for every method of "
                         "the run, METHOD.KEY=VALUE for one (it wins over the former), e.g. --set lr_means=1e-3 "
@@ -80,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     """`strings-bench run`: plan and execute the run, print where its results and report are."""
     from strings_bench.bench.runner import run as run_bench
 
-    out = run_bench(executor_options=executor_options(args), **_run_arguments(args))
+    out = run_bench(run_config(args))
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     print(f"html:    {(out / 'report' / 'index.html').resolve().as_uri()}")
@@ -101,14 +107,32 @@ def executor_options(args: argparse.Namespace) -> dict | None:
     return {**given, "log_to_driver": bool(getattr(args, "verbose", False))}
 
 
-def _run_arguments(args: argparse.Namespace) -> dict:
-    """The arguments of `strings_bench.bench.runner.run` given by the command line (executor options aside)."""
-    return dict(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None, run_dir=args.out, preset=args.preset,
-                ocr=args.ocr, downscale=args.downscale, executor=args.executor, with_lpips=not args.no_lpips,
-                progress=not args.no_progress, method_overrides=parse_settings(args.settings),
-                lpips_at=args.lpips_at, cer_profile=args.cer_profile, steps_scale=args.steps_scale,
-                checkpoints=args.checkpoints, device=args.device, save_every=args.save_every,
-                keep_models=args.keep_models)
+def run_config(args: argparse.Namespace):
+    """The run the command line asks for, as one RunConfig (bench/plan.py)."""
+    from strings_bench.bench.plan import RunConfig
+
+    return RunConfig(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None,
+                     run_dir=args.out, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
+                     executor=args.executor, executor_options=executor_options(args), with_lpips=not args.no_lpips,
+                     progress=not args.no_progress, method_presets=parse_presets(args.method_presets),
+                     method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
+                     cer_profile=args.cer_profile, steps_scale=args.steps_scale, checkpoints=args.checkpoints,
+                     device=args.device, save_every=args.save_every, keep_models=args.keep_models)
+
+
+def parse_presets(items: list[str]) -> dict[str, list[str]]:
+    """`--presets` values -> {method: [preset, ...]}: 'strings=release' or 'strings=release+other', repeatable;
+    several methods in one value as 'a=x,b=y'."""
+    out: dict[str, list[str]] = {}
+    for item in items:
+        for part in _split(item):
+            method, eq, names = part.partition("=")
+            presets = [n.strip() for n in names.split("+") if n.strip()]
+            if not eq or not method.strip() or not presets:
+                raise StringsBenchError(f"--presets {part!r} is not METHOD=PRESET",
+                                        hint="e.g. --presets strings=release; `strings-bench methods show strings` lists them")
+            out.setdefault(method.strip(), []).extend(presets)
+    return out
 
 
 def parse_checkpoints(text: str) -> list[int]:

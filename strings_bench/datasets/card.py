@@ -26,7 +26,7 @@ class SceneCard:
     """One scene of a dataset: its name, its per-scene settings and a one-line description."""
 
     name: str
-    settings: dict = field(default_factory=dict)  # e.g. {"n_max": 25}
+    settings: dict = field(default_factory=dict)  # facts of the scene's data, e.g. {"masks_dilated": True}
     description: str = ""
 
 

@@ -1,7 +1,7 @@
 """Cards for the real datasets of the paper, and cards for the user's own local scenes.
 
-A card lists a dataset's scenes with their per-scene settings (the STRinGS text-densification cap
-N_max, REFERENCE §2), where the data comes from, its licence and the folder layout it expects.
+A card lists a dataset's scenes with what is true of their data (e.g. masks shipped already dilated),
+where the data comes from, its licence and the folder layout it expects.
 The cards are plain data; `strings_bench.datasets.registry` registers them, and the user's local
 copies through `local_card`. The data itself is never shipped: `strings-bench datasets download
 NAME` fetches what has a direct URL and prints the steps for the rest; `strings-bench datasets add
@@ -26,7 +26,6 @@ from strings_bench.datasets.card import LOCAL_CARD_NOTES, DatasetCard, SceneCard
 
 SCENE_MAP_FILE = "scenes.json"
 STRINGS_PROJECT_PAGE = "https://strings-official.github.io/"
-DL3DV_DEFAULT_N_MAX = 15  # REFERENCE §2: "DL3DV scenes 15-20 (default 15)"; per-scene values unpublished
 
 
 def find_scene_folder(root: Path, scene: str, dataset_id: str = "") -> Path:
@@ -75,16 +74,16 @@ STRINGS360 = DatasetCard(
     locate=_locate_in_local_copy("strings360"),
     title="STRinGS-360 (text-rich indoor 360-degree captures, the paper's own dataset)",
     scenes=[
-        SceneCard("extinguisher", {"n_max": 25, **_RELEASE_MASKS}, "instructional text on a curved cylinder"),
-        SceneCard("books", {"n_max": 25, **_RELEASE_MASKS}, "flat, densely packed book titles and author names"),
-        SceneCard("chemicals", {"n_max": 25, **_RELEASE_MASKS}, "chemical compositions on bottle labels on a lab shelf"),
-        SceneCard("globe", {"n_max": 25, **_RELEASE_MASKS}, "place names on a sphere"),
-        SceneCard("shelf", {"n_max": 25, **_RELEASE_MASKS}, "stacked academic books, repeated titles, occlusion"),
+        SceneCard("extinguisher", dict(_RELEASE_MASKS), "instructional text on a curved cylinder"),
+        SceneCard("books", dict(_RELEASE_MASKS), "flat, densely packed book titles and author names"),
+        SceneCard("chemicals", dict(_RELEASE_MASKS), "chemical compositions on bottle labels on a lab shelf"),
+        SceneCard("globe", dict(_RELEASE_MASKS), "place names on a sphere"),
+        SceneCard("shelf", dict(_RELEASE_MASKS), "stacked academic books, repeated titles, occlusion"),
     ],
     source=f"released by the STRinGS authors via Google Drive, linked from the project page {STRINGS_PROJECT_PAGE}",
     licence=f"see the paper's project page ({STRINGS_PROJECT_PAGE})",
     layout="<scene>/images/, <scene>/sparse/0/, <scene>/masks/ (Hi-SAM text masks), plus the Hi-SAM polygons",
-    notes="N_max = 25 for every scene (REFERENCE §2, the authors' release). Its masks/ are already dilated "
+    notes="STRinGS' N_max is 25 on every scene (its spec's preset n-max-strings360). Its masks/ are already dilated "
     "(the release's Hi-SAM output): STRinGS trains with them and OCR-CER reads through them as they are.",
     download={
         "manual": True,
@@ -104,13 +103,13 @@ TANDT = DatasetCard(
     locate=_locate_in_local_copy("tandt"),
     title="Tanks and Temples: Truck and Train (the 3DGS authors' COLMAP-processed copy)",
     scenes=[
-        SceneCard("truck", {"n_max": 20}, "a truck with lettering, outdoor 360"),
-        SceneCard("train", {"n_max": 15}, "a locomotive with lettering, outdoor 360"),
+        SceneCard("truck", {}, "a truck with lettering, outdoor 360"),
+        SceneCard("train", {}, "a locomotive with lettering, outdoor 360"),
     ],
     source="Knapitsch et al. 2017 (tanksandtemples.org); preprocessed with COLMAP by the 3DGS authors (tandt_db.zip)",
     licence="Tanks and Temples licence, https://www.tanksandtemples.org/license/ (read it before use)",
     layout="tandt/<scene>/images/, tandt/<scene>/sparse/0/ (no masks: make them with the OCR detector or Hi-SAM)",
-    notes="N_max: Truck 20, Train 15 (REFERENCE §2). The zip also holds Deep Blending (db/), unused here.",
+    notes="STRinGS' N_max: Truck 20, Train 15 (its spec's presets). The zip also holds Deep Blending (db/), unused here.",
     download={
         "url": "https://repo-sam.inria.fr/fungraph/3d-gaussian-splatting/datasets/input/tandt_db.zip",
         "sha256": None,  # not published by the host; the computed hash is printed
@@ -123,13 +122,13 @@ DL3DV = DatasetCard(
     id="dl3dv",
     locate=_locate_in_local_copy("dl3dv"),
     title="DL3DV-10K benchmark: the 7 text-bearing scenes used in the paper",
-    scenes=[SceneCard(str(i), {"n_max": DL3DV_DEFAULT_N_MAX},
-                      "benchmark scene index; N_max 15 is the release default (exact per-scene value not published)")
+    scenes=[SceneCard(str(i), {}, "benchmark scene index")
             for i in (3, 21, 80, 92, 107, 132, 136)],
     source="DL3DV-10K benchmark (Ling et al. 2024), Hugging Face dataset DL3DV/DL3DV-Benchmark (gated)",
     licence="DL3DV-10K Terms of Use (https://github.com/DL3DV-10K/Dataset/blob/main/DL3DV-10K_term_of_use.pdf)",
     layout="<scene>/images/, <scene>/sparse/0/; the benchmark names folders by hash: map them in ROOT/scenes.json",
-    notes="The paper uses N_max 15-20 for DL3DV and does not list per-scene values; every scene defaults to 15. "
+    notes="STRinGS' N_max per scene is the release's full_eval.py (--max_densify): 3, 21, 92, 107 20; 80, 132, 136 15 "
+    "(its spec's presets n-max-dl3dv-20 / -15). "
     "The paper numbers scenes by their index in the benchmark; which hash each index is must be read from "
     "the benchmark's scene list (see the paper's project page).",
     download={

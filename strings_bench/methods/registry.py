@@ -21,7 +21,6 @@ from importlib.metadata import entry_points
 from typing import Any, Callable
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.schedules import schedule_presets
 from strings_bench.core.settings import Setting, format_settings
 
 log = logging.getLogger(__name__)
@@ -39,7 +38,11 @@ class MethodSpec:
         description: one line for `methods list`.
         paper: the citation.
         defaults: settings over the implementation's own defaults.
-        presets: preset name -> settings over `defaults` (the run's preset picks one when it exists).
+        presets: preset name -> settings over `defaults`. A preset is chosen by name (`run --presets
+            strings=release`), or applies by itself where its "@apply" conditions match the scene, as in
+            nerfbaselines: {"@apply": [{"dataset": "tandt", "scene": "truck"}], "n_max": 20} (a condition
+            matches when all its keys equal the scene's; any condition is enough). Keys starting with "@"
+            are not settings ("@description" says what the preset is).
         paper_results: published figures, {dataset: {"cer": {iteration: value}, "minutes": {iteration: value}}}.
     """
 
@@ -84,20 +87,43 @@ class MethodSpec:
                                     hint=f"valid settings: {', '.join(sorted(valid))} "
                                          f"(`strings-bench methods show {self.name}`)")
 
-    def resolve(self, preset: str | None = None, **overrides) -> dict:
-        """The settings a build uses: defaults, then the preset, then the overrides."""
+    def presets_for(self, dataset: str, scene: str) -> list[str]:
+        """The presets that apply by themselves to `dataset`/`scene` (their "@apply" conditions), in spec order."""
+        here = {"dataset": dataset, "scene": scene}
+        return [name for name, p in self.presets.items()
+                if any(all(here.get(k) == v for k, v in cond.items()) for cond in p.get("@apply", []))]
+
+    def check_presets(self, names) -> list[str]:
+        """`names` (a name, a list, or None) as a list, refusing names this spec has no preset of."""
+        names = [] if names is None else [names] if isinstance(names, str) else list(names)
+        unknown = [n for n in names if n not in self.presets]
+        if unknown:
+            raise StringsBenchError(f"method {self.name} has no preset {', '.join(map(repr, unknown))}",
+                                    hint=f"presets of {self.name}: {', '.join(self.presets) or 'none'} "
+                                         f"(`strings-bench methods show {self.name}`)")
+        return names
+
+    def resolve(self, presets=None, schedule: str | None = None, **overrides) -> dict:
+        """The settings a build uses: defaults, then each preset in order, then the steps scale of `schedule`
+        (a run schedule's name: paper, standard, early, quick, tiny; for methods with a steps_scale), then the
+        overrides."""
+        from strings_bench.core.schedules import SCHEDULE_SCALES
+
         settings = dict(self.defaults)
-        if preset is not None:
-            if preset not in self.presets:
-                raise StringsBenchError(f"method {self.name} has no preset {preset!r}",
-                                        hint=f"presets: {', '.join(self.presets) or 'none'}")
-            settings.update(self.presets[preset])
+        for name in self.check_presets(presets):
+            settings.update({k: v for k, v in self.presets[name].items() if not k.startswith("@")})
+        if schedule is not None:
+            if schedule not in SCHEDULE_SCALES:
+                raise StringsBenchError(f"unknown schedule {schedule!r}", hint=f"schedules: {', '.join(SCHEDULE_SCALES)}")
+            if "steps_scale" in settings:
+                settings["steps_scale"] = SCHEDULE_SCALES[schedule]
         settings.update(overrides)
         return settings
 
-    def build(self, preset: str | None = None, **overrides):
-        """A configured method object (a `Method` or a `MethodAdapter`)."""
-        settings = self.resolve(preset, **overrides)
+    def build(self, presets=None, schedule: str | None = None, **overrides):
+        """A configured method object (a `Method` or a `MethodAdapter`); `presets`: a preset name or a list;
+        `schedule`: train at that run schedule's steps scale (`build(schedule="tiny")`)."""
+        settings = self.resolve(presets, schedule, **overrides)
         impl = self.load()
         self.check_keys(settings)
         from_settings = getattr(impl, "from_settings", None)
@@ -116,7 +142,12 @@ class MethodSpec:
             lines.append(f"paper: {self.paper}")
         lines.append(f"implementation: {self.implementation if isinstance(self.implementation, str) else self.implementation!r}")
         if self.presets:
-            lines.append("presets: " + "; ".join(f"{k} {v}" for k, v in self.presets.items()))
+            lines.append("presets (`run --presets NAME=PRESET`; @apply: applied by itself on those scenes):")
+            for k, v in self.presets.items():
+                applies = "; ".join(",".join(f"{a}={b}" for a, b in c.items()) for c in v.get("@apply", []))
+                values = {a: b for a, b in v.items() if not a.startswith("@")}
+                lines.append(f"  {k}: {values}" + (f"  @apply {applies}" if applies else "")
+                             + (f"  ({v['@description']})" if "@description" in v else ""))
         for dataset, figures in self.paper_results.items():
             parts = [f"{what} " + ", ".join(f"{_label(it)} {v:g}" for it, v in sorted(vals.items()))
                      for what, vals in figures.items()]
@@ -143,12 +174,29 @@ def _paper(cer: tuple[tuple[float, float], ...], minutes: tuple[float, float]) -
 
 
 STRINGS_PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
-_SCHEDULES = schedule_presets()  # paper 1.0, standard 0.05, quick 0.01, tiny 0.005
-_STRINGS_PRESETS = {**_SCHEDULES,
-                    # The release: gamma 12000 on its phase-2 counter (= the paper's 15000 at T1 = 3000),
-                    # its script's 225 px mask dilation.
-                    "release": {"steps_scale": 1.0, "gamma": 12000, "gamma_counter": "phase2",
-                                "mask_dilation_px": 225.0, "phase2_schedules": "restart"}}
+_SCHEDULES: dict[str, dict] = {}  # the run's schedule scales every method (bench/schedules.py), not a preset
+
+
+def _n_max(dataset: str, value: int, scenes=None) -> dict:
+    """A preset that sets STRinGS' Eq. 1 cap N_max on `dataset` (its `scenes`, or all of them)."""
+    conds = [{"dataset": dataset}] if scenes is None else [{"dataset": dataset, "scene": s} for s in scenes]
+    return {"@apply": conds, "n_max": value}
+
+
+# N_max per scene, as the release's full_eval.py passes it (--max_densify): STRinGS-360 25, Truck 20, Train 15,
+# DL3DV scene_3/21/92/107 20 and scene_80/132/136 15. Elsewhere (synthetic, the user's scenes) the release's
+# CLI default, 15 (methods/strings/densify.py DEFAULT_N_MAX).
+_STRINGS_PRESETS = {
+    # The release: gamma 12000 on its phase-2 counter (= the paper's 15000 at T1 = 3000), its script's
+    # 225 px mask dilation (masks shipped dilated, as its datasets' are, are used as they are).
+    "release": {"gamma": 12000, "gamma_counter": "phase2", "mask_dilation_px": 225.0, "phase2_schedules": "restart",
+                "@description": "the authors' release where it differs from the paper"},
+    "n-max-strings360": _n_max("strings360", 25),
+    "n-max-truck": _n_max("tandt", 20, ["truck"]),
+    "n-max-train": _n_max("tandt", 15, ["train"]),
+    "n-max-dl3dv-20": _n_max("dl3dv", 20, ["3", "21", "92", "107"]),
+    "n-max-dl3dv-15": _n_max("dl3dv", 15, ["80", "132", "136"]),
+}
 
 BUILTIN_SPECS: list[MethodSpec] = [
     MethodSpec("3dgs", "strings_bench.methods.gs3d:GS3D",

@@ -46,7 +46,7 @@ class StringsSettings:
     # phase 1) or "phase2" (release: t = step - T1, i.e. 1 at the first phase-2 step), see docs/strings.md.
     gamma_counter: str = "global"  # counter of gamma: "global" (paper) or "phase2" (release)
     tau: int = 1  # text point: mask hits >= tau
-    n_max: int | None = None  # None: scene.settings["n_max"], else 15
+    n_max: int | None = None  # Eq. 1's cap; None: 15 (the release's default); per dataset: the spec's presets
     equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
     text_densify: bool = True  # False = ablation "without text densification"
     max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
@@ -95,9 +95,8 @@ def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> floa
 def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
     from strings_bench.methods.strings.densify import DEFAULT_N_MAX
 
-    if st.n_max is not None:
-        return int(st.n_max)
-    return int((scene.settings or {}).get("n_max", DEFAULT_N_MAX))
+    # The per-dataset values are the spec's @apply presets (methods/registry.py); scenes carry none.
+    return int(st.n_max) if st.n_max is not None else DEFAULT_N_MAX
 
 
 # ---- the method ------------------------------------------------------------------------------------

@@ -1,0 +1,100 @@
+"""Jobs and where they run.
+
+A `Job` trains one method on one scene and evaluates its checkpoints; it is plain data, so it can
+travel to another process or machine. An `Executor` runs jobs (`submit(job)` -> Future): the
+`LocalExecutor` here, one after another in this process, or the `RayExecutor` (ray_executor.py).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Protocol
+
+from strings_bench.bench.ray_executor import RayExecutor
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.results import CellKey, safe_name
+
+@dataclass(frozen=True)
+class Job:
+    """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel."""
+
+    run_dir: str
+    method: str
+    dataset: str
+    scene: str
+    scene_path: str
+    scene_settings: dict
+    checkpoints: tuple[int, ...]
+    labels: dict  # iteration -> paper label
+    schedule: str  # the run's schedule (bench/schedules.py); recorded as the cell's "preset"
+    downscale: float
+    ocr: str
+    method_overrides: dict = field(default_factory=dict)
+    cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
+    device: str = "auto"  # resolved where the job runs (engine.trainer.resolve_device)
+    save_every: str = "10"  # minutes, "<N>steps" or "off" (engine.trainer.SaveEvery.parse)
+    keep_models: bool = False  # write each cell's model.ply
+    method_presets: tuple[str, ...] = ()  # the method's presets in order: dataset-conditional ones, then --presets
+
+    def state_path(self) -> Path:
+        """The resumable training state of this (method, scene)."""
+        return (Path(self.run_dir) / "state" / safe_name(self.method) / safe_name(self.dataset) / safe_name(self.scene)
+                / "training_state.pt")
+
+    def cells(self) -> list[CellKey]:
+        return [CellKey(self.method, self.dataset, self.scene, it) for it in self.checkpoints]
+
+
+class Executor(Protocol):
+    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value.
+
+    Optional members `execute` uses when an executor has them: `in_process` (False: jobs run in other
+    processes, so the driver follows progress from the run folder and rebuilds results.csv itself),
+    `start(run_dir, jobs)` (before the first submit: connect, check that workers see the run folder),
+    `cancel()` (on Ctrl-C: stop every job still running) and `close()` (after the run).
+    """
+
+    def submit(self, job: Job) -> Future: ...
+
+    def map(self, jobs: Iterable[Job]) -> list[Any]: ...
+
+
+class LocalExecutor:
+    """Runs each job in this process, one after another (the default)."""
+
+    in_process = True
+
+    def __init__(self, runner: Callable[[Job], Any]):
+        self.runner = runner
+
+    def submit(self, job: Job) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(self.runner(job))
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def map(self, jobs: Iterable[Job]) -> list[Any]:
+        return [self.submit(j).result() for j in jobs]
+
+
+# name -> factory(runner, **options); the Ray executor imports ray only when it is built.
+EXECUTORS: dict[str, Callable[..., Executor]] = {"local": LocalExecutor, "ray": RayExecutor}
+
+
+def executor_factory(name: str) -> Callable[..., Executor]:
+    """The factory registered under `name` in EXECUTORS; a clear error for an unknown name."""
+    if name not in EXECUTORS:
+        raise StringsBenchError(f"unknown executor {name!r}", hint=f"executors: {', '.join(EXECUTORS)}")
+    return EXECUTORS[name]
+
+
+def get_executor(name: str, runner: Callable[[Job], Any], **options) -> Executor:
+    """The executor `name` running jobs with `runner`; `options` go to its factory (e.g. the Ray
+    executor's `address`, `max_retries`)."""
+    return executor_factory(name)(runner, **options)

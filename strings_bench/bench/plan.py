@@ -1,0 +1,248 @@
+"""Planning a run: its configuration (`RunConfig`), its jobs (one per method x scene) and its manifest.
+
+`plan_run(config)` checks everything that can be checked before any scene is built or method trained:
+method names, `--set` keys, `--presets` names, the OCR profile, the device name, then resolves the
+scenes and makes one `Job` per (method, scene). The manifest becomes run.json; `check_manifest` refuses
+to resume a folder made under other settings.
+
+A method's settings, in the order they apply: the spec's defaults, its presets whose "@apply"
+conditions match the scene (e.g. STRinGS' N_max per dataset), the presets chosen with `--presets`, the
+schedule's steps scale, then `--set` values (methods/registry.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Iterable
+
+from strings_bench.bench.executors import Job
+from strings_bench.bench.records import jsonable
+from strings_bench.bench.schedules import DEFAULT_SCHEDULE, schedule
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.results import CellKey
+
+DEFAULT_RUN_DIR = Path("runs") / "default"
+# Key of `method_overrides` whose settings apply to every method of a run (`--set KEY=VALUE`, no
+# method named); a method's own entry wins over it, key by key.
+ALL_METHODS = "*"
+LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
+
+
+@dataclass
+class RunConfig:
+    """Everything a run is given; `strings-bench run`'s options, one field each (docs/running.md).
+
+    methods: method names (`--methods`).
+    datasets: registry ids or scene folders (`--datasets`); None: the schedule's default scenes.
+    run_dir: the run folder; the same folder resumes.
+    schedule: the run's schedule (bench/schedules.py: paper, standard, early, quick, tiny).
+    steps_scale, checkpoints: replace the schedule's scale / paper checkpoints.
+    downscale: image downscale (None: the schedule's).
+    method_presets: method -> preset names chosen for it (`--presets strings=release`).
+    method_overrides: method (or ALL_METHODS) -> settings (`--set`).
+    ocr: OCR engine name(s), comma-separated; the first is the primary.
+    ocr_backend: an OCR backend object used in place of the names (tests, benchmarks).
+    """
+
+    methods: list[str] = field(default_factory=list)
+    datasets: list[str] | None = None
+    run_dir: Path = DEFAULT_RUN_DIR
+    schedule: str = DEFAULT_SCHEDULE
+    steps_scale: float | None = None
+    checkpoints: Iterable[int] | None = None
+    downscale: float | None = None
+    method_presets: dict = field(default_factory=dict)
+    method_overrides: dict = field(default_factory=dict)
+    ocr: str = "rapidocr"
+    ocr_backend: object = None
+    cer_profile: str = "paper"
+    device: str = "auto"
+    save_every: str = "10"
+    keep_models: bool = False
+    executor: str = "local"
+    executor_options: dict | None = None
+    with_lpips: bool = True
+    lpips_at: str = "last"
+    progress: bool = True
+    write_report: bool = True
+
+    @classmethod
+    def of(cls, config: "RunConfig | list[str] | None" = None, datasets=None, **given) -> "RunConfig":
+        """A RunConfig from a RunConfig, or from methods, datasets and fields as keywords (`preset` is the
+        old word for `schedule`). An unknown keyword is an error naming the fields."""
+        if "preset" in given:
+            given["schedule"] = given.pop("preset")
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(given) - names)
+        if unknown:
+            raise TypeError(f"unknown run setting(s) {', '.join(unknown)}; RunConfig fields: {', '.join(sorted(names))}")
+        if isinstance(config, RunConfig):
+            return replace(config, **given)
+        base = cls(methods=list(config or []), datasets=datasets)
+        return replace(base, **given)
+
+
+@dataclass
+class RunPlan:
+    run_dir: Path
+    jobs: list[Job]
+    manifest: dict
+
+    @property
+    def cells(self) -> list[CellKey]:
+        return [k for j in self.jobs for k in j.cells()]
+
+
+def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given) -> RunPlan:
+    """Plan the jobs of a run: one per (method, scene), with its checkpoints and settings (see the module
+    docstring). Takes a RunConfig, or methods, datasets and RunConfig fields as keywords."""
+    from strings_bench.datasets.registry import resolve_scenes
+    from strings_bench.engine.trainer import SaveEvery, check_device_name
+    from strings_bench.eval.cer import get_profile
+    from strings_bench.eval.ocr import parse_engines
+    from strings_bench.methods.registry import get_method
+
+    c = RunConfig.of(config, datasets, **given)
+    methods = list(c.methods)
+    if not methods:
+        raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
+    p = schedule(c.schedule, c.steps_scale, c.checkpoints)
+    datasets = list(c.datasets) if c.datasets else p.default_datasets()
+    get_profile(c.cer_profile)  # fails early on an unknown name
+    specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
+    ocr = c.ocr
+    if isinstance(ocr, str):  # canonical names ("rapid,tess" = "rapidocr,tesseract"), so that resume compares like with like
+        ocr = ",".join(parse_engines(ocr, strict=False))  # strict where the engines are built from the names (run, _get_ocr)
+    check_device_name(c.device)
+    SaveEvery.parse(c.save_every)
+    ds = float(c.downscale if c.downscale is not None else p.downscale)
+    run_dir = Path(c.run_dir)
+    overrides = dict(c.method_overrides or {})
+    unknown = sorted(k for k in set(overrides) - set(methods) if k != ALL_METHODS)
+    if unknown:
+        raise StringsBenchError(f"--set names method(s) {', '.join(unknown)} that this run does not train",
+                                hint=f"methods of this run: {', '.join(methods)}")
+    chosen_presets = {m: list(v) for m, v in (c.method_presets or {}).items()}
+    unknown = sorted(set(chosen_presets) - set(methods))
+    if unknown:
+        raise StringsBenchError(f"--presets names method(s) {', '.join(unknown)} that this run does not train",
+                                hint=f"methods of this run: {', '.join(methods)}")
+    for_all = dict(overrides.get(ALL_METHODS, {}))
+    taken: set[str] = set()
+    planned = []
+    given_settings: dict[str, dict] = {}  # each method's --set values, the all-methods ones included
+    for m in methods:
+        spec = specs[m]
+        chosen = spec.check_presets(chosen_presets.get(m))
+        # An all-methods setting goes to every method that has it (a method without a settings schema takes all).
+        schema = spec.settings()
+        mine = for_all if schema is None else {k: v for k, v in for_all.items() if k in {s.name for s in schema}}
+        taken |= set(mine)
+        m_over = {**mine, **overrides.get(m, {})}
+        given_settings[m] = dict(m_over)
+        if "steps_scale" in spec.defaults and "steps_scale" not in m_over:
+            # The schedule scales every method; a --set steps_scale given for the method wins.
+            m_over["steps_scale"] = p.steps_scale
+        adapter = spec.build(chosen, **m_over)
+        m_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
+        steps = p.checkpoints(m_scale)
+        fixed = getattr(adapter, "fixed_checkpoints", None)
+        if callable(fixed) and fixed():
+            steps = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
+        labels = {it: p.label_of(it, m_scale) for it in steps}
+        planned.append((m, chosen, m_over, steps, labels))
+    if set(for_all) - taken:
+        raise StringsBenchError(f"no method of this run has the setting(s) {', '.join(sorted(set(for_all) - taken))}",
+                                hint="see `strings-bench methods show METHOD` for each method's settings")
+    refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
+    if not refs:
+        raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
+    jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps), labels,
+                p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every), bool(c.keep_models),
+                tuple(specs[m].presets_for(ref.dataset, ref.scene)) + tuple(chosen))
+            for m, chosen, m_over, steps, labels in planned for ref in refs]
+    manifest = {
+        "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
+        # --steps-scale / --checkpoints as given (None: the schedule's); `preset` above holds the schedule in effect.
+        "steps_scale": None if c.steps_scale is None else p.steps_scale,
+        "checkpoints": None if c.checkpoints is None else list(p.paper_checkpoints),
+        "method_presets": {m: chosen for m, chosen, *_ in planned},
+        "method_overrides": {m: jsonable(given_settings[m]) for m in methods},
+        "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
+        "datasets": datasets,
+        "device": c.device,  # as asked; execute() adds where it resolved to on this machine
+    }
+    return RunPlan(run_dir, jobs, manifest)
+
+
+def _as_list(x):
+    return list(x) if isinstance(x, (list, tuple)) else x
+
+
+def _fmt_schedule(x) -> str:
+    if x is None:
+        return "(not recorded)"
+    return ",".join(str(c) for c in x) if isinstance(x, (list, tuple)) else f"{x:g}"
+
+
+def check_manifest(run_dir: Path, manifest: dict) -> dict:
+    """Refuse to mix results made under other settings in one folder; merge method/dataset lists."""
+    from strings_bench.reports.results import read_manifest
+
+    old = read_manifest(run_dir)
+    if old is None:
+        return manifest
+    for k in ("downscale", "ocr"):
+        if old.get(k) != manifest.get(k):
+            what = "--ocr engine list" if k == "ocr" else k
+            raise StringsBenchError(
+                f"{run_dir} holds results made with {what} {old.get(k)!r}; this run asks for {manifest.get(k)!r}",
+                hint="use another --out folder, or the same settings to resume"
+                     + (" (every cell is scored by every engine of the list, the first being the primary)" if k == "ocr" else ""))
+    # Folders made before the profile was recorded were scored with the rules now named "robust".
+    old_profile = old.get("cer_profile", "robust")
+    if old_profile != manifest.get("cer_profile", "paper"):
+        raise StringsBenchError(
+            f"{run_dir} holds CER scored with profile {old_profile!r}"
+            + ("" if "cer_profile" in old else " (made before --cer-profile existed: the rules now named robust)")
+            + f"; this run asks for {manifest.get('cer_profile', 'paper')!r}",
+            hint="use another --out folder, or the same --cer-profile to resume")
+    if (old.get("preset") or {}).get("name") != manifest["preset"]["name"]:
+        raise StringsBenchError(
+            f"{run_dir} holds results of schedule {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
+            hint="use another --out folder (e.g. --out runs/paper), or the same --schedule to resume")
+    # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
+    # run gave the option; folders made without it keep resuming as before.
+    for k, field_name, option in (("steps_scale", "steps_scale", "--steps-scale"),
+                                  ("checkpoints", "paper_checkpoints", "--checkpoints")):
+        if old.get(k) is None and manifest.get(k) is None:
+            continue
+        was = (old.get("preset") or {}).get(field_name)
+        now = manifest["preset"].get(field_name)
+        if _as_list(was) != _as_list(now):
+            raise StringsBenchError(
+                f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",
+                hint=f"use another --out folder, or the same {option} to resume")
+    # A finished cell is skipped on resume, so cells trained with other --set values must not be
+    # taken for this run's (folders made before overrides were recorded carry no such entry).
+    old_over = old.get("method_overrides")
+    if old_over is not None:
+        for m, given in manifest.get("method_overrides", {}).items():
+            if m in old.get("methods", {}) and old_over.get(m, {}) != given:
+                raise StringsBenchError(
+                    f"{run_dir} holds {m} results made with settings {old_over.get(m, {})}; this run asks for {given}",
+                    hint="use another --out folder, or the same --set values to resume")
+    # Likewise the method presets chosen with --presets (folders made before them chose none).
+    old_presets = old.get("method_presets") or {}
+    for m, chosen in (manifest.get("method_presets") or {}).items():
+        if m in old.get("methods", {}) and list(old_presets.get(m, [])) != list(chosen):
+            raise StringsBenchError(
+                f"{run_dir} holds {m} results made with presets {old_presets.get(m, [])}; this run asks for {chosen}",
+                hint="use another --out folder, or the same --presets to resume")
+    merged = dict(manifest)
+    merged["method_presets"] = {**old_presets, **(manifest.get("method_presets") or {})}
+    merged["methods"] = {**old.get("methods", {}), **manifest["methods"]}
+    merged["method_overrides"] = {**(old_over or {}), **manifest.get("method_overrides", {})}
+    merged["datasets"] = list(dict.fromkeys(list(old.get("datasets", [])) + list(manifest["datasets"])))
+    return merged

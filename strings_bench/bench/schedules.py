@@ -1,0 +1,100 @@
+"""Run schedules: how long a run trains and which checkpoints it evaluates (`run --schedule`).
+
+A *schedule* is the run's: its steps scale, its checkpoints (named by the paper iteration they stand
+for) and the scenes it uses when none are named. It is not a *method preset* (a named variant of one
+method's settings, such as STRinGS' `release`; `run --presets strings=release`; methods/registry.py).
+The schedule scales every method; on disk, run.json's "preset" and results.csv's `preset` column hold
+the schedule's name, as they always have.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, replace
+from typing import Iterable
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.schedules import SCHEDULE_SCALES
+from strings_bench.reports.results import iteration_label
+
+# Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
+# trained is round(paper_iteration * steps_scale). DEFAULT_SCHEDULE is the default of `strings-bench run`.
+# 3K is the end of STRinGS' phase 1 (the position-LR ablation of the paper is read there).
+PAPER_CHECKPOINTS = (3000, 7000, 30000)
+DEFAULT_DATASETS = ("synthetic",)
+DEFAULT_SCHEDULE = "early"
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A run's schedule: its steps scale, the paper checkpoints it evaluates, its default scenes."""
+
+    name: str
+    steps_scale: float
+    paper_checkpoints: tuple[int, ...] = PAPER_CHECKPOINTS
+    downscale: float = 1
+    description: str = ""
+    # the scenes a run of this preset uses when no --datasets is given (None: every synthetic scene)
+    datasets: tuple[str, ...] | None = None
+
+    def default_datasets(self) -> list[str]:
+        """The --datasets of a run of this preset that names none."""
+        return list(self.datasets or DEFAULT_DATASETS)
+
+    def checkpoints(self, steps_scale: float | None = None) -> list[int]:
+        s = self.steps_scale if steps_scale is None else steps_scale
+        return sorted({max(1, int(round(c * s))) for c in self.paper_checkpoints})
+
+    def label_of(self, iteration: int, steps_scale: float | None = None) -> str:
+        s = self.steps_scale if steps_scale is None else steps_scale
+        for c in self.paper_checkpoints:
+            if max(1, int(round(c * s))) == iteration:
+                return iteration_label(c)
+        return iteration_label(iteration)
+
+
+SCHEDULES: dict[str, Schedule] = {
+    "paper": Schedule("paper", SCHEDULE_SCALES["paper"],
+                    description="the paper's schedule: 30K iterations, checkpoints 3K/7K/30K"),
+    # standard and quick leave out 3K: OCR of every test view costs ~1 s per view and cell on a CPU.
+    "standard": Schedule("standard", SCHEDULE_SCALES["standard"], paper_checkpoints=(7000, 30000),
+                       description="the paper's schedule scaled by 0.05 (350/1500 iterations for 7K/30K)"),
+    # The default run: one scene, the paper's early checkpoints, long enough to read (docs/ocr.md).
+    "early": Schedule("early", SCHEDULE_SCALES["early"], paper_checkpoints=(3000, 7000),
+                    datasets=("synthetic/extinguisher",),
+                    description="the default: the paper's schedule scaled by 0.15 (450/1050 iterations for 3K/7K) "
+                                "on synthetic/extinguisher, ~10 min on 2 CPU cores; text becomes legible"),
+    "quick": Schedule("quick", SCHEDULE_SCALES["quick"], paper_checkpoints=(7000, 30000),
+                    description="the paper's schedule scaled by 0.01 (70/300 iterations for 7K/30K) on the five "
+                                "synthetic scenes, ~10 min on 2 CPU cores; text stays illegible (CER ~1.0)"),
+    "tiny": Schedule("tiny", SCHEDULE_SCALES["tiny"], description="smoke test: scaled by 0.005 (35/150 iterations for 7K/30K)"),
+}
+
+
+def get_schedule(name: str) -> Schedule:
+    if name not in SCHEDULES:
+        raise StringsBenchError(f"unknown schedule {name!r}", hint=f"schedules: {', '.join(SCHEDULES)}")
+    return SCHEDULES[name]
+
+
+def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None) -> Schedule:
+    """The run's schedule: schedule `name` with `run --steps-scale` and `--checkpoints` applied.
+
+    steps_scale replaces the schedule's scale (every method is then scaled by it); checkpoints are
+    paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale).
+    """
+    p = get_schedule(name)
+    if steps_scale is not None:
+        if not (isinstance(steps_scale, (int, float)) and math.isfinite(steps_scale) and steps_scale > 0):
+            raise StringsBenchError(f"steps scale must be a number > 0, got {steps_scale!r}",
+                                    hint="e.g. --steps-scale 0.2 (7K = 1400 steps); 1 is the paper's schedule")
+        p = replace(p, steps_scale=float(steps_scale), description=f"{p.description} [--steps-scale {steps_scale:g}]")
+    if checkpoints is not None:
+        given = list(checkpoints)
+        if not given or not all(isinstance(c, numbers.Integral) and not isinstance(c, bool) and c >= 1 for c in given):
+            raise StringsBenchError(f"checkpoints must be paper iterations (integers >= 1), got {given!r}",
+                                    hint="e.g. --checkpoints 3000,7000")
+        its = tuple(sorted({int(c) for c in given}))
+        p = replace(p, paper_checkpoints=its, description=f"{p.description} [--checkpoints {','.join(map(str, its))}]")
+    return p
