@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Protocol
 
-from strings_bench.bench.ray_executor import RayExecutor
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, safe_name
 
@@ -47,21 +46,43 @@ class Job:
         return [CellKey(self.method, self.dataset, self.scene, it) for it in self.checkpoints]
 
 
-class Executor(Protocol):
-    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value.
+class Executor:
+    """Where jobs run. `submit` returns a Future of `run_job(job)`'s return value; every other member has
+    a default here, so an executor overrides only what it does differently:
 
-    Optional members `execute` uses when an executor has them: `in_process` (False: jobs run in other
-    processes, so the driver follows progress from the run folder and rebuilds results.csv itself),
-    `start(run_dir, jobs)` (before the first submit: connect, check that workers see the run folder),
-    `cancel()` (on Ctrl-C: stop every job still running) and `close()` (after the run).
+    - `in_process` (True): jobs run in this process. False: in other processes, so the driver follows
+      progress from the run folder and rebuilds results.csv itself;
+    - `check_options(device, **options)`, on the class: refuse what it cannot do before any scene is built
+      (default: it takes no options);
+    - `start(run_dir, jobs)` before the first submit (connect, check that workers see the run folder),
+      `cancel()` on Ctrl-C (stop every job still running), `close()` after the run.
     """
 
-    def submit(self, job: Job) -> Future: ...
+    in_process = True
 
-    def map(self, jobs: Iterable[Job]) -> list[Any]: ...
+    @classmethod
+    def check_options(cls, device: str = "auto", **options) -> None:
+        if options:
+            raise StringsBenchError(f"executor {cls.__name__} takes no options (given: {', '.join(sorted(options))})",
+                                    hint="--ray-address, --max-retries and --cpus-per-job apply to --executor ray")
+
+    def submit(self, job: Job) -> Future:
+        raise NotImplementedError
+
+    def map(self, jobs: Iterable[Job]) -> list[Any]:
+        return [self.submit(j).result() for j in jobs]
+
+    def start(self, run_dir: Path, jobs: list[Job]) -> None:
+        pass
+
+    def cancel(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
 
 
-class LocalExecutor:
+class LocalExecutor(Executor):
     """Runs each job in this process, one after another (the default)."""
 
     in_process = True
@@ -79,19 +100,23 @@ class LocalExecutor:
             fut.set_exception(exc)
         return fut
 
-    def map(self, jobs: Iterable[Job]) -> list[Any]:
-        return [self.submit(j).result() for j in jobs]
 
 
-# name -> factory(runner, **options); the Ray executor imports ray only when it is built.
-EXECUTORS: dict[str, Callable[..., Executor]] = {"local": LocalExecutor, "ray": RayExecutor}
+# name -> the executor class, or "module:Class" imported when chosen (Ray is imported only then).
+EXECUTORS: dict[str, type[Executor] | str] = {"local": LocalExecutor, "ray": "strings_bench.bench.ray_executor:RayExecutor"}
 
 
-def executor_factory(name: str) -> Callable[..., Executor]:
-    """The factory registered under `name` in EXECUTORS; a clear error for an unknown name."""
+def executor_factory(name: str) -> type[Executor]:
+    """The executor class registered under `name` in EXECUTORS; a clear error for an unknown name."""
     if name not in EXECUTORS:
         raise StringsBenchError(f"unknown executor {name!r}", hint=f"executors: {', '.join(EXECUTORS)}")
-    return EXECUTORS[name]
+    cls = EXECUTORS[name]
+    if isinstance(cls, str):
+        import importlib
+
+        module, _, attr = cls.partition(":")
+        cls = getattr(importlib.import_module(module), attr)
+    return cls
 
 
 def get_executor(name: str, runner: Callable[[Job], Any], **options) -> Executor:

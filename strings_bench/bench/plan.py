@@ -147,9 +147,9 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         adapter = spec.build(chosen, **m_over)
         m_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
         steps = p.checkpoints(m_scale)
-        fixed = getattr(adapter, "fixed_checkpoints", None)
-        if callable(fixed) and fixed():
-            steps = sorted(int(c) for c in fixed())  # e.g. the ply adapter: the model's own iteration
+        fixed = adapter.fixed_checkpoints() if hasattr(adapter, "fixed_checkpoints") else None  # user factories
+        if fixed:
+            steps = sorted(int(c) for c in fixed)  # e.g. the ply adapter: the model's own iteration
         labels = {it: p.label_of(it, m_scale) for it in steps}
         planned.append((m, chosen, m_over, steps, labels))
     if set(for_all) - taken:

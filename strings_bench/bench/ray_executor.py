@@ -31,6 +31,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from strings_bench.bench.executors import Executor
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_json, atomic_write_text
 
@@ -119,7 +120,7 @@ def run_job_on_worker(runner: Callable, job, token_file: str, env: dict) -> Any:
 
 
 # ---- the driver side ------------------------------------------------------------------------------
-class RayExecutor:
+class RayExecutor(Executor):
     """Runs each job as a Ray task (`submit` returns a concurrent Future of the job's cells).
 
     address: a Ray cluster to join ("auto", "ray://host:10001", "host:6379"); None: RAY_ADDRESS, else

@@ -232,9 +232,9 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
 
     if isinstance(executor, str):
         factory = executor_factory(executor)
-        in_process = getattr(factory, "in_process", True)
+        in_process = factory.in_process
     else:
-        factory, in_process = None, getattr(executor, "in_process", True)
+        factory, in_process = None, executor.in_process
     # Temporary files of runs killed mid-write (kill -9, the OOM killer): finished files are never half-written,
     # but their temporaries would stay for ever. Compiled kernels are numba's own.
     sweep_stale_temps(run_dir)
@@ -274,7 +274,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             pending.append(job)
     errors: list[tuple[Job, BaseException]] = []
     try:
-        if pending and hasattr(ex, "start"):
+        if pending:
             ex.start(run_dir, pending)
         futures = {ex.submit(job): job for job in pending}
         waiting = set(futures)
@@ -295,13 +295,11 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
                     errors.append((job, exc))
                     log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
     except KeyboardInterrupt:
-        if hasattr(ex, "cancel"):
-            ex.cancel()
+        ex.cancel()
         discard_incomplete_cells(run_dir, [j for j in pending if not all(is_finished(run_dir, k) for k in j.cells())])
         raise
     finally:
-        if hasattr(ex, "close"):
-            ex.close()
+        ex.close()
         if bar is not None:
             bar.close()
         write_results_csv(run_dir)
@@ -366,16 +364,12 @@ def run(config: RunConfig | list[str] | None = None, datasets=None, **given) -> 
     methods, datasets and RunConfig fields as keywords: `run(["3dgs"], ["synthetic/books"], schedule="tiny")`."""
     c = RunConfig.of(config, datasets, **given)
     factory = executor_factory(c.executor)
-    if getattr(factory, "in_process", True):  # jobs run here: a missing GPU is refused before any scene is built
+    if factory.in_process:  # jobs run here: a missing GPU is refused before any scene is built
         from strings_bench.engine.trainer import resolve_device
 
         resolve_device(c.device)
-    check = getattr(factory, "check_options", None)
-    if check is not None:  # e.g. Ray not installed, or --device cuda:1: refused before any scene is built
-        check(device=c.device, **(c.executor_options or {}))
-    elif c.executor_options:
-        raise StringsBenchError(f"executor {c.executor!r} takes no options (given: {', '.join(sorted(c.executor_options))})",
-                                hint="--ray-address, --max-retries and --cpus-per-job apply to --executor ray")
+    # e.g. Ray not installed, --device cuda:1, or options the executor does not take: refused before any scene is built
+    factory.check_options(device=c.device, **(c.executor_options or {}))
     if c.ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
         from strings_bench.eval.ocr import parse_engines
 

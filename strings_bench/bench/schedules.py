@@ -16,7 +16,7 @@ from typing import Iterable
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.schedules import SCHEDULE_SCALES
-from strings_bench.reports.results import iteration_label
+from strings_bench.core.schedules import iteration_label
 
 # Schedules. Checkpoints are named by the paper iteration they stand for; the iteration actually
 # trained is round(paper_iteration * steps_scale). DEFAULT_SCHEDULE is the default of `strings-bench run`.

@@ -40,7 +40,7 @@ __all__ = ["CheckpointResult", "Method", "MethodAdapter"]
 class Method(ABC):
     """A method trained by the framework's loop (see the module docstring for the call order).
 
-    Subclasses set `name` and `paper`. The method spec (`methods.registry.MethodSpec`) builds the
+    Subclasses set `name`; a method's citation is its spec's (`MethodSpec.build` sets `paper`). The method spec (`methods.registry.MethodSpec`) builds the
     object from its defaults, the preset and `--set`: with `cls.from_settings(**settings)` when the
     class has it (`GaussianSplatting` does), else `cls(**settings)`; the spec then sets `name` to its
     own. A class may describe its settings with `settings_schema()` (a list of `core.settings.Setting`):
@@ -96,6 +96,10 @@ class Method(ABC):
         """Write the current model (3DGS PLY layout for Gaussian methods)."""
         raise NotImplementedError(f"method {self.name} cannot save its model")
 
+    def fixed_checkpoints(self) -> list[int] | None:
+        """Iterations this method must be evaluated at whatever the schedule says (None: the schedule's)."""
+        return None
+
     def describe(self) -> dict:
         """Name, paper and settings, as stored with every cell (JSON-serialisable)."""
         return {"name": self.name, "paper": self.paper, "settings": dict(getattr(self, "settings", {}))}
@@ -116,6 +120,10 @@ class MethodAdapter(ABC):
     def train(self, scene: "Scene", checkpoints: list[int], downscale: float = 1) -> Iterator[CheckpointResult]:
         """Yield one CheckpointResult per checkpoint, in increasing order; renders are of
         `scene.test_idx` views at `downscale`."""
+
+    def fixed_checkpoints(self) -> list[int] | None:
+        """Iterations to evaluate whatever the schedule says (the `ply` adapter: the model's own); None: the schedule's."""
+        return None
 
     def describe(self) -> dict:
         """Name, paper and settings, as stored with every cell."""

@@ -1,4 +1,4 @@
-"""Schedule scales shared by the runner's presets and every method's presets.
+"""Schedule scales of the run schedules (bench/schedules.py), and how an iteration is labelled (7000 -> 7K).
 
 Every iteration number of a method (checkpoints, densification window, resets, LR schedules) is
 multiplied by the preset's steps_scale; intervals keep at least strategies.base.MIN_SCALED_INTERVAL
@@ -21,6 +21,7 @@ SCHEDULE_SCALES: dict[str, float] = {
 }
 
 
-def schedule_presets() -> dict[str, dict]:
-    """Method presets {name: {"steps_scale": s}} for every schedule."""
-    return {name: {"steps_scale": s} for name, s in SCHEDULE_SCALES.items()}
+def iteration_label(iteration: int) -> str:
+    """How a paper iteration is named everywhere (tables, results.csv, `methods show`): 7000 -> '7K',
+    30000 -> '30K', 350 -> '350'."""
+    return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)

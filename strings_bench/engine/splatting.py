@@ -163,8 +163,7 @@ class GaussianSplatting(Method):
     """
 
     name = "3dgs"
-    paper = ("Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
-             "Rendering (SIGGRAPH 2023)")
+    paper = ""  # the citation is the method spec's (methods/registry.py); MethodSpec.build sets it
     strategy_cls: type[Strategy] = DefaultStrategy
     # A subclass's own settings dataclass (e.g. STRinGS' t1, alpha, beta, gamma); its instance is
     # `self.method_settings`.

@@ -10,10 +10,8 @@ from __future__ import annotations
 from strings_bench.engine.splatting import GaussianSplatting
 from strings_bench.engine.strategies.absgs import AbsGSStrategy
 
-PAPER = "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)"
 
 
 class AbsGS(GaussianSplatting):
     name = "absgs"
-    paper = PAPER
     strategy_cls = AbsGSStrategy

@@ -12,11 +12,8 @@ from __future__ import annotations
 from strings_bench.engine.splatting import GaussianSplatting
 from strings_bench.engine.strategies.edc import EDCStrategy
 
-PAPER = ("Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), "
-         "on AbsGS; code github.com/XiaoBin2001/EDC")
 
 
 class EDCAbsGS(GaussianSplatting):
     name = "edc-absgs"
-    paper = PAPER
     strategy_cls = EDCStrategy

@@ -20,8 +20,6 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.splatting import GaussianSplatting
 from strings_bench.engine.strategies.mcmc import MCMCStrategy
 
-PAPER = ("Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
-         "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)")
 
 
 @dataclass(frozen=True)
@@ -37,7 +35,6 @@ class MCMC(GaussianSplatting):
     """3DGS init with the MCMC release's opacity (config.init_opacity) and scales x init_scale_factor."""
 
     name = "mcmc"
-    paper = PAPER
     strategy_cls = MCMCStrategy
     method_settings_cls = MCMCSettings
 

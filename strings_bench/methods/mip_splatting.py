@@ -15,12 +15,10 @@ from __future__ import annotations
 from strings_bench.engine.splatting import GaussianSplatting
 from strings_bench.engine.strategies.mip import FILTER_KEY, MipStrategy, fold_3d_filter, render_filtered
 
-PAPER = "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)"
 
 
 class MipSplatting(GaussianSplatting):
     name = "mip-splatting"
-    paper = PAPER
     strategy_cls = MipStrategy
 
     def set_model(self, model) -> None:

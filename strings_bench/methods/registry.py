@@ -21,6 +21,7 @@ from importlib.metadata import entry_points
 from typing import Any, Callable
 
 from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.schedules import iteration_label
 from strings_bench.core.settings import Setting, format_settings
 
 log = logging.getLogger(__name__)
@@ -128,11 +129,13 @@ class MethodSpec:
         self.check_keys(settings)
         from_settings = getattr(impl, "from_settings", None)
         obj = from_settings(**settings) if from_settings is not None else impl(**settings)
-        if getattr(obj, "name", None) != self.name:
-            try:
-                obj.name = self.name  # a spec may reuse a class under another name
-            except AttributeError:
-                pass
+        for attr, value in (("name", self.name), ("paper", self.paper)):
+            # a spec may reuse a class under another name; its citation lives on the spec only
+            if value and getattr(obj, attr, None) != value:
+                try:
+                    setattr(obj, attr, value)
+                except AttributeError:
+                    pass
         return obj
 
     def show(self) -> str:
@@ -149,7 +152,7 @@ class MethodSpec:
                 lines.append(f"  {k}: {values}" + (f"  @apply {applies}" if applies else "")
                              + (f"  ({v['@description']})" if "@description" in v else ""))
         for dataset, figures in self.paper_results.items():
-            parts = [f"{what} " + ", ".join(f"{_label(it)} {v:g}" for it, v in sorted(vals.items()))
+            parts = [f"{what} " + ", ".join(f"{iteration_label(it)} {v:g}" for it, v in sorted(vals.items()))
                      for what, vals in figures.items()]
             lines.append(f"paper's results on {dataset}: " + "; ".join(parts))
         schema = self.settings()
@@ -159,10 +162,6 @@ class MethodSpec:
         if schema:
             lines.append(format_settings(schema))
         return "\n".join(lines)
-
-
-def _label(iteration: int) -> str:
-    return f"{iteration // 1000}K" if iteration % 1000 == 0 else str(iteration)
 
 
 # ---- the built-in methods ----------------------------------------------------------------------------

@@ -16,6 +16,7 @@ from typing import Iterable
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
+from strings_bench.core.schedules import iteration_label
 from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
 
 __all__ = [
@@ -35,11 +36,6 @@ CSV_COLUMNS = [
     "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
 ]
-
-
-def iteration_label(iteration: int) -> str:
-    """7000 -> '7K', 30000 -> '30K', 350 -> '350'."""
-    return f"{iteration // 1000}K" if iteration >= 1000 and iteration % 1000 == 0 else str(iteration)
 
 
 _NUMBER = (int, float)

@@ -31,7 +31,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
 
 
 @dataclass(frozen=True)
@@ -105,7 +104,6 @@ class Strings(GaussianSplatting):
     3dgs takes (TrainConfig fields, lr_<group>, DefaultStrategy fields), flat."""
 
     name = "strings"
-    paper = PAPER
     method_settings_cls = StringsSettings
 
     @property
