@@ -306,7 +306,7 @@ def test_edc_selects_on_absolute_gradient_only_and_recovery_prunes_after_reset()
     state = strategy.initialize_state(1.0)
     state.update(grad2d=torch.full((6,), 1.0), grad2d_abs=torch.tensor([4e-4, 3e-4, 3.5e-4, 0, 0, 0]),
                  count=torch.ones(6), max_radii=torch.zeros(6))
-    strategy.refine(model, opt, state, step=600)
+    strategy.densify(model, opt, state, step=600)
     assert len(model) == 6 - 2 + 4  # Gaussians 0 and 2 split, nothing cloned despite the large ordinary gradient
     # recovery pruning at reset + 300 removes opacity < 0.05, and only then
     model.params["opacity_logits"].data[:3] = -4.0  # 0.018
@@ -342,7 +342,7 @@ def test_absgs_clones_on_ordinary_and_splits_on_absolute_gradient():
     state.update(grad2d=torch.tensor([3e-4, 1e-4, 1e-4, 3e-4, 1e-4, 1e-4]),
                  grad2d_abs=torch.tensor([1e-4, 9e-4, 1e-4, 1e-4, 5e-4, 3e-4]),
                  count=torch.ones(6), max_radii=torch.zeros(6))
-    strategy.refine(model, opt, state, step=600)
+    strategy.densify(model, opt, state, step=600)
     # clone 0 (ordinary); not 1 (abs is high but it is small); split 4 only (3 has a high ordinary grad only)
     assert state["last_clone"] == 1 and state["last_split"] == 1
     assert len(model) == 6 + 1 + 1
@@ -390,7 +390,7 @@ def test_absgs_statistic_matches_per_pixel_brute_force_with_the_reference_raster
                            "opacity_logits": leaves[3].detach(), "sh0": leaves[4].detach(), "shN": torch.zeros(n, 0, 3)})
     state = strategy.initialize_state(1.0)
     info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": W, "height": H, "n_cameras": 1}
-    strategy.update_state(model, state, info)
+    strategy._update_state(model, state, info)
     expected = (brute * torch.tensor([W / 2, H / 2], dtype=torch.float64)).norm(dim=1)
     np.testing.assert_allclose(state["grad2d_abs"].double().numpy(), expected.numpy(), rtol=1e-4)
     assert torch.all(state["count"] == 1)

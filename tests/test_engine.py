@@ -209,7 +209,7 @@ def test_default_strategy_clone_split_prune():
     means2d = torch.zeros(6, 2, requires_grad=True)
     means2d.grad = torch.stack([px / (64 / 2), torch.zeros(6)], 1)
     info = {"means2d": means2d, "radii": torch.ones(6, dtype=torch.long), "width": 64, "height": 48}
-    strat.update_state(m, state, info)
+    strat._update_state(m, state, info)
     torch.testing.assert_close(state["grad2d"], px)
     strat.step_post_backward(m, opt, state, step=600, info=info)  # 600: refine step, grads counted twice
     # 0 cloned (small), 2 split into 2 (large), 4 pruned (opacity 0.001)

@@ -17,7 +17,8 @@ hooks (docs/engine.md):
     sh_degree_for_step(step)        -> int                           (default: +1 every 1000 x steps_scale, >= 50 steps)
     strategy_step(step)             -> int                           (step number the strategy sees)
     on_step_start(step)             -> None                          (e.g. switch phase: self.set_model(...))
-    render_raster(view, sh_degree)  -> RasterOutput                  (default: model.render; Mip: through its filter)
+    render_raster(view, sh_degree, model=None) -> RasterOutput       (default: model.render; Mip: through its filter)
+    model_to_render()               -> GaussianModel                 (what checkpoint renders show; Mip: filter folded in)
     checkpoint_extra(step)          -> dict                          (method stats for CheckpointResult.extra)
     extra_state() / load_extra_state(state)                          (a subclass's own resumable state)
 
@@ -322,7 +323,8 @@ class GaussianSplatting(Method):
                                 hint="the SfM model (or the selected subset of points) is empty")
         self.model = model
         self.optimizer = self.make_optimizer(model)
-        self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale)
+        self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale,
+                                                             [self.camera(i) for i in self.train_views()])
 
     def target(self, view_idx: int) -> torch.Tensor:
         """The ground-truth image of a view, (H, W, 3) float32 on the method's device (kept once loaded)."""
@@ -354,10 +356,16 @@ class GaussianSplatting(Method):
             cam = self._cameras[view_idx] = self.scene.camera(view_idx, self.downscale)
         return cam
 
-    def render_raster(self, view_idx: int, sh_degree: int | None = None, **kw):
-        """The rasterizer's full output (colour, alpha, depth, radii, means2d) for a view."""
-        return self.model.render(self.camera(view_idx), self.background, sh_degree=sh_degree,
-                                 backend=self.config.backend, **kw)
+    def render_raster(self, view_idx: int, sh_degree: int | None = None, model: GaussianModel | None = None, **kw):
+        """The rasterizer's full output (colour, alpha, depth, radii, means2d) for a view, of `model`
+        (default: the model being trained)."""
+        model = self.model if model is None else model
+        return model.render(self.camera(view_idx), self.background, sh_degree=sh_degree,
+                            backend=self.config.backend, **kw)
+
+    def model_to_render(self) -> GaussianModel:
+        """The model that checkpoint renders show: the trained one (Mip-Splatting: its 3D filter folded in)."""
+        return self.model
 
     # ---- the protocol ----------------------------------------------------------------------------
     def train_step(self, step: int) -> float:
@@ -420,7 +428,7 @@ class GaussianSplatting(Method):
     @torch.no_grad()
     def render(self, view_idx: int) -> np.ndarray:
         """The current model's (H, W, 3) float32 render of a view, in [0, 1], at the step's SH degree."""
-        out = self.render_raster(view_idx, sh_degree=self.sh_degree_for_step(self.step))
+        out = self.render_raster(view_idx, sh_degree=self.sh_degree_for_step(self.step), model=self.model_to_render())
         return out.color.detach().clamp(0, 1).cpu().numpy().astype(np.float32)
 
     def num_gaussians(self) -> int:

@@ -22,26 +22,21 @@ class MipSplatting(GaussianSplatting):
     strategy_cls = MipStrategy
 
     def set_model(self, model) -> None:
-        super().set_model(model)
-        self.strategy_state["train_cameras"] = [self.camera(i) for i in self.train_views()]
+        super().set_model(model)  # the strategy receives the training cameras in initialize_state
         self.strategy.update_filter(self.model, self.strategy_state)
 
-    def render_raster(self, view_idx, sh_degree=None, **kw):
+    def render_raster(self, view_idx, sh_degree=None, model=None, **kw):
         # the strategy's raster options (the 2D mip filter) apply to every render, checkpoints too
+        model = self.model if model is None else model
         kw = {**self.strategy.get_raster_kwargs(0), **kw}
-        if FILTER_KEY not in self.model.extras:  # a folded model renders as is
-            return super().render_raster(view_idx, sh_degree=sh_degree, **kw)
-        return render_filtered(self.model, self.camera(view_idx), self.background, sh_degree=sh_degree,
+        if FILTER_KEY not in model.extras:  # a folded model renders as is
+            return super().render_raster(view_idx, sh_degree=sh_degree, model=model, **kw)
+        return render_filtered(model, self.camera(view_idx), self.background, sh_degree=sh_degree,
                                backend=self.config.backend, **kw)
 
-    def render(self, view_idx):
+    def model_to_render(self):
         # checkpoint renders are of the folded model, the one a saved PLY holds
-        live = self.model
-        self.model = fold_3d_filter(live)
-        try:
-            return super().render(view_idx)
-        finally:
-            self.model = live
+        return fold_3d_filter(self.model)
 
     def save_model(self, path) -> None:
         from strings_bench.engine.ply import write_ply

@@ -3,7 +3,7 @@
 A strategy is a dataclass whose fields are its settings (flat `--set` keys of the method that uses
 it). `engine.splatting.GaussianSplatting` drives it; per training step (1-based) it calls:
 
-    state = strategy.initialize_state(scene_extent, steps_scale)   # at every set_model(): the initial
+    state = strategy.initialize_state(scene_extent, steps_scale, cameras)  # at every set_model(): the initial
                                                                     # model, and phase switches (STRinGS)
     # train_step(step):
     sstep = method.strategy_step(step)                              # the step the strategy sees
@@ -15,9 +15,12 @@ it). `engine.splatting.GaussianSplatting` drives it; per training step (1-based)
     loss = method.loss(out, gt, view, step) + strategy.loss_terms(model, info, sstep)
     loss.backward(); optimizer.step(row_scale)
     # (the framework evaluates a checkpoint here, before any densification)
-    # refine(step):
+    # method.refine(step):
     strategy.step_post_backward(model, optimizer, state, sstep, info)  # gradients still in .grad:
-    optimizer.zero_grad()                                                # statistics, grow, prune, reset
+    optimizer.zero_grad()                                                # statistics, densify, reset
+
+A strategy's own round of growing and pruning is `densify` (DefaultStrategy); `refine` is the method's
+hook that calls `step_post_backward`.
 
 Iteration numbers in settings are nominal (for a 30 000-step run); `self.at(state, n)` gives the
 actual step for the run's `steps_scale`, `self.every(state, n)` the actual interval (with floors in
@@ -102,8 +105,8 @@ class Strategy:
         ... class PruneUnseen(Strategy):
         ...     prune_every: int = 100  # nominal interval between rounds
         ...
-        ...     def initialize_state(self, scene_extent, steps_scale=1.0):
-        ...         state = super().initialize_state(scene_extent, steps_scale)
+        ...     def initialize_state(self, scene_extent, steps_scale=1.0, cameras=None):
+        ...         state = super().initialize_state(scene_extent, steps_scale, cameras)
         ...         state["seen"] = None  # (N,) bool once the first step ran
         ...         return state
         ...
@@ -134,12 +137,14 @@ class Strategy:
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
+    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
         """A fresh state for a new model (called at every `set_model`, so a phase switch resets it).
 
         Args:
             scene_extent: the scene's extent in world units (`scene.extent`).
             steps_scale: the run's schedule scale (1.0 = the paper's 30 000 steps).
+            cameras: the training views' cameras at the training resolution (Mip-Splatting's 3D
+                filter reads them); unused here.
 
         Returns:
             dict with "scene_extent" and "steps_scale" (floats); subclasses add their entries.

@@ -29,6 +29,10 @@ class DefaultStrategy(Strategy):
     """Vanilla 3DGS adaptive density control (clone, split, prune, opacity reset); see the module
     docstring for the rules and `Strategy` for the interface. Fields are nominal settings.
 
+    A round of densification (`densify`) is made of small steps that a variant overrides alone, as in
+    gsplat's strategies: `_update_state` (the statistics), `_select` (which Gaussians grow), `_grow`
+    (how: clone + split here, EDC's long-axis split), `_prune_mask` (which go), `_reset_opacity`.
+
     State entries added to `Strategy.initialize_state`'s:
         grad2d: (N,) float or None, sum over steps of the screen-space mean-gradient norm (NDC);
         count: (N,) float or None, steps in which each Gaussian was visible;
@@ -66,20 +70,21 @@ class DefaultStrategy(Strategy):
     n_split: int = 2  # children of a split
     max_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
+    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
         """`Strategy.initialize_state` plus empty statistics (grad2d, count, max_radii) and n_refine.
 
         Args:
             scene_extent: the scene's extent in world units.
             steps_scale: the run's schedule scale.
+            cameras: the training cameras (unused here).
         """
-        state = super().initialize_state(scene_extent, steps_scale)
+        state = super().initialize_state(scene_extent, steps_scale, cameras)
         state.update(grad2d=None, count=None, max_radii=None, n_refine=0)
         return state
 
     # ---- hooks ------------------------------------------------------------------------------
     def step_pre_backward(self, model, optimizer, state, step, info) -> None:
-        """Keep the gradient of `info["means2d"]` (when it is in the graph) for `update_state`.
+        """Keep the gradient of `info["means2d"]` (when it is in the graph) for `_update_state`.
 
         Args:
             model, optimizer, state: unused.
@@ -92,7 +97,7 @@ class DefaultStrategy(Strategy):
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
         """Before `refine_stop_iter`: accumulate statistics; every `refine_every` steps after
-        `refine_start_iter` refine; every `reset_every` steps reset opacities.
+        `refine_start_iter` densify; every `reset_every` steps reset opacities.
 
         Args:
             model: the model (changed in place).
@@ -103,16 +108,35 @@ class DefaultStrategy(Strategy):
         """
         if step >= self.at(state, self.refine_stop_iter):
             return
-        self.update_state(model, state, info)
+        self._update_state(model, state, info)
         if step > self.at(state, self.refine_start_iter) and step % self.every(state, self.refine_every) == 0:
-            self.refine(model, optimizer, state, step)
+            self.densify(model, optimizer, state, step)
         if step % self.reset_interval(state, self.reset_every) == 0:
-            ops.reset_opacity(model, optimizer, self.reset_value)
+            self._reset_opacity(model, optimizer, state)
 
-    # ---- pieces (overridable) --------------------------------------------------------------
+    @torch.no_grad()
+    def densify(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
+        """One densification round: `_grow_gs` (when statistics were gathered), `_prune_gs`, then the
+        statistics start again.
+
+        Args:
+            model: the model (changed in place).
+            optimizer: its optimizer.
+            state: this strategy's state.
+            step: the step the strategy sees (for the prune schedule and messages).
+
+        Raises:
+            TrainingError: growth past `max_gaussians`, or a prune that would remove every Gaussian.
+        """
+        if self._has_statistics(state):
+            self._grow_gs(model, optimizer, state, step)
+        self._prune_gs(model, optimizer, state, step)
+        state["n_refine"] += 1
+        self._clear_statistics(state)
+
+    # ---- the steps (overridable) -------------------------------------------------------------
     def screen_grad(self, info: dict) -> torch.Tensor | None:
         """(N, 2) gradient w.r.t. the projected centres, in pixels, or None (no backward through it).
-        AbsGS-style strategies return `info["raster"].absgrad` instead.
 
         Args:
             info: this step's info dict.
@@ -120,7 +144,7 @@ class DefaultStrategy(Strategy):
         return info["means2d"].grad
 
     @torch.no_grad()
-    def update_state(self, model: GaussianModel, state: dict, info: dict) -> None:
+    def _update_state(self, model: GaussianModel, state: dict, info: dict) -> None:
         """Add this step's statistics: for Gaussians with radius > 0, the norm of `screen_grad`
         converted to NDC (x W/2, x H/2), one to count, and the running maximum radius.
 
@@ -137,55 +161,71 @@ class DefaultStrategy(Strategy):
         grad = self.screen_grad(info)
         if grad is None:
             return
-        grad = grad.detach().clone()
-        grad[..., 0] *= info["width"] / 2.0 * info.get("n_cameras", 1)
-        grad[..., 1] *= info["height"] / 2.0 * info.get("n_cameras", 1)
         radii = torch.as_tensor(info["radii"], device=model.device)
         visible = radii > 0
-        state["grad2d"][visible] += grad[visible].norm(dim=-1)
+        state["grad2d"][visible] += ndc_norm(grad, info["width"], info["height"], info.get("n_cameras", 1))[visible]
         state["count"][visible] += 1
         state["max_radii"][visible] = torch.maximum(state["max_radii"][visible], radii[visible].float())
 
+    def _has_statistics(self, state: dict) -> bool:
+        return state["grad2d"] is not None
+
+    def _clear_statistics(self, state: dict) -> None:
+        state["grad2d"] = state["count"] = state["max_radii"] = None
+
+    def _select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(clone mask, split mask): mean gradient >= grow_grad2d, small ones cloned, large ones split."""
+        grads = state["grad2d"] / state["count"].clamp_min(1)
+        is_grad_high = grads >= self.grow_grad2d
+        is_small = model.scales.max(dim=-1).values <= self.grow_scale3d * state["scene_extent"]
+        return is_grad_high & is_small, is_grad_high & ~is_small
+
+    def _grow(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, clone: torch.Tensor,
+              split: torch.Tensor) -> None:
+        """Clone, then split into `n_split` children (scales / (0.8 n)); clones are never split in the same round."""
+        ops.duplicate(model, optimizer, clone, state=state)
+        # Clones are appended after the originals.
+        split = torch.cat([split, torch.zeros(int(clone.sum()), dtype=torch.bool, device=model.device)])
+        ops.split(model, optimizer, split, n_children=self.n_split, state=state)
+
     @torch.no_grad()
-    def refine(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
-        """One densification round: clone small and split large Gaussians whose mean gradient is
-        >= grow_grad2d, prune (opacity, and after screen_prune_after size), clear the statistics.
+    def _grow_gs(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
+        """`_select`, refuse growth past `max_gaussians`, `_grow`, and record what was done."""
+        clone, split = self._select(model, state, step)
+        grow = int(clone.sum()) + int(split.sum()) * (self.n_split - 1)
+        if len(model) + grow > self.max_gaussians:
+            raise TrainingError(f"densification at step {step} would make {len(model) + grow} Gaussians "
+                                f"(more than max_gaussians={self.max_gaussians})",
+                                hint="raise max_gaussians or the gradient threshold(s)")
+        self._grow(model, optimizer, state, clone, split)
+        state["last_clone"], state["last_split"] = int(clone.sum()), int(split.sum())
 
-        Args:
-            model: the model (changed in place).
-            optimizer: its optimizer.
-            state: this strategy's state.
-            step: the step the strategy sees (for the prune schedule and messages).
-
-        Raises:
-            TrainingError: growth past `max_gaussians`, or a prune that would remove every Gaussian.
-        """
-        extent = state["scene_extent"]
-        if state["grad2d"] is not None:
-            grads = state["grad2d"] / state["count"].clamp_min(1)
-            is_grad_high = grads >= self.grow_grad2d
-            is_small = model.scales.max(dim=-1).values <= self.grow_scale3d * extent
-            clone = is_grad_high & is_small
-            split = is_grad_high & ~is_small
-            grow = int(clone.sum()) + int(split.sum()) * (self.n_split - 1)
-            if len(model) + grow > self.max_gaussians:
-                raise TrainingError(f"densification at step {step} would make {len(model) + grow} Gaussians "
-                                    f"(more than max_gaussians={self.max_gaussians})",
-                                    hint="raise max_gaussians or the gradient threshold")
-            ops.duplicate(model, optimizer, clone, state=state)
-            # Clones are appended after the originals; they are never split in the same round.
-            split = torch.cat([split, torch.zeros(int(clone.sum()), dtype=torch.bool, device=model.device)])
-            ops.split(model, optimizer, split, n_children=self.n_split, state=state)
-            state["last_clone"], state["last_split"] = int(clone.sum()), int(split.sum())
+    def _prune_mask(self, model: GaussianModel, state: dict, step: int) -> torch.Tensor:
+        """Opacity < prune_opa; after screen_prune_after also world scale > prune_scale3d x extent and
+        screen radius > prune_screen_px."""
         prune = model.opacities < self.prune_opa
         if step > self.at(state, self.screen_prune_after):
-            prune |= model.scales.max(dim=-1).values > self.prune_scale3d * extent
+            prune |= model.scales.max(dim=-1).values > self.prune_scale3d * state["scene_extent"]
             if state["max_radii"] is not None:
                 prune |= state["max_radii"] > self.prune_screen_px
+        return prune
+
+    @torch.no_grad()
+    def _prune_gs(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
+        prune = self._prune_mask(model, state, step)
         if prune.all():
             raise TrainingError(f"pruning at step {step} would remove every Gaussian",
                                 hint="training diverged or the scene is empty; check the input images and poses")
         ops.remove(model, optimizer, prune, state=state)
         state["last_prune"] = int(prune.sum())
-        state["n_refine"] += 1
-        state["grad2d"] = state["count"] = state["max_radii"] = None
+
+    def _reset_opacity(self, model: GaussianModel, optimizer: GaussianAdam, state: dict) -> None:
+        ops.reset_opacity(model, optimizer, self.reset_value)
+
+
+def ndc_norm(grad_px: torch.Tensor, width: int, height: int, n_cameras: int = 1) -> torch.Tensor:
+    """Norm of a (N, 2) screen-space gradient in pixel units, converted to NDC units (3DGS convention)."""
+    g = grad_px.detach().clone()
+    g[..., 0] *= width / 2.0 * n_cameras
+    g[..., 1] *= height / 2.0 * n_cameras
+    return g.norm(dim=-1)

@@ -77,7 +77,7 @@ class EDCStrategy(AbsGSStrategy):
     # is at least this many actual steps (and ends before the next reset). No effect at steps_scale 1.
     recovery_min_steps: int = 100  # minimum recovery window at scaled schedules
     release_schedule: bool = False  # use the public code's schedule instead of the paper's
-    def select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def _select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
         count = state["count"]
         grads_abs = state["grad2d_abs"] / count.clamp_min(1)
         threshold = self.grow_grad2d_abs
@@ -90,7 +90,7 @@ class EDCStrategy(AbsGSStrategy):
         split = grads_abs >= threshold
         return torch.zeros_like(split), split
 
-    def grow(self, model, optimizer, state, step, clone, split) -> None:
+    def _grow(self, model, optimizer, state, clone, split) -> None:
         long_axis_split(model, optimizer, split, state, self.split_offset, self.other_axes_factor, self.opacity_factor)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:

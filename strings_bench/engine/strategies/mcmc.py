@@ -132,8 +132,8 @@ class MCMCStrategy(Strategy):
         if not 1 <= self.n_max <= 200:
             raise StringsBenchError(f"MCMC n_max must be in [1, 200], got {self.n_max}")
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale)
+    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, steps_scale, cameras)
         # The seeded generator is made at first use, on the model's device (a CPU generator cannot
         # drive torch.multinomial / torch.randn on CUDA tensors).
         state.update(cap=self.cap_max, generator=None, n_relocated=0, n_added=0)

@@ -152,8 +152,9 @@ def reset_filtered_opacity(model: GaussianModel, optimizer: GaussianAdam | None,
 class MipStrategy(DefaultStrategy):
     """Vanilla 3DGS densification plus the 3D filter's upkeep and the 2D mip filter.
 
-    The training cameras come through `state["train_cameras"]` (set by the Mip-Splatting trainer,
-    `methods.mip_splatting.MipTrainer`, which also renders through `render_filtered`).
+    The training cameras come through `initialize_state(..., cameras)` and are kept in the state
+    (`state["train_cameras"]`); the method (`methods.mip_splatting.MipSplatting`) renders through
+    `render_filtered`.
     """
 
     mip_2d: bool = True           # the rasterizer's 2D mip filter instead of the +0.3 px dilation
@@ -164,21 +165,29 @@ class MipStrategy(DefaultStrategy):
     def get_raster_kwargs(self, step: int) -> dict:
         return {"mip_filter": True} if self.mip_2d else {}
 
+    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, steps_scale, cameras)
+        state["train_cameras"] = list(cameras or [])
+        return state
+
     def update_filter(self, model: GaussianModel, state: dict) -> None:
         cams = state.get("train_cameras")
         if not cams:
             raise StringsBenchError("MipStrategy has no training cameras in its state",
-                                    hint="train Mip-Splatting through methods.mip_splatting.MipTrainer")
+                                    hint="pass the training cameras to initialize_state (GaussianSplatting.set_model does)")
         update_filter(model, cams, self.near, self.frustum_margin, self.sigma_scale)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:
-        if step >= self.at(state, self.refine_stop_iter):
+        if step >= self.at(state, self.refine_stop_iter):  # after densification: the 3D filter's upkeep only
             if step % self.every(state, self.filter_every) == 0:
                 self.update_filter(model, state)
             return
-        self.update_state(model, state, info)
-        if step > self.at(state, self.refine_start_iter) and step % self.every(state, self.refine_every) == 0:
-            self.refine(model, optimizer, state, step)
-            self.update_filter(model, state)
-        if step % self.reset_interval(state, self.reset_every) == 0:
-            reset_filtered_opacity(model, optimizer, self.reset_value)
+        super().step_post_backward(model, optimizer, state, step, info)
+
+    @torch.no_grad()
+    def densify(self, model, optimizer, state, step) -> None:
+        super().densify(model, optimizer, state, step)
+        self.update_filter(model, state)  # at every densification step (REFERENCE §4)
+
+    def _reset_opacity(self, model, optimizer, state) -> None:
+        reset_filtered_opacity(model, optimizer, self.reset_value)  # the filtered opacity is what is reset

@@ -106,6 +106,20 @@ class Strings(GaussianSplatting):
     name = "strings"
     method_settings_cls = StringsSettings
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Made by prepare() (masks and Algorithm 1, before training); declared here with their types.
+        self.masks: dict[int, np.ndarray] = {}  # train view -> dilated text mask
+        self.segmentation = None  # segmentation.TextSegmentation of the SfM points
+        self.masks_segmentation_seconds = 0.0
+        self.t1 = 0  # phase 1's last step at this schedule
+        self.n_max = 15  # Eq. 1's cap in effect (resolve_n_max)
+        self.text_views: list[int] = []  # train views with text: phase 1 trains on these
+        self.fallback: str | None = None  # why STRinGS ran as 3DGS ("no_text_points", ...), or None
+        self.phase = 1
+        self.densify_stats: dict = {}
+        self._mask_tensors: dict[int, torch.Tensor] = {}
+
     @property
     def st(self) -> StringsSettings:
         return self.method_settings
@@ -205,19 +219,12 @@ class Strings(GaussianSplatting):
         return self._mask_tensors[view_idx]
 
     # ---- learning rates ---------------------------------------------------------------------------
-    def base_position_lr(self, step: float) -> float:
-        from strings_bench.engine.optim import exponential_lr
-
-        lrs = self.config.lrs
-        return exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
-                              self.at(self.config.position_lr_steps))
-
     def position_lr(self, step: int) -> float:
         if self.fallback:
             return super().position_lr(step)
         if self.in_phase1(step):
-            return self.st.phase1_position_lr * self.base_position_lr(step)
-        return self.base_position_lr(step - self.t1)  # eta_opt: the 3DGS schedule shifted by T1
+            return self.st.phase1_position_lr * super().position_lr(step)
+        return super().position_lr(step - self.t1)  # eta_opt: the 3DGS schedule shifted by T1
 
     def lr_factors(self, step: int) -> tuple[float, float]:
         """(eta_r for text, eta_r for non-text) at actual (global) step `step` (phase 2). With
