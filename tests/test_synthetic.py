@@ -214,7 +214,7 @@ def test_unknown_scene_and_bad_settings_are_clear_errors():
 def test_card_registration():
     card = get_dataset("synthetic")
     assert [s.name for s in card.scenes] == list(SCENE_NAMES) == ["books", "extinguisher", "globe", "chemicals", "shelf"]
-    assert all(s.settings.get("n_max") == 15 for s in card.scenes)
+    assert all("n_max" not in s.settings for s in card.scenes)  # STRinGS' N_max is its spec's (default 15 here)
     assert card.locate is not None
 
 
@@ -223,7 +223,7 @@ def test_resolve_scene_builds_default_scene(monkeypatch, tmp_path):
     monkeypatch.setattr("strings_bench.datasets.synthetic.build_scene",
                         lambda scene, settings, progress=True: calls.append((scene, settings)) or tmp_path)
     refs = resolve_scenes(["synthetic/globe"])
-    assert refs[0].path == tmp_path and refs[0].settings == {"n_max": 15}
+    assert refs[0].path == tmp_path and refs[0].settings == {}
     assert calls[0][0] == "globe" and calls[0][1] == settings_with()
 
 
