@@ -61,7 +61,7 @@ def test_broken_method_fails_naming_the_check(cls, check, reason):
 
 def test_runner_check_fails_on_nan_renders():
     results = _by_check(check_method(_broken(broken_methods.NaNRender), devices=["cpu"], runner=True))
-    assert results["runner"].failed and "NaN/Inf pixels" in results["runner"].detail
+    assert results["runner"].failed and "NaN/Inf value(s)" in results["runner"].detail
 
 
 def test_dependent_checks_are_skipped_when_the_method_does_not_build():

@@ -4,7 +4,7 @@ On a tiny embedded scene (the synthetic `books` scene at 96x72 pixels, 8 views: 
 1 test view, built into the cache in about a second) the check runs, in order:
 
 - `settings`: the method's settings are listable (`settings_schema()`: names, defaults, meanings);
-- `builds`: the spec builds the method (its `tiny` preset where it has one, then `--set` values);
+- `builds`: the spec builds the method (at the `tiny` schedule, then `--set` values);
 - `trains (cpu)`: the framework's loop (`engine.trainer.Trainer`) trains it `CHECK_STEPS` steps on
   the CPU, or an adapter yields its checkpoint;
 - `renders (cpu)`: every test view is rendered, (H, W, 3) at the camera's size, finite, within
@@ -29,7 +29,6 @@ build cannot train) is skipped, naming the check it needs.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import logging
@@ -175,30 +174,20 @@ def first_difference(a: Any, b: Any, path: str = "state") -> str | None:
 
 
 def check_renders(renders: dict, scene, downscale: float = 1.0) -> str:
-    """Raise CheckFailed unless every test view is rendered at its camera's size, finite, in [0, 1]
-    and not constant; return a summary."""
+    """Raise CheckFailed unless every test view is rendered as the evaluation accepts it (the protocol's
+    own check: `eval.protocol.render_problems`) and, stricter for a conformance check, as floats within
+    [0, 1] and not constant; return a summary."""
+    from strings_bench.eval.protocol import render_problems
+
     names = [scene.names[i] for i in scene.test_idx]
-    missing = [n for n in names if n not in renders]
-    if missing:
-        raise CheckFailed(f"no render of test view(s) {', '.join(missing)} (got {', '.join(map(str, renders)) or 'none'})")
-    lo, hi = math.inf, -math.inf
-    for i, n in zip(scene.test_idx, names):
-        r = np.asarray(renders[n])
-        cam = scene.camera(i, downscale)
-        if r.shape != (cam.height, cam.width, 3):
-            raise CheckFailed(f"render of {n} has shape {r.shape}, expected {(cam.height, cam.width, 3)} (H, W, 3)")
-        if r.dtype.kind != "f":
-            raise CheckFailed(f"render of {n} has dtype {r.dtype}, expected float values in [0, 1]")
-        bad = int((~np.isfinite(r)).sum())
-        if bad:
-            raise CheckFailed(f"render of {n} has {bad} NaN/Inf value(s) of {r.size}")
-        if r.min() < -1e-6 or r.max() > 1 + 1e-6:
-            raise CheckFailed(f"render of {n} spans [{r.min():.4g}, {r.max():.4g}], outside [0, 1]")
-        if np.ptp(r) < CONSTANT_PTP:
-            raise CheckFailed(f"render of {n} is constant ({float(r.flat[0]):.4g} everywhere)")
-        lo, hi = min(lo, float(r.min())), max(hi, float(r.max()))
-    return f"{len(names)} test view(s) at {scene.camera(scene.test_idx[0], downscale).width}x" \
-           f"{scene.camera(scene.test_idx[0], downscale).height}, values in [{lo:.3f}, {hi:.3f}]"
+    shapes = {scene.names[i]: (scene.camera(i, downscale).height, scene.camera(i, downscale).width, 3) for i in scene.test_idx}
+    problems = render_problems(renders, shapes, strict=True, constant_ptp=CONSTANT_PTP)
+    if problems:
+        raise CheckFailed(problems[0])
+    lo = min(float(np.asarray(renders[n]).min()) for n in names)
+    hi = max(float(np.asarray(renders[n]).max()) for n in names)
+    cam = scene.camera(scene.test_idx[0], downscale)
+    return f"{len(names)} test view(s) at {cam.width}x{cam.height}, values in [{lo:.3f}, {hi:.3f}]"
 
 
 # ---- stand-in inputs of the built-in adapters -------------------------------------------------------
@@ -232,31 +221,212 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
     return {}, ""
 
 
-@contextlib.contextmanager
-def _registered(spec):
-    """`spec` registered under its name for the duration (the runner looks methods up by name)."""
-    from strings_bench.methods import registry
+# ---- the checks ------------------------------------------------------------------------------------
+@dataclass
+class CheckContext:
+    """What the checks of one method share: its spec, the tiny scene, a work folder, and what earlier
+    checks produced (the settings used, the trained methods, their renders and saved states)."""
 
-    registry.list_methods()
-    previous = registry._METHODS.get(spec.name)
-    registry.register_method(spec)
+    spec: Any
+    overrides: dict
+    scene: Any
+    scene_path: Path
+    work: Path
+    settings: dict = dataclasses.field(default_factory=dict)
+    note: str = ""
+    adapter: bool = False
+    renders: dict = dataclasses.field(default_factory=dict)  # device -> renders
+    trained: dict = dataclasses.field(default_factory=dict)  # device -> trained method
+    states: dict = dataclasses.field(default_factory=dict)  # device -> saved training state
+    reloaded: Any = None
+
+    def build(self) -> Any:
+        obj = self.spec.build(schedule=CHECK_PRESET, **self.settings)
+        if not isinstance(obj, (Method, MethodAdapter)):
+            raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
+                              "(strings_bench.core.method)")
+        obj.progress = False
+        return obj
+
+
+def check_settings(ctx: CheckContext) -> str:
+    """The settings are listable: names, defaults and meanings, none twice, every key valid."""
+    from strings_bench.core.settings import format_settings
+
+    schema = ctx.spec.settings()
+    if schema is None:
+        raise CheckFailed("the implementation has no settings_schema(): `methods show` cannot list its settings")
+    if not schema:
+        return "no settings"
+    names = [s.name for s in schema]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise CheckFailed(f"setting(s) listed twice: {', '.join(dup)}")
+    no_help = [s.name for s in schema if not str(s.help or "").strip()]
+    if no_help:
+        raise CheckFailed(f"setting(s) without a meaning: {', '.join(no_help[:8])}" + (" ..." if len(no_help) > 8 else ""))
+    format_settings(schema)
+    ctx.spec.check_keys(ctx.spec.resolve(schedule=CHECK_PRESET))
+    return f"{len(schema)} settings, each with a default and a meaning"
+
+
+def check_builds(ctx: CheckContext) -> str:
+    """The spec builds a Method or a MethodAdapter, with stand-in inputs where a built-in adapter needs one."""
+    extra, ctx.note = _stand_in_settings(ctx.spec, ctx.overrides, ctx.scene_path, ctx.work)
+    ctx.settings = {**extra, **ctx.overrides}
+    obj = ctx.build()
+    json.dumps(obj.describe(), default=str)
+    ctx.adapter = isinstance(obj, MethodAdapter)
+    kind = "Method (trained by the framework's loop)" if isinstance(obj, Method) else "MethodAdapter"
+    return f"{type(obj).__name__}: a {kind}" + (f"; {ctx.note}" if ctx.note else "")
+
+
+def check_trains(ctx: CheckContext, device: str) -> str:
+    """The framework's loop trains it CHECK_STEPS steps on `device` (an adapter yields its checkpoints)."""
+    obj = ctx.build()
+    if isinstance(obj, MethodAdapter):
+        its = [int(i) for i in (obj.fixed_checkpoints() or [CHECK_STEPS])]
+        out = list(obj.train(ctx.scene, its, 1.0))
+        got = [r.iteration for r in out]
+        if got != sorted(its):
+            raise CheckFailed(f"train() yielded checkpoint(s) {got}, expected {sorted(its)}")
+        ctx.renders[device] = out[-1].renders
+        return f"adapter yielded checkpoint {got[-1]}"
+    from strings_bench.engine.trainer import SaveEvery, Trainer
+
+    state_path = ctx.work / f"state-{device}.pt"
+    state_path.unlink(missing_ok=True)
+    trainer = Trainer(obj, ctx.scene, [CHECK_STEPS], device=device, progress=False, state_path=state_path,
+                      save_every=SaveEvery.parse("off"))
+    out = list(trainer.train())
+    if len(out) != 1 or out[0].iteration != CHECK_STEPS:
+        raise CheckFailed(f"the loop yielded {[r.iteration for r in out]}, expected [{CHECK_STEPS}]")
+    ctx.renders[device], ctx.trained[device], ctx.states[device] = out[0].renders, obj, state_path
+    loss = getattr(obj, "last_loss", None)  # a Method may keep no loss
+    return (f"{CHECK_STEPS} steps on {device}, {obj.num_gaussians()} Gaussians"
+            + (f", last loss {loss:.4f}" if isinstance(loss, float) else ""))
+
+
+def check_save_load(ctx: CheckContext) -> str:
+    """The saved training state, loaded into a fresh method through the loop's resume path, renders the same."""
+    from strings_bench.engine.trainer import SaveEvery, Trainer
+
+    scene = ctx.scene
+    first = ctx.trained["cpu"]
+    before = {scene.names[i]: np.asarray(first.render(i)) for i in scene.test_idx}
+    second = ctx.build()
+    trainer = Trainer(second, scene, [CHECK_STEPS], device="cpu", progress=False, state_path=ctx.states["cpu"],
+                      save_every=SaveEvery.parse("off"))
+    trainer_log = logging.getLogger("strings_bench.engine.trainer")
+    level = trainer_log.level
+    trainer_log.setLevel(logging.WARNING)  # its "resuming from the training state" is this check's point
     try:
-        yield
+        list(trainer.train())  # the resume path: set up, load the saved state, nothing left to train
     finally:
-        if previous is None:
-            registry._METHODS.pop(spec.name, None)
-        else:
-            registry._METHODS[spec.name] = previous
+        trainer_log.setLevel(level)
+    if trainer.resumed_from_step != CHECK_STEPS:
+        raise CheckFailed(f"the loop resumed from step {trainer.resumed_from_step}, expected {CHECK_STEPS}")
+    ctx.reloaded = second
+    worst, where = 0.0, ""
+    for i in scene.test_idx:
+        n = scene.names[i]
+        after = np.asarray(second.render(i))
+        if after.shape != before[n].shape:
+            raise CheckFailed(f"render of {n} after loading is {after.shape}, before {before[n].shape}")
+        same_nan = np.isnan(after) & np.isnan(before[n])  # NaN reproduced is reproduced (the renders check judges it)
+        delta = np.abs(after.astype(np.float64) - before[n].astype(np.float64))
+        diff = float(np.max(np.where(same_nan, 0.0, delta)))
+        if not diff <= worst:
+            worst, where = diff, n
+    if not worst <= RENDER_TOLERANCE:
+        raise CheckFailed(f"render of {where} after save -> load differs by up to {worst:.3g} "
+                          f"(> {RENDER_TOLERANCE:g}): state_dict/load_state_dict lose something")
+    return f"renders reproduced, max difference {worst:.2g} (<= {RENDER_TOLERANCE:g})"
 
 
-# ---- the check --------------------------------------------------------------------------------------
+def check_resave(ctx: CheckContext) -> str:
+    """The reloaded method's state_dict() is identical to the saved one."""
+    import torch
+
+    saved = torch.load(ctx.states["cpu"], map_location="cpu", weights_only=False)["method"]
+    diff = first_difference(saved, ctx.reloaded.state_dict())
+    if diff:
+        raise CheckFailed(f"the reloaded method's state_dict() differs from the saved one at {diff}")
+    return "state_dict() after loading is identical to the saved state"
+
+
+def check_runner(ctx: CheckContext, ocr: str, with_lpips: bool) -> str:
+    """A one-cell run through the real runner: training, metrics, OCR, result.json, results.csv."""
+    from strings_bench.bench.runner import execute, plan_run
+    from strings_bench.methods.registry import registered
+    from strings_bench.reports.results import RESULTS_CSV, iter_cells
+
+    spec, run_dir = ctx.spec, ctx.work / "run"
+    with registered(spec):
+        plan = plan_run([spec.name], [str(ctx.scene_path)], run_dir=run_dir, schedule=CHECK_PRESET, ocr=ocr,
+                        method_overrides={spec.name: ctx.settings} if ctx.settings else None,
+                        checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off")
+        execute(plan, progress=False, write_report=False, with_lpips=with_lpips)
+    cells = [c for c in iter_cells(run_dir) if c.get("method") == spec.name]
+    if len(cells) != len(plan.cells):
+        raise CheckFailed(f"the run wrote {len(cells)} cell(s), planned {len(plan.cells)}")
+    if not (run_dir / RESULTS_CSV).is_file():
+        raise CheckFailed(f"the run wrote no {RESULTS_CSV}")
+    cell = cells[-1]
+    psnr = (cell.get("metrics") or {}).get("psnr")
+    try:
+        psnr = float(psnr)  # result.json writes an exact render's infinite PSNR as "inf"
+    except (TypeError, ValueError):
+        psnr = math.nan
+    if math.isnan(psnr):
+        raise CheckFailed(f"the cell's PSNR is {(cell.get('metrics') or {}).get('psnr')!r}")
+    cer = (cell.get("cer") or {}).get("cer")
+    engine = ((cell.get("ocr") or {}).get("backend") or {}).get("name", ocr)
+    return (f"{len(cells)} cell(s): PSNR {psnr:.2f} dB, OCR-CER {'n/a' if cer is None else f'{cer:.3f}'} "
+            f"({engine}), evaluation {cell['timings']['eval_seconds']:.1f} s")
+
+
+class _Results:
+    """The results so far: runs a check when the checks it needs passed, names a failure, never raises."""
+
+    def __init__(self, on_result: Callable[[CheckResult], None] | None):
+        self.results: list[CheckResult] = []
+        self.passed: set[str] = set()
+        self.on_result = on_result
+
+    def record(self, res: CheckResult) -> CheckResult:
+        self.results.append(res)
+        if res.status == PASS:
+            self.passed.add(res.check)
+        if self.on_result is not None:
+            self.on_result(res)
+        return res
+
+    def run(self, name: str, needs: tuple[str, ...], fn: Callable[[], str]) -> None:
+        missing = [n for n in needs if n not in self.passed]
+        if missing:
+            self.record(CheckResult(name, SKIP, f"needs {', '.join(missing)} to pass"))
+            return
+        t0 = time.perf_counter()
+        try:
+            self.record(CheckResult(name, PASS, fn() or "", time.perf_counter() - t0))
+        except CheckFailed as exc:
+            self.record(CheckResult(name, FAIL, str(exc), time.perf_counter() - t0))
+        except StringsBenchError as exc:
+            self.record(CheckResult(name, FAIL, exc.message + (f" (hint: {exc.hint})" if exc.hint else ""),
+                                    time.perf_counter() - t0))
+        except Exception as exc:  # noqa: BLE001 - a method's own bug is a failed check, named, not a traceback
+            log.debug("check %s failed", name, exc_info=True)
+            self.record(CheckResult(name, FAIL, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0))
+
+
 def check_method(method: str | Any, overrides: dict | None = None, *, devices: list[str] | None = None,
                  runner: bool = True, ocr: str = "rapidocr", with_lpips: bool = True, work_dir: str | Path | None = None,
                  on_result: Callable[[CheckResult], None] | None = None) -> list[CheckResult]:
     """Run every check on `method` (a registered name, `module:Class`, or a `MethodSpec`).
 
     Args:
-        overrides: settings over the spec's defaults and its tiny preset (`--set`).
+        overrides: settings over the spec's defaults at the tiny schedule (`--set`).
         devices: where to train (default: "cpu", plus "cuda" when torch sees a GPU).
         runner: include the one-cell run through the real runner (the slowest check).
         ocr: the OCR engine(s) of that run (`run --ocr`).
@@ -270,226 +440,45 @@ def check_method(method: str | Any, overrides: dict | None = None, *, devices: l
     import torch
 
     from strings_bench.methods.registry import MethodSpec
+    from strings_bench.scene.scene import Scene
 
-    overrides = dict(overrides or {})
     if devices is None:
         devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    results: list[CheckResult] = []
-    passed: set[str] = set()
-
-    def record(res: CheckResult) -> CheckResult:
-        results.append(res)
-        if res.status == PASS:
-            passed.add(res.check)
-        if on_result is not None:
-            on_result(res)
-        return res
-
-    def run_check(name: str, needs: tuple[str, ...], fn: Callable[[], str]) -> None:
-        missing = [n for n in needs if n not in passed]
-        if missing:
-            record(CheckResult(name, SKIP, f"needs {', '.join(missing)} to pass"))
-            return
-        t0 = time.perf_counter()
-        try:
-            detail = fn()
-            record(CheckResult(name, PASS, detail or "", time.perf_counter() - t0))
-        except CheckFailed as exc:
-            record(CheckResult(name, FAIL, str(exc), time.perf_counter() - t0))
-        except StringsBenchError as exc:
-            msg = exc.message if hasattr(exc, "message") else str(exc)
-            hint = getattr(exc, "hint", None)
-            record(CheckResult(name, FAIL, msg + (f" (hint: {hint})" if hint else ""), time.perf_counter() - t0))
-        except Exception as exc:  # noqa: BLE001 - a method's own bug is a failed check, named, not a traceback
-            log.debug("check %s failed", name, exc_info=True)
-            record(CheckResult(name, FAIL, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0))
-
+    out = _Results(on_result)
     try:
         spec = method if isinstance(method, MethodSpec) else resolve_spec(str(method))
     except StringsBenchError as exc:
-        record(CheckResult("builds", FAIL, str(exc)))
-        return results
-
+        out.record(CheckResult("builds", FAIL, str(exc)))
+        return out.results
     tmp = tempfile.TemporaryDirectory(prefix="strings-bench-check-") if work_dir is None else None
     work = Path(tmp.name if tmp is not None else work_dir)
     work.mkdir(parents=True, exist_ok=True)
-    state: dict[str, Any] = {}
     try:
-        from strings_bench.scene.scene import Scene
-
         scene_path = tiny_scene()
-        scene = Scene.load(scene_path)
-
-        def settings_check() -> str:
-            from strings_bench.core.settings import format_settings
-
-            schema = spec.settings()
-            if schema is None:
-                raise CheckFailed("the implementation has no settings_schema(): `methods show` cannot list its settings")
-            if not schema:
-                return "no settings"
-            names = [s.name for s in schema]
-            dup = sorted({n for n in names if names.count(n) > 1})
-            if dup:
-                raise CheckFailed(f"setting(s) listed twice: {', '.join(dup)}")
-            no_help = [s.name for s in schema if not str(s.help or "").strip()]
-            if no_help:
-                raise CheckFailed(f"setting(s) without a meaning: {', '.join(no_help[:8])}"
-                                  + (" ..." if len(no_help) > 8 else ""))
-            format_settings(schema)
-            spec.check_keys(spec.resolve(schedule=CHECK_PRESET))
-            return f"{len(schema)} settings, each with a default and a meaning"
-
-        run_check("settings", (), settings_check)
-
-        def build() -> Any:
-            obj = spec.build(schedule=CHECK_PRESET, **state["settings"])
-            if not isinstance(obj, (Method, MethodAdapter)):
-                raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
-                                  "(strings_bench.core.method)")
-            obj.progress = False
-            return obj
-
-        def builds() -> str:
-            extra, note = _stand_in_settings(spec, overrides, scene_path, work)
-            state["settings"] = {**extra, **overrides}
-            state["note"] = note
-            obj = build()
-            json.dumps(obj.describe(), default=str)
-            state["adapter"] = isinstance(obj, MethodAdapter)
-            kind = "Method (trained by the framework's loop)" if isinstance(obj, Method) else "MethodAdapter"
-            return f"{type(obj).__name__}: a {kind}" + (f"; {note}" if note else "")
-
-        run_check("builds", (), builds)
-
-        def trains(device: str) -> Callable[[], str]:
-            def fn() -> str:
-                obj = build()
-                if isinstance(obj, MethodAdapter):
-                    fixed = getattr(obj, "fixed_checkpoints", None)
-                    its = [int(i) for i in fixed()] if callable(fixed) and fixed() else [CHECK_STEPS]
-                    out = list(obj.train(scene, its, 1.0))
-                    got = [r.iteration for r in out]
-                    if got != sorted(its):
-                        raise CheckFailed(f"train() yielded checkpoint(s) {got}, expected {sorted(its)}")
-                    state[f"renders {device}"] = out[-1].renders
-                    return f"adapter yielded checkpoint {got[-1]}"
-                from strings_bench.engine.trainer import SaveEvery, Trainer
-
-                state_path = work / f"state-{device}.pt"
-                state_path.unlink(missing_ok=True)
-                trainer = Trainer(obj, scene, [CHECK_STEPS], device=device, progress=False, state_path=state_path,
-                                  save_every=SaveEvery.parse("off"))
-                out = list(trainer.train())
-                if len(out) != 1 or out[0].iteration != CHECK_STEPS:
-                    raise CheckFailed(f"the loop yielded {[r.iteration for r in out]}, expected [{CHECK_STEPS}]")
-                state[f"renders {device}"] = out[0].renders
-                state[f"method {device}"] = obj
-                state[f"state {device}"] = state_path
-                loss = getattr(obj, "last_loss", None)
-                return (f"{CHECK_STEPS} steps on {device}, {obj.num_gaussians()} Gaussians"
-                        + (f", last loss {loss:.4f}" if isinstance(loss, float) else ""))
-            return fn
-
-        def renders(device: str) -> Callable[[], str]:
-            return lambda: check_renders(state[f"renders {device}"], scene)
-
-        adapter_skip = "an adapter: the suite keeps no training state of it"
+        ctx = CheckContext(spec, dict(overrides or {}), Scene.load(scene_path), scene_path, work)
+        out.run("settings", (), lambda: check_settings(ctx))
+        out.run("builds", (), lambda: check_builds(ctx))
         for device in devices:
-            if device != "cpu" and state.get("adapter"):
-                record(CheckResult(f"trains ({device})", SKIP, "an adapter: it picks its own device"))
+            if device != "cpu" and ctx.adapter:
+                out.record(CheckResult(f"trains ({device})", SKIP, "an adapter: it picks its own device"))
                 continue
-            run_check(f"trains ({device})", ("builds",), trains(device))
-            run_check(f"renders ({device})", (f"trains ({device})",), renders(device))
+            out.run(f"trains ({device})", ("builds",), lambda d=device: check_trains(ctx, d))
+            out.run(f"renders ({device})", (f"trains ({device})",), lambda d=device: check_renders(ctx.renders[d], ctx.scene))
             if device != "cpu":
                 continue
-
-            def save_load() -> str:
-                from strings_bench.engine.trainer import SaveEvery, Trainer
-
-                first = state["method cpu"]
-                before = {scene.names[i]: np.asarray(first.render(i)) for i in scene.test_idx}
-                second = build()
-                trainer = Trainer(second, scene, [CHECK_STEPS], device="cpu", progress=False,
-                                  state_path=state["state cpu"], save_every=SaveEvery.parse("off"))
-                trainer_log = logging.getLogger("strings_bench.engine.trainer")
-                level = trainer_log.level
-                trainer_log.setLevel(logging.WARNING)  # its "resuming from the training state" is this check's point
-                try:
-                    list(trainer.train())  # the resume path: set up, load the saved state, nothing left to train
-                finally:
-                    trainer_log.setLevel(level)
-                if trainer.resumed_from_step != CHECK_STEPS:
-                    raise CheckFailed(f"the loop resumed from step {trainer.resumed_from_step}, expected {CHECK_STEPS}")
-                state["reloaded"] = second
-                worst, where = 0.0, ""
-                for i in scene.test_idx:
-                    n = scene.names[i]
-                    after = np.asarray(second.render(i))
-                    if after.shape != before[n].shape:
-                        raise CheckFailed(f"render of {n} after loading is {after.shape}, before {before[n].shape}")
-                    same_nan = np.isnan(after) & np.isnan(before[n])  # NaN reproduced is reproduced (the renders check judges it)
-                    delta = np.abs(after.astype(np.float64) - before[n].astype(np.float64))
-                    diff = float(np.max(np.where(same_nan, 0.0, delta)))
-                    if not diff <= worst:
-                        worst, where = diff, n
-                if not worst <= RENDER_TOLERANCE:
-                    raise CheckFailed(f"render of {where} after save -> load differs by up to {worst:.3g} "
-                                      f"(> {RENDER_TOLERANCE:g}): state_dict/load_state_dict lose something")
-                return f"renders reproduced, max difference {worst:.2g} (<= {RENDER_TOLERANCE:g})"
-
-            def resave() -> str:
-                import torch
-
-                saved = torch.load(state["state cpu"], map_location="cpu", weights_only=False)["method"]
-                again = state["reloaded"].state_dict()
-                diff = first_difference(saved, again)
-                if diff:
-                    raise CheckFailed(f"the reloaded method's state_dict() differs from the saved one at {diff}")
-                return "state_dict() after loading is identical to the saved state"
-
-            if not state.get("adapter"):
-                run_check("save/load", ("trains (cpu)",), save_load)
-                run_check("re-save", ("save/load",), resave)
+            if ctx.adapter:
+                for name in ("save/load", "re-save"):
+                    out.record(CheckResult(name, SKIP, "an adapter: the suite keeps no training state of it"))
             else:
-                record(CheckResult("save/load", SKIP, adapter_skip))
-                record(CheckResult("re-save", SKIP, adapter_skip))
+                out.run("save/load", ("trains (cpu)",), lambda: check_save_load(ctx))
+                out.run("re-save", ("save/load",), lambda: check_resave(ctx))
         if "cuda" not in devices:
-            record(CheckResult("trains (cuda)", SKIP, "torch sees no CUDA GPU"))
-
-        def end_to_end() -> str:
-            from strings_bench.reports.results import RESULTS_CSV, iter_cells
-            from strings_bench.bench.runner import execute, plan_run
-
-            run_dir = work / "run"
-            with _registered(spec):
-                plan = plan_run([spec.name], [str(scene_path)], run_dir=run_dir, schedule=CHECK_PRESET, ocr=ocr,
-                                method_overrides={spec.name: state["settings"]} if state["settings"] else None,
-                                checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off")
-                execute(plan, progress=False, write_report=False, with_lpips=with_lpips)
-            cells = [c for c in iter_cells(run_dir) if c.get("method") == spec.name]
-            if len(cells) != len(plan.cells):
-                raise CheckFailed(f"the run wrote {len(cells)} cell(s), planned {len(plan.cells)}")
-            if not (run_dir / RESULTS_CSV).is_file():
-                raise CheckFailed(f"the run wrote no {RESULTS_CSV}")
-            cell = cells[-1]
-            psnr = (cell.get("metrics") or {}).get("psnr")
-            try:
-                psnr = float(psnr)  # result.json writes an exact render's infinite PSNR as "inf"
-            except (TypeError, ValueError):
-                psnr = math.nan
-            if math.isnan(psnr):
-                raise CheckFailed(f"the cell's PSNR is {(cell.get('metrics') or {}).get('psnr')!r}")
-            cer = (cell.get("cer") or {}).get("cer")
-            engine = ((cell.get("ocr") or {}).get("backend") or {}).get("name", ocr)
-            return (f"{len(cells)} cell(s): PSNR {psnr:.2f} dB, OCR-CER {'n/a' if cer is None else f'{cer:.3f}'} "
-                    f"({engine}), evaluation {cell['timings']['eval_seconds']:.1f} s")
-
+            out.record(CheckResult("trains (cuda)", SKIP, "torch sees no CUDA GPU"))
         if runner:
-            run_check("runner", ("builds",), end_to_end)
+            out.run("runner", ("builds",), lambda: check_runner(ctx, ocr, with_lpips))
         else:
-            record(CheckResult("runner", SKIP, "left out (--no-runner)"))
+            out.record(CheckResult("runner", SKIP, "left out (--no-runner)"))
     finally:
         if tmp is not None:
             tmp.cleanup()
-    return results
+    return out.results

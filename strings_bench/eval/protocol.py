@@ -85,6 +85,39 @@ class EvalView:
                 f"its ground truth is {gt.shape[1]}x{gt.shape[0]}", hint="a mask must be the size of its image")
 
 
+def render_problems(renders: Mapping[str, np.ndarray], shapes: Mapping[str, tuple], missing: Iterable[str] = (),
+                    strict: bool = False, constant_ptp: float = 1e-4) -> list[str]:
+    """What is wrong with a set of renders, one sentence each (empty: nothing): a view of `shapes` with no
+    render (unless in `missing`), a render of another shape, non-finite values. `strict` (the conformance
+    check of `methods check`) also asks for floats within [0, 1] that are not constant. The runner and
+    `strings-bench evaluate` refuse on the first problem; `methods check` reports it."""
+    missing = set(missing)
+    absent = [n for n in shapes if n not in renders and n not in missing]
+    if absent:
+        return [f"no render of test view(s) {', '.join(absent[:5])}{f' ... ({len(absent)} in all)' if len(absent) > 5 else ''}"
+                f" (got {', '.join(map(str, list(renders)[:5])) or 'none'})"]
+    problems = []
+    for n, shape in shapes.items():
+        if n not in renders:
+            continue
+        r = np.asarray(renders[n])
+        if r.shape != tuple(shape):
+            problems.append(f"render of {n} has shape {r.shape}, expected {tuple(shape)} (H, W, 3)")
+            continue
+        if strict and r.dtype.kind != "f":
+            problems.append(f"render of {n} has dtype {r.dtype}, expected float values in [0, 1]")
+            continue
+        bad = 0 if r.dtype == np.uint8 else int((~np.isfinite(r)).sum())
+        if bad:
+            problems.append(f"render of {n} has {bad} NaN/Inf value(s) of {r.size}")
+            continue
+        if strict and (r.min() < -1e-6 or r.max() > 1 + 1e-6):
+            problems.append(f"render of {n} spans [{r.min():.4g}, {r.max():.4g}], outside [0, 1]")
+        elif strict and np.ptp(r) < constant_ptp:
+            problems.append(f"render of {n} is constant ({float(r.flat[0]):.4g} everywhere)")
+    return problems
+
+
 def scene_views(scene: "Scene", downscale: float, mask_settings: Mapping | None | str = "auto") -> list[EvalView]:
     """The test views of `scene` at `downscale`: GT image, the evaluation text mask (eval/text_masks.py,
     `eval_mask_settings` unless `mask_settings` is given) and the known words."""
@@ -192,25 +225,13 @@ class Evaluator:
                 for n, res in zip(names, results[len(gt_todo):])}
 
     def check_renders(self, method: str, renders: Mapping[str, np.ndarray], missing: Iterable[str] = ()) -> None:
-        """A clear error for a render that is absent (unless listed in `missing`), of another size, or not finite."""
-        missing = set(missing)
-        absent = [n for n in self.names if n not in renders and n not in missing]
-        if absent:
-            raise StringsBenchError(
-                f"method {method} has no render for test view(s) {', '.join(absent[:5])}"
-                f"{f' ... ({len(absent)} in all)' if len(absent) > 5 else ''}",
-                hint="an adapter must render every test view, keyed by image name")
-        for n in self.names:
-            if n not in renders:
-                continue
-            r = np.asarray(renders[n])
-            g = self.gt(n)
-            if r.shape != g.shape:
-                raise StringsBenchError(f"method {method}: render of {n} is {r.shape}, the ground truth is {g.shape}",
-                                        hint="render at the test camera's size")
-            if r.dtype != np.uint8 and not np.all(np.isfinite(r)):
-                raise StringsBenchError(f"method {method}: render of {n} has NaN/Inf pixels",
-                                        hint="training diverged; run with -v for details")
+        """A clear error for a render that is absent (unless listed in `missing`), of another size, or not
+        finite (`render_problems`)."""
+        problems = render_problems(renders, {n: self.gt(n).shape for n in self.names}, missing)
+        if problems:
+            raise StringsBenchError(f"method {method}: {problems[0]}",
+                                    hint="render every test view, keyed by image name, at the test camera's size "
+                                         "(NaN/Inf: training diverged; run with -v for details)")
 
     def readability(self, views: dict) -> dict | None:
         """Word-crop readability of a cell (eval.readability); None, logged, when the recogniser cannot load."""

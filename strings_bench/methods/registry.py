@@ -14,6 +14,7 @@ Implementations are either a `Method` (trained by the framework's loop; settings
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 from dataclasses import dataclass, field
@@ -248,6 +249,22 @@ _loaded = False
 def register_method(spec: MethodSpec) -> MethodSpec:
     _METHODS[spec.name] = spec
     return spec
+
+
+@contextlib.contextmanager
+def registered(spec: MethodSpec):
+    """`spec` registered under its name for the duration (e.g. `methods check` of a spec not registered),
+    then whatever was registered under that name before."""
+    _load()
+    previous = _METHODS.get(spec.name)
+    register_method(spec)
+    try:
+        yield spec
+    finally:
+        if previous is None:
+            _METHODS.pop(spec.name, None)
+        else:
+            _METHODS[spec.name] = previous
 
 
 def _load() -> None:
