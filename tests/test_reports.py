@@ -178,4 +178,25 @@ def test_readability_tables_and_metric_figures(tmp_path):
     assert main(["report", str(run), "--metric", "text_nll"]) == 0
     report = (run / "report" / "report.md").read_text()
     assert "text_nll_over_iterations.png" in report and "cer_over_iterations.png" not in report
-    assert "## word cer" in report and "GT view (ceiling)" in report
+    assert "## Word CER (lower is better)" in report and "## word cer" not in report and "GT view (ceiling)" in report
+
+
+def test_every_evaluated_checkpoint_gets_its_column_and_headings_are_titles(tmp_path):
+    """The default run evaluates 3K and 7K: both appear (the tables once showed only 7K), in order."""
+    rows = []
+    for method, cers in (("strings", (0.9, 0.5)), ("3dgs", (0.95, 0.6))):
+        for label, it, cer in (("3K", 450, cers[0]), ("7K", 1050, cers[1])):
+            rows.append({"method": method, "dataset": "synthetic", "scene": "books", "iteration": it, "label": label,
+                         "cer": cer, "cer_known": math.nan, "psnr": 20.0, "ssim": 0.8, "lpips": math.nan,
+                         "train_seconds": 60.0, "gaussians": 1000, "ocr_failed": 0})
+    df = pd.DataFrame(rows)
+    t = [x for x in tables.build_tables(df) if x.name == "ocr_cer"][0]
+    assert [c.sub_plain for c in t.columns] == ["3K", "7K"]
+    assert t.columns[0].values == {"strings": 0.9, "3dgs": 0.95} and t.columns[1].values == {"strings": 0.5, "3dgs": 0.6}
+    run = tmp_path / "run"
+    run.mkdir()
+    df.to_csv(run / "results.csv", index=False)
+    report = write_report(run).read_text()
+    assert "## OCR-CER (lower is better)" in report and "## ocr cer" not in report
+    section = report.split("## OCR-CER (lower is better)")[1].split("## ")[0]
+    assert " 3K |" in section and " 7K |" in section

@@ -41,7 +41,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     lines = [f"# strings-bench report: {run_dir.name}", ""]
     preset = manifest.get("preset") or {}
     if preset:
-        lines.append(f"Preset **{preset.get('name')}** (steps scale {preset.get('steps_scale')}), downscale "
+        lines.append(f"Schedule **{preset.get('name')}** (steps scale {preset.get('steps_scale')}), downscale "
                      f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
     lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
                  "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")
@@ -59,8 +59,8 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     lines.append("The same report as one page with sortable tables and word-crop galleries per scene: `index.html` "
                  "(open it in a browser; no server needed).")
     lines.append("")
-    for name, files in tables.items():
-        lines += [f"## {name.replace('_', ' ')}", "", files["md"].read_text(encoding="utf-8"),
+    for files in tables.values():
+        lines += [f"## {files['title']}", "", files["md"].read_text(encoding="utf-8"),
                   f"LaTeX: `{files['tex'].relative_to(out)}` (preamble `tables/preamble.tex`, all tables `tables/tables.tex`); "
                   f"CSV: `{files['csv'].relative_to(out)}`", ""]
     if figures:

@@ -166,6 +166,12 @@ class Table:
     shade: bool = True
     bold_best_pairs: bool = False
     row_key: str = "method"  # what a row is (the CSV's first column): a method, or e.g. a cell group
+    heading: str = ""  # the title where the plain corner is not one ("Method")
+
+    @property
+    def title(self) -> str:
+        """The table's title as a person reads it: `heading`, else its plain corner ("OCR-CER (lower is better)")."""
+        return self.heading or self.corner_plain or self.name.replace("_", " ")
 
     def fmt(self, col: Column, x) -> str:
         if x is None or (isinstance(x, float) and math.isnan(x)):
@@ -254,10 +260,9 @@ def to_csv(t: Table) -> str:
 
 # ---- the paper's tables ------------------------------------------------------------------------------
 def main_labels(df: pd.DataFrame) -> list[str]:
-    """Checkpoint labels for the main tables: 7K and 30K when present, else every label."""
-    labels = sorted(set(df["label"]), key=label_value) if not df.empty else []
-    main = [l for l in ("7K", "30K") if l in labels]
-    return main or labels
+    """Checkpoint labels of the tables: every checkpoint the run evaluated, in order (the paper's layout
+    has 7K and 30K; a run that also evaluated 3K shows it too)."""
+    return sorted(set(df["label"]), key=label_value) if not df.empty else []
 
 
 def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
@@ -292,7 +297,7 @@ def schedule_note(df: pd.DataFrame, manifest: dict | None) -> str:
     preset = (manifest or {}).get("preset", {})
     if not shown:
         return ""
-    return (f" Checkpoints are labelled by the paper iteration they stand for; this run (preset "
+    return (f" Checkpoints are labelled by the paper iteration they stand for; this run (schedule "
             f"{latex_escape(preset.get('name', '?'))}, steps scale {preset.get('steps_scale', '?')}) trained "
             + "; ".join(shown) + ".")
 
@@ -441,7 +446,7 @@ def ocr_engine_tables(df: pd.DataFrame, manifest: dict | None = None, note: str 
                       "primary engine's OCR-CER and the other engine's (n/a below 2 methods or when either engine "
                       "gives every method the same CER), and the share of words both engines read identically on "
                       "the methods' render views and on the GT views." + AGREEMENT_NOTE + note,
-                      shade=False, row_key="cell_group")
+                      shade=False, row_key="cell_group", heading="Agreement of the OCR engines")
     return [by_engine, agreement]
 
 
@@ -517,7 +522,7 @@ def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
     out.append(Table("text_region", "Method", "Method", cols, method_order(sub["method"]),
                      f"Text regions at {final} iterations: fraction of reference words read exactly (Words), and PSNR "
                      "over the dilated text mask's pixels, the SSIM map's mean over them, LPIPS-VGG of the mask's "
-                     "bounding crop; mean over the scenes of each dataset." + RANK_NOTE + note))
+                     "bounding crop; mean over the scenes of each dataset." + RANK_NOTE + note, heading="Text-region image metrics"))
     return out
 
 
@@ -536,7 +541,7 @@ def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
             cols.append(Column(dataset_title(d), sub_l, sub_p, lower, fmt, {r.method: getattr(r, value) for r in means.itertuples()}))
     return Table("metrics", "Method", "Method", cols, methods,
                  f"Reconstruction quality and number of Gaussians (Points) at {final} iterations, mean over the scenes "
-                 "of each dataset. LPIPS is LPIPS-VGG v0.1; n/a where its weights are not installed." + RANK_NOTE + note)
+                 "of each dataset. LPIPS is LPIPS-VGG v0.1; n/a where its weights are not installed." + RANK_NOTE + note, heading="Image metrics")
 
 
 def ablation_table(df: pd.DataFrame, note: str = "") -> Table | None:
@@ -565,7 +570,7 @@ def ablation_table(df: pd.DataFrame, note: str = "") -> Table | None:
     t = Table("ablations", "Dataset", "Dataset", [], ["strings", *[r[1] for r in rows]],
               "Ablations: OCR-CER of STRinGS without text densification, and with a non-zero position learning rate "
               "in phase 1, against full STRinGS (the better one in bold), mean over the scenes of each dataset." + note,
-              shade=False)
+              shade=False, heading="Ablations of STRinGS")
     t.ablation_rows = rows  # type: ignore[attr-defined]
     t.ablation_datasets = datasets  # type: ignore[attr-defined]
     return t
@@ -628,6 +633,7 @@ def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None) 
         else:
             tex, md, csv_text = to_latex(t, papers), to_markdown(t), to_csv(t)
         written[t.name] = {
+            "title": t.title,
             "tex": atomic_write_text(out_dir / f"{t.name}.tex", tex),
             "md": atomic_write_text(out_dir / f"{t.name}.md", md),
             "csv": atomic_write_text(out_dir / f"{t.name}.csv", csv_text),
