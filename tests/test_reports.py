@@ -43,8 +43,8 @@ def _shade_of(tex: str, method_title: str) -> list[str | None]:
 
 
 def test_ocr_cer_latex_shades_best_three(tmp_path):
-    cer7 = {"3dgs": 0.736, "mip-splatting": 0.748, "mcmc": 0.927, "absgs": 0.768, "edc": 0.328, "strings": 0.177}
-    cer30 = {"3dgs": 0.148, "mip-splatting": 0.129, "mcmc": 0.110, "absgs": 0.143, "edc": 0.116, "strings": 0.106}
+    cer7 = {"3dgs": 0.736, "mip-splatting": 0.748, "mcmc": 0.927, "absgs": 0.768, "edc-absgs": 0.328, "strings": 0.177}
+    cer30 = {"3dgs": 0.148, "mip-splatting": 0.129, "mcmc": 0.110, "absgs": 0.143, "edc-absgs": 0.116, "strings": 0.106}
     df = _frame(cer7, cer30)
     manifest = {"preset": {"name": "quick", "steps_scale": 0.05},
                 "methods": {"3dgs": {"paper": "SIGGRAPH'23"}, "strings": {"paper": "WACV'26"}}}
@@ -200,3 +200,17 @@ def test_every_evaluated_checkpoint_gets_its_column_and_headings_are_titles(tmp_
     assert "## OCR-CER (lower is better)" in report and "## ocr cer" not in report
     section = report.split("## OCR-CER (lower is better)")[1].split("## ")[0]
     assert " 3K |" in section and " 7K |" in section
+
+
+def test_method_titles_and_groups_come_from_the_run_folder_then_the_specs():
+    """One place for a method's title and group: its spec, recorded in run.json; the reports read them there."""
+    tables.use_run_methods({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    try:
+        assert tables.method_title("my-splat") == "MySplat (ours)"
+        assert tables.method_title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
+        assert tables.method_title("mcmc") == "3DGS-MCMC" and tables.is_ablation("strings-pos-lr")
+        assert tables.method_title("edc") == "edc"  # no spec registers it: no invented title
+        assert tables.method_order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
+            ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
+    finally:
+        tables.use_run_methods(None)

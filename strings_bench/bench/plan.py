@@ -169,7 +169,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         "checkpoints": None if c.checkpoints is None else list(p.paper_checkpoints),
         "method_presets": {m: chosen for m, chosen, *_ in planned},
         "method_overrides": {m: jsonable(given_settings[m]) for m in methods},
-        "methods": {m: {"paper": specs[m].paper, "description": specs[m].description} for m in methods},
+        "methods": {m: {"paper": specs[m].paper, "description": specs[m].description, "title": specs[m].title or m,
+                        "group": specs[m].group} for m in methods},
         "datasets": datasets,
         "device": c.device,  # as asked; execute() adds where it resolved to on this machine
     }

@@ -46,6 +46,9 @@ class MethodSpec:
             matches when all its keys equal the scene's; any condition is enough). Keys starting with "@"
             are not settings ("@description" says what the preset is).
         paper_results: published figures, {dataset: {"cer": {iteration: value}, "minutes": {iteration: value}}}.
+        title: the name tables and figures print ("3DGS-MCMC"); default: `name`.
+        group: "baseline", "ours" (STRinGS), "ablation" (rows of the ablation table, dashed in figures) or
+            "adapter"; tables list methods by group, then in registry order.
     """
 
     name: str
@@ -55,6 +58,8 @@ class MethodSpec:
     defaults: dict = field(default_factory=dict)
     presets: dict[str, dict] = field(default_factory=dict)
     paper_results: dict = field(default_factory=dict)
+    title: str = ""
+    group: str = "baseline"
 
     def load(self) -> Any:
         """The implementation class (or factory)."""
@@ -144,6 +149,7 @@ class MethodSpec:
         lines = [f"{self.name}: {self.description}".rstrip(": ")]
         if self.paper:
             lines.append(f"paper: {self.paper}")
+        lines.append(f"title: {self.title or self.name} (group {self.group})")
         lines.append(f"implementation: {self.implementation if isinstance(self.implementation, str) else self.implementation!r}")
         if self.presets:
             lines.append("presets (`run --presets NAME=PRESET`; @apply: applied by itself on those scenes):")
@@ -199,47 +205,48 @@ _STRINGS_PRESETS = {
 }
 
 BUILTIN_SPECS: list[MethodSpec] = [
+    # In the paper's row order (Table 1): the reports list methods in this order.
     MethodSpec("3dgs", "strings_bench.methods.gs3d:GS3D",
                "vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
                "Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
                "Rendering (SIGGRAPH 2023)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2))),
-    MethodSpec("strings", "strings_bench.methods.strings.method:Strings",
-               "STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
-               "masked phase-1 loss, region-dependent position LR)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS),
-               _paper(((.122, .099), (.187, .123), (.177, .106)), (1.9, 12.6))),
-    MethodSpec("strings-no-densify", "strings_bench.methods.strings.method:StringsNoDensify",
-               "STRinGS ablation: without the one-time text densification (Eq. 1)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS)),
-    MethodSpec("strings-pos-lr", "strings_bench.methods.strings.method:StringsPosLR",
-               "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS)),
-    MethodSpec("absgs", "strings_bench.methods.absgs:AbsGS",
-               "AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) gradient",
-               "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5))),
-    MethodSpec("edc-absgs", "strings_bench.methods.edc_absgs:EDCAbsGS",
-               "EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
-               "position LR 4e-5 -> 2e-6",
-               "Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
-               {"steps_scale": 1.0, "lr_means": 4e-5, "lr_means_final": 2e-6}, dict(_SCHEDULES),
-               _paper(((.142, .118), (.239, .162), (.328, .116)), (5.5, 23.2))),
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2)), title='3DGS', group='baseline'),
     MethodSpec("mip-splatting", "strings_bench.methods.mip_splatting:MipSplatting",
                "Mip-Splatting: 3D smoothing filter from the training cameras' sampling rate + 2D mip filter",
                "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7))),
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7)), title='Mip-Splatting', group='baseline'),
     MethodSpec("mcmc", "strings_bench.methods.mcmc:MCMC",
                "3DGS-MCMC: dead-Gaussian relocation (eq. 9), 5% growth to a cap, opacity/scale L1, SGLD position noise",
                "Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
                "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)",
                {"steps_scale": 1.0, "init_opacity": 0.5, "init_scale_factor": 0.1}, dict(_SCHEDULES),
-               _paper(((.272, .120), (.511, .142), (.927, .110)), (5.6, 34.0))),
+               _paper(((.272, .120), (.511, .142), (.927, .110)), (5.6, 34.0)), title='3DGS-MCMC', group='baseline'),
+    MethodSpec("absgs", "strings_bench.methods.absgs:AbsGS",
+               "AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) gradient",
+               "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
+               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5)), title='AbsGS', group='baseline'),
+    MethodSpec("edc-absgs", "strings_bench.methods.edc_absgs:EDCAbsGS",
+               "EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
+               "position LR 4e-5 -> 2e-6",
+               "Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
+               {"steps_scale": 1.0, "lr_means": 4e-5, "lr_means_final": 2e-6}, dict(_SCHEDULES),
+               _paper(((.142, .118), (.239, .162), (.328, .116)), (5.5, 23.2)), title='EDC-AbsGS', group='baseline'),
+    MethodSpec("strings", "strings_bench.methods.strings.method:Strings",
+               "STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
+               "masked phase-1 loss, region-dependent position LR)", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS),
+               _paper(((.122, .099), (.187, .123), (.177, .106)), (1.9, 12.6)), title='STRinGS', group='ours'),
+    MethodSpec("strings-no-densify", "strings_bench.methods.strings.method:StringsNoDensify",
+               "STRinGS ablation: without the one-time text densification (Eq. 1)", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS w/o text densification', group='ablation'),
+    MethodSpec("strings-pos-lr", "strings_bench.methods.strings.method:StringsPosLR",
+               "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", STRINGS_PAPER,
+               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS with phase-1 position LR', group='ablation'),
     MethodSpec("ply", "strings_bench.methods.ply_adapter:PlyAdapter",
                "evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
-               defaults={"iteration": 30000}),
+               defaults={"iteration": 30000}, title='PLY models', group='adapter'),
     MethodSpec("external", "strings_bench.methods.external:ExternalCommandAdapter",
-               "run any training program (setting command) and evaluate the test-view renders it writes"),
+               "run any training program (setting command) and evaluate the test-view renders it writes", title='External', group='adapter'),
 ]
 
 _METHODS: dict[str, MethodSpec] = {}

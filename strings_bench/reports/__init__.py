@@ -34,6 +34,9 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
     manifest = read_manifest(run_dir) or {}
+    from strings_bench.reports.tables import use_run_methods
+
+    use_run_methods(manifest)  # method titles and groups as the run recorded them
     df = load_results(run_dir)
     out = run_dir / "report"
     tables = write_tables(df, out / "tables", manifest)

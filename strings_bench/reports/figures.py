@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from strings_bench.reports.tables import ABLATION_METHODS, main_labels, method_order, method_title, with_total_seconds
+from strings_bench.reports.tables import is_ablation, main_labels, method_order, method_title, with_total_seconds
 from strings_bench.reports.results import read_cell
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
@@ -144,7 +144,7 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
             if s.empty:
                 continue
             ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=method_title(m),
-                    linestyle="--" if m in ABLATION_METHODS else "-")
+                    linestyle="--" if is_ablation(m) else "-")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("iteration")
         ax.set_ylabel(name)
@@ -236,7 +236,7 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     sub = df[df["label"] == label]
     if sub.empty:
         return None
-    methods = method_order(m for m in sub["method"] if m not in ABLATION_METHODS) or method_order(sub["method"])
+    methods = method_order(m for m in sub["method"] if not is_ablation(m)) or method_order(sub["method"])
     scenes = list(dict.fromkeys(zip(sub["dataset"], sub["scene"])))[:max_scenes]
     rows = []
     for d, s in scenes:

@@ -29,18 +29,35 @@ PREAMBLE = r"""\usepackage{booktabs, multirow, xcolor, colortbl, array, makecell
 """
 
 DATASET_TITLES = {"tandt": "TandT", "dl3dv": "DL3DV-10K", "strings360": "STRinGS-360", "synthetic": "Synthetic"}
-METHOD_TITLES = {
-    "3dgs": "3DGS", "mip-splatting": "Mip-Splatting", "mip": "Mip-Splatting", "mcmc": "3DGS-MCMC",
-    "3dgs-mcmc": "3DGS-MCMC", "absgs": "AbsGS", "edc": "EDC-AbsGS", "edc-absgs": "EDC-AbsGS",
-    "strings": "STRinGS", "strings-no-densify": "STRinGS w/o text densification",
-    "strings-pos-lr": "STRinGS with phase-1 position LR",
-}
 # A pseudo-method row: the recogniser on the ground-truth views (the ceiling of word_cer / text_nll); never ranked.
 GT_CEILING = "gt-ceiling"
-METHOD_TITLES[GT_CEILING] = "GT view (ceiling)"
-# Row order of the paper; other methods follow alphabetically.
-METHOD_ORDER = ["3dgs", "mip-splatting", "mip", "mcmc", "3dgs-mcmc", "absgs", "edc", "edc-absgs", "strings"]
-ABLATION_METHODS = ("strings-no-densify", "strings-pos-lr")
+GT_CEILING_TITLE = "GT view (ceiling)"
+_RUN_METHODS: dict[str, dict] = {}  # run.json's "methods" of the report being written: title, group, paper
+
+
+def use_run_methods(manifest: dict | None) -> None:
+    """Titles, groups and papers come from the run folder (run.json, written from the method specs when the
+    run was planned); methods it does not describe (older folders) from the registered specs."""
+    _RUN_METHODS.clear()
+    _RUN_METHODS.update({m: dict(v) for m, v in ((manifest or {}).get("methods") or {}).items() if isinstance(v, dict)})
+
+
+def method_info(method: str) -> dict:
+    """{"title", "group", "order"} of a method: run.json's entry over its spec's; unknown methods get their name."""
+    from strings_bench.methods.registry import list_methods
+
+    specs = {s.name: (k, s) for k, s in enumerate(list_methods())}
+    k, spec = specs.get(method, (len(specs), None))
+    info = {"title": (spec.title or spec.name) if spec else method, "group": spec.group if spec else "baseline", "order": k}
+    given = _RUN_METHODS.get(method, {})
+    info.update({key: given[key] for key in ("title", "group") if given.get(key)})
+    return info
+
+
+def is_ablation(method: str) -> bool:
+    return method_info(method)["group"] == "ablation"
+
+
 RANKS = ("first", "second", "third")
 
 
@@ -60,9 +77,9 @@ def label_value(label: str) -> float:
 
 
 def method_order(methods) -> list[str]:
+    """Methods in the registry's order (the paper's rows), then any other by name."""
     ms = list(dict.fromkeys(methods))
-    known = [m for m in METHOD_ORDER if m in ms]
-    return known + sorted(m for m in ms if m not in known)
+    return sorted(ms, key=lambda m: (method_info(m)["order"], m))
 
 
 def short_venue(paper: str) -> str:
@@ -80,14 +97,14 @@ def short_venue(paper: str) -> str:
 
 
 def method_title(method: str, papers: dict | None = None, latex: bool = False) -> str:
-    title = METHOD_TITLES.get(method, method)
+    title = GT_CEILING_TITLE if method == GT_CEILING else method_info(method)["title"]
     if not latex:
         return title
     t = latex_escape(title)
-    if method == "strings":
+    if method != GT_CEILING and method_info(method)["group"] == "ours":
         t = r"\textbf{" + t + "}"
     paper = short_venue((papers or {}).get(method, ""))
-    if paper and method not in ABLATION_METHODS:
+    if paper and not is_ablation(method):
         t += r"~\papertable{" + latex_escape(paper) + "}"
     return t
 
@@ -273,7 +290,7 @@ def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt
     ceil = dataset_means(df, ceiling) if ceiling else None
     labels = main_labels(df)
     datasets = list(dict.fromkeys(df["dataset"]))
-    methods = methods or method_order(m for m in df["method"] if m not in ABLATION_METHODS)
+    methods = methods or method_order(m for m in df["method"] if not is_ablation(m))
     cols = []
     for d in datasets:
         for l in labels:
@@ -306,6 +323,8 @@ RANK_NOTE = r" Red, orange and yellow mark the first, second and third best (tie
 
 
 def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
+    if manifest is not None:
+        use_run_methods(manifest)
     if df.empty:
         return []
     df = with_total_seconds(df)
@@ -412,7 +431,7 @@ def ocr_engine_tables(df: pd.DataFrame, manifest: dict | None = None, note: str 
         return []
     primary = primary_engine(df, manifest)
     labels = main_labels(df)
-    methods = method_order(m for m in df["method"] if m not in ABLATION_METHODS)
+    methods = method_order(m for m in df["method"] if not is_ablation(m))
     cols = []
     for d in dict.fromkeys(df["dataset"]):
         for l in labels:
@@ -465,7 +484,7 @@ def paper_comparison_table(df: pd.DataFrame, note: str = "") -> Table | None:
     """Measured OCR-CER next to the paper's (REFERENCE §5) for the datasets the paper reports; None when
     the run has no such dataset (e.g. the synthetic scenes)."""
     means = dataset_means(df, "cer")
-    methods = method_order(m for m in df["method"] if m not in ABLATION_METHODS)
+    methods = method_order(m for m in df["method"] if not is_ablation(m))
     published = {m: paper_results(m) for m in methods}
     cols = []
     for d in dict.fromkeys(df["dataset"]):
@@ -507,7 +526,7 @@ def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
     ]
     labels = main_labels(df)
     final = labels[-1]
-    sub = df[(df["label"] == final) & ~df["method"].isin(ABLATION_METHODS)]
+    sub = df[(df["label"] == final) & ~df["method"].map(is_ablation).astype(bool)]
     specs = [("word_acc", r"Words$\uparrow$", "Words read", False, ".3f"),
              ("text_psnr", r"PSNR$\uparrow$", "text PSNR", False, ".2f"),
              ("text_ssim", r"SSIM$\uparrow$", "text SSIM", False, ".4f"),
@@ -529,7 +548,7 @@ def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
 def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
     labels = main_labels(df)
     final = labels[-1]
-    sub = df[(df["label"] == final) & ~df["method"].isin(ABLATION_METHODS)]
+    sub = df[(df["label"] == final) & ~df["method"].map(is_ablation).astype(bool)]
     datasets = list(dict.fromkeys(df["dataset"]))
     methods = method_order(sub["method"])
     specs = [("psnr", r"PSNR$\uparrow$", "PSNR", False, ".2f"), ("ssim", r"SSIM$\uparrow$", "SSIM", False, ".4f"),
@@ -547,7 +566,7 @@ def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
 def ablation_table(df: pd.DataFrame, note: str = "") -> Table | None:
     """The paper's ablations: w/o text densification (7K) and with a phase-1 position LR (3K)."""
     present = set(df["method"])
-    if "strings" not in present or not (present & set(ABLATION_METHODS)):
+    if "strings" not in present or not any(is_ablation(m) for m in present):
         return None
     blocks = []
     labels = set(df["label"])
