@@ -1,5 +1,7 @@
 """`strings-bench methods check NAME`: the conformance check of a method, after nerfbaselines' `test-method`.
 
+Size (~480 lines): one command's checks, each a top-level function over one CheckContext, in the order they run, with the stand-ins they need.
+
 On a tiny embedded scene (the synthetic `books` scene at 96x72 pixels, 8 views: 7 training views and
 1 test view, built into the cache in about a second) the check runs, in order:
 

@@ -1,5 +1,7 @@
 """3D Gaussian Splatting as a `Method`: the reference implementation every built-in method extends.
 
+Size (~490 lines): one method, 3DGS, with its hooks in the order the loop calls them and their docstrings; a hook split off into another file would be read out of that order.
+
 `GaussianSplatting(config, strategy)` holds the model, the optimizer and the strategy state, and
 implements the method protocol (`strings_bench.core.method.Method`); the framework's loop
 (`engine.trainer.Trainer`) drives it. Methods change behaviour by subclassing and overriding these
