@@ -1,6 +1,8 @@
 """Generate a synthetic scene folder: rendered views, GT text masks and polygons, and a sparse
 point cloud triangulated by pycolmap from SIFT matches on the rendered images with the known poses.
 
+Size (~650 lines): one pipeline in data-path order (render views, masks and polygons, SfM, write); splitting it would hide the order.
+
 Layout written (COLMAP style, loadable with `Scene.load`):
 
     <cache_root>/synthetic/<scene>-<key>/
