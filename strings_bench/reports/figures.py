@@ -153,7 +153,7 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
         panels.append(("mean over scenes", mean))
     for ax, (title, sub) in zip(axes.flat, panels):
         for m in methods:
-            s = sub[sub["method"] == m].sort_values("iteration")
+            s = sub[sub["method"] == m].sort_values("iteration").dropna(subset=[metric])  # dense checkpoints have no OCR-CER
             if s.empty:
                 continue
             ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=method_title(m),

@@ -402,6 +402,8 @@ def collect_galleries(run_dir: Path, df: pd.DataFrame) -> list[SceneGallery]:
     if df.empty:
         return []
     rows = df.sort_values(["dataset", "scene", "iteration"], kind="stable")
+    if "evaluation" in rows:  # the dense checkpoints of `every:N` get no gallery tab (there may be dozens)
+        rows = rows[rows["evaluation"].fillna("full") != "words"]
     for r in rows.itertuples(index=False):
         g = out.setdefault((r.dataset, r.scene), SceneGallery(str(r.dataset), str(r.scene)))
         path = CellKey(str(r.method), str(r.dataset), str(r.scene), int(r.iteration)).path(run_dir) / RESULT_FILE

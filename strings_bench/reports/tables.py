@@ -286,9 +286,14 @@ def to_csv(t: Table) -> str:
 
 # ---- the paper's tables ------------------------------------------------------------------------------
 def main_labels(df: pd.DataFrame) -> list[str]:
-    """Checkpoint labels of the tables: every checkpoint the run evaluated, in order (the paper's layout
-    has 7K and 30K; a run that also evaluated 3K shows it too)."""
-    return sorted(set(df["label"]), key=label_value) if not df.empty else []
+    """Checkpoint labels of the tables: every checkpoint the run evaluated fully, in order (the paper's layout
+    has 7K and 30K; a run that also evaluated 3K shows it too). The dense checkpoints of `--checkpoints every:N`
+    evaluated with the word-crop metrics only (results.csv `evaluation` = words) are not columns: they feed the
+    time-to-legibility table and the curves."""
+    if df.empty:
+        return []
+    full = df[df["evaluation"].fillna("full") != "words"] if "evaluation" in df else df
+    return sorted(set((full if not full.empty else df)["label"]), key=label_value)
 
 
 def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
