@@ -21,10 +21,10 @@ Trainer does) and splits each step's wall time into the stages, by timing the fu
 | forward blend | `raster.cpu_kernels.forward` |
 | backward blend | `RasterizeTiles.backward` (blend backward, per-Gaussian reduction, scatter) |
 | backward projection | `Preprocess.backward` |
-| loss + SSIM | the method's `loss` (forward) and `loss.backward()` minus the two rasterizer backwards |
+| loss + SSIM | the method's `loss` (forward) and the backward from its start until the render's gradient arrives (a hook on `out.color`) |
 | Adam | `GaussianAdam.step` |
 | densification | `refine` (the per-step statistics) + one densification round (timed after the steps) / the refinement interval |
-| other | the rest of `train_step` (finite checks, view order, the output composition) |
+| other | the rest of `train_step`: finite checks, view order, the SH concatenation, the output composition and their backward, gradient accumulation |
 
 Lower bounds, measured in this run on this machine:
 - copy bandwidth: a parallel numba copy of 256 MiB with the kernels' thread count, counted as bytes
@@ -113,9 +113,13 @@ def restore(scene, schedule: str, path: Path, downscale: float = 1.0):
 class Clock:
     def __init__(self):
         self.t: dict[str, float] = {}
+        self.marks: dict[str, float] = {}
 
     def add(self, key: str, dt: float) -> None:
         self.t[key] = self.t.get(key, 0.0) + dt
+
+    def mark(self, key: str) -> None:
+        self.marks[key] = time.perf_counter()
 
 
 @contextmanager
@@ -145,7 +149,19 @@ def instrumented(clock: Clock):
     wrap(cpu.RasterizeTiles, "backward", "tiles_bwd", static=True)
     wrap(K, "forward", "blend_fwd")
     wrap(GaussianAdam, "step", "adam")
-    wrap(torch.Tensor, "backward", "backward")
+    orig_backward = torch.Tensor.backward
+
+    def timed_backward(self, *a, **kw):
+        clock.marks.pop("color_grad", None)
+        t0 = time.perf_counter()
+        try:
+            return orig_backward(self, *a, **kw)
+        finally:
+            clock.add("backward", time.perf_counter() - t0)
+            if "color_grad" in clock.marks:
+                clock.add("loss_bwd", clock.marks["color_grad"] - t0)
+    saved.append((torch.Tensor, "backward", orig_backward))
+    torch.Tensor.backward = timed_backward
     try:
         yield
     finally:
@@ -158,12 +174,16 @@ def profile_steps(method, first_step: int, steps: int) -> dict:
     clock = Clock()
     loss_fn = method.loss
 
-    def timed_loss(*a, **kw):
+    def timed_loss(out, *a, **kw):
         t0 = time.perf_counter()
         try:
-            return loss_fn(*a, **kw)
+            loss = loss_fn(out, *a, **kw)
         finally:
             clock.add("loss_fwd", time.perf_counter() - t0)
+        # The loss's backward ends when the gradient of the render arrives: mark it.
+        if out.color.requires_grad:
+            out.color.register_hook(lambda g: clock.mark("color_grad"))
+        return loss
     method.loss = timed_loss
     total = refine = 0.0
     with instrumented(clock):
@@ -183,7 +203,7 @@ def profile_steps(method, first_step: int, steps: int) -> dict:
         "forward blend": t.get("blend_fwd", 0.0),
         "backward blend": t.get("tiles_bwd", 0.0),
         "backward projection": t.get("pre_bwd", 0.0),
-        "loss+SSIM": t.get("loss_fwd", 0.0) + t.get("backward", 0.0) - t.get("tiles_bwd", 0.0) - t.get("pre_bwd", 0.0),
+        "loss+SSIM": t.get("loss_fwd", 0.0) + t.get("loss_bwd", 0.0),
         "Adam": t.get("adam", 0.0),
         "densification": refine / steps * 1e3,
     }
@@ -332,6 +352,21 @@ def profile_case(name: str, method, first_step: int, steps: int, bw: float, flop
                            "bound": bounds.get(s, (None, ""))[1]} for s in STAGES}}
 
 
+def threads_ab(method, rounds: int, steps: int) -> dict:
+    """ms/step (and its loss+SSIM part) with torch at 1 and at 2 intra-op threads, alternating rounds
+    of `steps` steps on the same (continuing) model; medians."""
+    from strings_bench.engine.trainer import cpu_threads
+
+    got = {1: [], 2: []}
+    for r in range(rounds):
+        for n in ((1, 2) if r % 2 == 0 else (2, 1)):
+            with cpu_threads(n):
+                p = profile_steps(method, method.step + 1, steps)
+            got[n].append((p["step_ms"], p["stages"]["loss+SSIM"]))
+    return {f"threads_{n}": {"step_ms": statistics.median(x[0] for x in v), "loss_ms": statistics.median(x[1] for x in v)}
+            for n, v in got.items()}
+
+
 def print_case(r: dict) -> None:
     print(f"\n{r['case']}: {r['gaussians']} Gaussians ({r['visible']} visible, {r['intersections']} tile "
           f"intersections, {r['pairs']} blended pairs), {r['width']}x{r['height']}, SH degree {r['sh_degree']}: "
@@ -343,6 +378,9 @@ def print_case(r: dict) -> None:
         frac = f"{b / x['ms']:.2f}" if b is not None and x["ms"] > 0 else "-"
         bs = f"{b:.2f}" if b is not None else "-"
         print(f"| {s} | {x['ms']:.1f} | {x['ms'] / r['step_ms'] * 100:.0f} % | {bs} | {frac} |")
+    if "threads_ab" in r:
+        print("torch intra-op threads: " + ", ".join(f"{k[-1]}: {v['step_ms']:.0f} ms/step (loss+SSIM {v['loss_ms']:.0f})"
+                                                      for k, v in r["threads_ab"].items()))
 
 
 def main(argv=None) -> int:
@@ -355,6 +393,8 @@ def main(argv=None) -> int:
     ap.add_argument("--state-dir", default=None)
     ap.add_argument("--torch-threads", default="trainer",
                     help="torch intra-op threads during the steps: 'trainer' (the Trainer's CPU setting), N, or 'none'")
+    ap.add_argument("--threads-ab", type=int, default=0, metavar="ROUNDS",
+                    help="also time ROUNDS alternating rounds with torch at 1 and 2 threads per case")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     from strings_bench.core.io import cache_root
@@ -383,6 +423,8 @@ def main(argv=None) -> int:
         for name, s, ds in cases:
             method = restore(scene, args.schedule, paths[s], downscale=ds)
             r = profile_case(name, method, s + 1, args.steps, bw, flops)
+            if args.threads_ab:
+                r["threads_ab"] = threads_ab(method, args.threads_ab, args.steps)
             results.append(r)
             if not args.json:
                 print_case(r)
