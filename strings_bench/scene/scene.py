@@ -38,6 +38,11 @@ class KnownWord:
 
     text: str
     polygon: np.ndarray  # (K, 2)
+    # Where the scene knows them (synthetic scenes): the angle in degrees between the surface normal and the
+    # direction to the camera at the word's centre (0 = seen head-on), and the camera's distance to that centre
+    # in scene units. None elsewhere.
+    angle_deg: float | None = None
+    distance: float | None = None
 
 
 def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int], list[int]]:
@@ -208,7 +213,7 @@ class Scene:
         cam = self.model.cameras[i]
         w, h = self._image_size(i, downscale)
         s = np.array([w / cam.width, h / cam.height])
-        return [KnownWord(k.text, k.polygon * s) for k in self.known_text.get(cam.name, [])]
+        return [KnownWord(k.text, k.polygon * s, k.angle_deg, k.distance) for k in self.known_text.get(cam.name, [])]
 
 
 def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
@@ -287,7 +292,14 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
             if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
                 raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not >= 3 finite [x, y] "
                                    f"points (shape {poly.shape})", hint=hint)
-            kept.append(KnownWord(str(w["text"]), poly))
+            geo = {}
+            for key in ("angle_deg", "distance"):  # optional (synthetic scenes built since issue 30)
+                v = w.get(key)
+                if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)):
+                    raise DatasetError(f"text annotations {path}: {key} of a word of view {name!r} is not a finite "
+                                       f"number ({v!r})", hint=hint)
+                geo[key] = None if v is None else float(v)
+            kept.append(KnownWord(str(w["text"]), poly, **geo))
         out[str(name)] = kept
     return out
 
@@ -295,5 +307,9 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
 def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> None:
     from strings_bench.core.io import atomic_write_json
 
-    atomic_write_json(path, {"views": {n: [{"text": w.text, "polygon": np.asarray(w.polygon).tolist()} for w in ws]
-                                       for n, ws in views.items()}})
+    def word(w: KnownWord) -> dict:
+        d = {"text": w.text, "polygon": np.asarray(w.polygon).tolist()}
+        d.update({k: float(v) for k, v in (("angle_deg", w.angle_deg), ("distance", w.distance)) if v is not None})
+        return d
+
+    atomic_write_json(path, {"views": {n: [word(w) for w in ws] for n, ws in views.items()}})

@@ -281,14 +281,20 @@ def visible_words(spec: SceneSpec, cam: Camera, settings: SyntheticSettings) -> 
         cos = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
         if np.any(cos < settings.min_facing_cos):
             continue
-        candidates.append((word, px))
+        # The viewing angle and distance at the word's centre (the middle sample): recorded with the word.
+        centre = prim.point(np.asarray([_bilinear(word.uv, 0.5, 0.5)]))
+        _, n_c = prim.surface(centre)
+        v = C - centre[0]
+        dist = float(np.linalg.norm(v))
+        angle = float(np.degrees(np.arccos(np.clip(abs(float(n_c[0] @ v)) / (np.linalg.norm(n_c[0]) * dist), 0.0, 1.0))))
+        candidates.append((word, px, angle, dist))
         sample_pts.append(pts)
     if not candidates:
         return []
     pts = np.concatenate(sample_pts)
     t = world.first_hit(C, pts - C)  # t = 1 at the sample itself
     free = (t >= 1 - 1e-4).reshape(len(candidates), -1).all(axis=1)
-    return [KnownWord(w.text, px) for (w, px), ok in zip(candidates, free) if ok]
+    return [KnownWord(w.text, px, angle, dist) for (w, px, angle, dist), ok in zip(candidates, free) if ok]
 
 
 # ---- SfM -----------------------------------------------------------------------------------
