@@ -8,7 +8,7 @@ Folder layout (COLMAP style):
       images_2/, images_4/  optional pre-downscaled copies (used when present)
       sparse/0/             COLMAP model (.bin or .txt)
       masks/                optional text masks, one PNG per image named <image stem>.png
-      text_annotations.json optional known text: {"views": {image_name: [{"text", "polygon"}]}}
+      text_annotations.json optional known text: {"views": {image_name: [{"text", "polygon"[, "lang", "script"]}]}}
       split.json            optional split override: {"test": [names], "train": [names]}
 """
 
@@ -38,6 +38,8 @@ class KnownWord:
 
     text: str
     polygon: np.ndarray  # (K, 2)
+    lang: str | None = None  # the word's language (core.scripts codes: rus, ell, hin, ara, chi_sim, eng), when recorded
+    script: str | None = None  # its script (core.scripts names: Cyrillic, Greek, Devanagari, Arabic, Han, Latin)
 
 
 def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int], list[int]]:
@@ -208,7 +210,7 @@ class Scene:
         cam = self.model.cameras[i]
         w, h = self._image_size(i, downscale)
         s = np.array([w / cam.width, h / cam.height])
-        return [KnownWord(k.text, k.polygon * s) for k in self.known_text.get(cam.name, [])]
+        return [KnownWord(k.text, k.polygon * s, k.lang, k.script) for k in self.known_text.get(cam.name, [])]
 
 
 def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
@@ -287,7 +289,7 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
             if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
                 raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not >= 3 finite [x, y] "
                                    f"points (shape {poly.shape})", hint=hint)
-            kept.append(KnownWord(str(w["text"]), poly))
+            kept.append(KnownWord(str(w["text"]), poly, w.get("lang"), w.get("script")))
         out[str(name)] = kept
     return out
 
@@ -295,5 +297,12 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
 def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> None:
     from strings_bench.core.io import atomic_write_json
 
-    atomic_write_json(path, {"views": {n: [{"text": w.text, "polygon": np.asarray(w.polygon).tolist()} for w in ws]
-                                       for n, ws in views.items()}})
+    def entry(w: KnownWord) -> dict:
+        d = {"text": w.text, "polygon": np.asarray(w.polygon).tolist()}
+        if w.lang is not None:
+            d["lang"] = w.lang
+        if w.script is not None:
+            d["script"] = w.script
+        return d
+
+    atomic_write_json(path, {"views": {n: [entry(w) for w in ws] for n, ws in views.items()}})
