@@ -157,3 +157,31 @@ def test_folders_import_only_folders_below():
 def test_upward_import_finder_finds_a_planted_one():
     g = {"strings_bench.core.io": {"strings_bench.bench.runner"}, "strings_bench.bench.runner": set()}
     assert upward_imports(g) == [("strings_bench.core.io", "strings_bench.bench.runner")]
+
+
+SIZE_LIMIT = 450  # lines; a longer module says why in its docstring (issue 29)
+
+
+def oversized_without_reason(modules: dict[str, Path]) -> list[str]:
+    """Modules longer than SIZE_LIMIT whose docstring has no 'Size (~N lines): why' line."""
+    found = []
+    for name, path in modules.items():
+        text = path.read_text()
+        if len(text.splitlines()) <= SIZE_LIMIT:
+            continue
+        doc = ast.get_docstring(ast.parse(text)) or ""
+        if not any(line.startswith("Size (~") and "):" in line for line in doc.splitlines()):
+            found.append(name)
+    return found
+
+
+def test_long_modules_say_why_they_are_long():
+    assert oversized_without_reason(_modules()) == []
+
+
+def test_size_rule_can_fail(tmp_path):
+    long_module = tmp_path / "long.py"
+    long_module.write_text('"""A module."""\n' + "x = 1\n" * (SIZE_LIMIT + 1))
+    assert oversized_without_reason({"long": long_module}) == ["long"]
+    long_module.write_text('"""A module.\n\nSize (~450 lines): a reason.\n"""\n' + "x = 1\n" * (SIZE_LIMIT + 1))
+    assert oversized_without_reason({"long": long_module}) == []

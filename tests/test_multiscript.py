@@ -332,7 +332,8 @@ def test_evaluator_refuses_an_engine_that_cannot_read_the_scene():
             return "test"
 
     poly = np.array([[0, 0], [20, 0], [20, 8], [0, 8]], float)
-    view = EvalView("v.png", np.zeros((16, 32, 3), np.float32), known_words=(KnownWord("СОЛЬ", poly, "rus", "Cyrillic"),))
+    view = EvalView("v.png", np.zeros((16, 32, 3), np.float32),
+                    known_words=(KnownWord("СОЛЬ", poly, lang="rus", script="Cyrillic"),))
     with pytest.raises(OCRError, match="cannot read Cyrillic"):
         Evaluator([view], LatinOnly(), with_lpips=False, with_readability=False)
     latin = EvalView("v.png", np.zeros((16, 32, 3), np.float32), known_words=(KnownWord("SALT", poly),))
@@ -387,6 +388,7 @@ def test_tesseract_lang_auto_takes_the_scene_languages():
         auto.for_languages([])
     poly = np.array([[0, 0], [20, 0], [20, 8], [0, 8]], float)
     view = EvalView("v.png", np.zeros((16, 32, 3), np.float32),
-                    known_words=(KnownWord("ملح", poly, "ara", "Arabic"), KnownWord("عسل", poly, "ara", "Arabic")))
+                    known_words=(KnownWord("ملح", poly, lang="ara", script="Arabic"),
+                                 KnownWord("عسل", poly, lang="ara", script="Arabic")))
     ev = Evaluator([view], [auto], with_lpips=False, with_readability=False)
     assert ev.ocr.settings["lang"] == "ara" and ev.known_languages == ["ara"]

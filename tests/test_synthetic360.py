@@ -323,6 +323,37 @@ def test_calibrate_grid_and_regime_checks():
     json.dumps(points)  # grid points are plain data
 
 
+def test_calibrate_cpu_regime_defaults_and_overrides(tmp_path, capsys):
+    """--regime cpu fills 320x240, 48 views, x0.05, cpu, its grid, run folder and target; explicit options win;
+    --report-only rebuilds the tables without training (and refuses a missing run folder)."""
+    cal = _calibrate()
+    import argparse
+
+    args = argparse.Namespace(regime="cpu", device=None, width=None, height=None, views=64, steps_scale=None,
+                              grid=None, out=None, target=None)
+    cal.apply_regime(args)
+    assert (args.device, args.width, args.height, args.views, args.steps_scale) == ("cpu", 320, 240, 64, 0.05)
+    assert args.grid == ["room_scale=0.7,1"] and args.out == "runs/calibrate-cpu" and args.target == "cer_known"
+    assert cal.check_regime(args.device, args.width, args.steps_scale) == "cpu"
+    assert cal.parse_grid(args.grid) == [{"room_scale": 0.7}, {"room_scale": 1.0}]
+    paper = argparse.Namespace(regime="paper", device=None, width=None, height=None, views=None, steps_scale=None,
+                               grid=None, out=None, target=None)
+    cal.apply_regime(paper)
+    assert (paper.width, paper.views, paper.steps_scale, paper.target) == (1600, 150, None, "cer")
+    # the CPU target: known-text CER's mean is held against 0.736 (OCR-CER 1.0 here would say "no")
+    rows = [{"setting": "s360-r1", "scene": s, "label": "7K", "iteration": 7000, "cer": 1.0, "cer_known": c,
+             "word_cer": 0.9, "word_cer_gt": 0.2, "text_nll": 1.0, "psnr": 20.0, "gaussians": 10, "train_seconds": 1.0}
+            for s, c in (("pantry", 0.7), ("office", 0.8))]
+    md = cal.tables(rows, ["pantry", "office"], "cer_known")
+    assert "| s360-r1 | 7K | 2/2 | 1.000 | 0.750 |" in md and md.rstrip().endswith("| 0.736 | yes |")
+    assert cal.tables(rows, ["pantry", "office"], "cer").rstrip().endswith("| 0.736 | no |")
+    assert cal.main(["--regime", "cpu", "--report-only", "--out", str(tmp_path / "none")]) == 1
+    assert "no run folder" in capsys.readouterr().err
+    (tmp_path / "run").mkdir()
+    assert cal.main(["--regime", "cpu", "--report-only", "--out", str(tmp_path / "run"), "--scenes", "pantry"]) == 0
+    assert (tmp_path / "run" / "calibration.md").read_text().startswith("# synthetic360 calibration: 3dgs, schedule x0.05")
+
+
 def test_views_rendered_in_worker_processes_equal_the_one_process_render(monkeypatch):
     """render_views(workers=2): each worker rebuilds the scene from its name and settings; every view
     (pixels, mask, depth, camera effects drawn, words) must equal the one-process render, in order."""

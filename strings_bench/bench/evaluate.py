@@ -194,6 +194,9 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
                 **result,
             }
             _write_manifest(out, manifest)
+            from strings_bench.reports.results import write_words_csv
+
+            write_words_csv(cell_dir, jsonable(record))  # before result.json: a finished cell has its words.csv
             atomic_write_json(cell_dir / RESULT_FILE, jsonable(record))
             written.append(key)
             c = result["cer"]["cer"]

@@ -46,7 +46,7 @@ from strings_bench.core.io import atomic_write_json
 from strings_bench.core.method import Method
 from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
 from strings_bench.eval.protocol import Evaluator
-from strings_bench.reports.results import iteration_label, write_results_csv
+from strings_bench.reports.results import iteration_label, write_results_csv, write_words_csv
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +196,7 @@ class Runner:
             "extra": result.extra,
             **ev,
         }
+        write_words_csv(cell_dir, jsonable(record))  # before result.json: a finished cell has its words.csv
         atomic_write_json(cell_dir / RESULT_FILE, jsonable(record))
         if self.results_csv:
             write_results_csv(job.run_dir)

@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Mapping
 
+import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError
@@ -71,7 +72,7 @@ class GaussianAdam:
     """
 
     def __init__(self, params: dict[str, torch.nn.Parameter], lrs: Mapping[str, float], eps: float = ADAM_EPS,
-                 betas: tuple[float, float] = (0.9, 0.999)):
+                 betas: tuple[float, float] = (0.9, 0.999), fused: bool | None = None):
         unknown = [k for k in lrs if k not in params]
         if unknown:
             raise StringsBenchError(f"learning rates given for unknown parameter groups {unknown}",
@@ -80,6 +81,10 @@ class GaussianAdam:
         self.lrs = {k: float(lrs.get(k, 0.0)) for k in params}
         self.eps = eps
         self.betas = betas
+        # fused: one numba pass per group on contiguous float32 CPU tensors (bit-identical to the torch
+        # path, engine/optim_kernels.py); None = wherever it applies, False = always the torch path.
+        self.fused = fused
+        self._sqrt_buf: dict[str, torch.Tensor] = {}  # sqrt(v) per group, kept between steps (no page faults)
         self.state: dict[str, dict] = {}
         for k, p in params.items():
             self.reset_state(k)
@@ -109,6 +114,8 @@ class GaussianAdam:
                                         hint="change the number of Gaussians only through strategies.ops")
             st["step"] += 1
             m, v = st["exp_avg"], st["exp_avg_sq"]
+            if self.fused is not False and self._fused_step(name, p, g, m, v, st["step"], row_scale.get(name)):
+                continue
             m.mul_(b1).add_(g, alpha=1 - b1)
             v.mul_(b2).addcmul_(g, g, value=1 - b2)
             lr = self.lrs[name]
@@ -127,6 +134,43 @@ class GaussianAdam:
                     scale = scale.reshape((-1,) + (1,) * (p.ndim - 1))
                 update.mul_(scale)
             p.add_(update, alpha=-lr / bc1)
+
+    def _fused_step(self, name: str, p, g, m, v, step: int, scale) -> bool:
+        """The same update as the torch path in one numba pass; False (nothing done) where it does not
+        apply: other dtypes or devices, non-contiguous tensors."""
+        tensors = (p, g, m, v)
+        if not all(t.dtype == torch.float32 and t.device.type == "cpu" and t.is_contiguous() for t in tensors):
+            return False
+        from strings_bench.engine.optim_kernels import adam_moments, adam_param, f32
+
+        b1, b2 = self.betas
+        lr = self.lrs[name]
+        bc1 = 1 - b1 ** step
+        bc2 = 1 - b2 ** step
+        n = p.numel()
+        rows = p.shape[0] if p.ndim else 1
+        if scale is not None:
+            scale = torch.as_tensor(scale, dtype=torch.float32, device=p.device)
+            if scale.ndim == 1:
+                if scale.shape[0] != rows:
+                    raise StringsBenchError(f"row LR scale for {name} has {scale.shape[0]} rows, parameter {rows}")
+                scale_arr = scale.contiguous().numpy()
+            else:  # a 0-d factor on every element
+                scale_arr = np.full(max(rows, 1), float(scale), np.float32)
+        else:
+            scale_arr = np.empty(0, np.float32)
+        row_len = max(n // max(rows, 1), 1)
+        g_flat, m_flat, v_flat = g.view(-1), m.view(-1), v.view(-1)
+        adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2))
+        if lr == 0.0:
+            return True
+        sq = self._sqrt_buf.get(name)
+        if sq is None or sq.numel() != n:
+            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32)
+        torch.sqrt(v_flat, out=sq)
+        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), sq.numpy(), scale_arr, row_len,
+                   f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
+        return True
 
     # ---- state resizing (used by strategies.ops) -------------------------------------------
     def reset_state(self, name: str) -> None:

@@ -227,6 +227,8 @@ class RefWord:
     source: str  # "known" | "gt_ocr"
     headline: bool = True
     turn: int | None = None  # chosen on the GT view (None: not yet)
+    angle_deg: float | None = None  # viewing angle and distance where the scene knows them (scene.KnownWord)
+    distance: float | None = None
 
 
 def reference_words(known: Iterable[Any] | None, gt_ocr: Iterable[Any] | None,
@@ -256,7 +258,8 @@ def reference_words(known: Iterable[Any] | None, gt_ocr: Iterable[Any] | None,
         if q is None:
             left["unusable_box"] += 1
             continue
-        words.append(RefWord(str(text), q, "known"))
+        words.append(RefWord(str(text), q, "known", angle_deg=getattr(k, "angle_deg", None),
+                             distance=getattr(k, "distance", None)))
         g = cer.polygon_geometry(poly, "repair")
         if g is not None:
             known_geoms.append(g)
@@ -292,7 +295,7 @@ class Reading:
         return self.errors == 0
 
     def to_dict(self) -> dict:
-        return {"read": self.read, "nll": self.nll, "errors": self.errors}
+        return {"read": self.read, "nll": self.nll, "errors": self.errors, "nll_chars": self.nll_chars}
 
 
 def score(probs: np.ndarray, characters: list[str], alphabet: FoldedAlphabet, text: str) -> Reading:
@@ -384,6 +387,8 @@ class SceneReadability:
         """
         import time
 
+        import strings_bench.eval.cer as cer
+
         t0 = time.perf_counter()
         per_view: dict[str, list[dict]] = {}
         pooled: dict[tuple[str, str], list[Reading]] = {}
@@ -402,8 +407,11 @@ class SceneReadability:
                 for grp in groups:
                     pooled.setdefault((grp, "render"), []).append(r)
                     pooled.setdefault((grp, "gt"), []).append(g)
+                width, _ = box_size(ref.quad)
                 records.append({"text": ref.text, "source": ref.source, "headline": ref.headline,
-                                "polygon": ref.quad.tolist(), "turn": ref.turn or 0, "chars": r.chars,
+                                "polygon": ref.quad.tolist(), "height_px": cer.text_height_px(ref.quad),
+                                "width_px": width, "angle_deg": ref.angle_deg, "distance": ref.distance,
+                                "turn": ref.turn or 0, "chars": r.chars,
                                 "oov_chars": r.oov_chars, "gt": g.to_dict(), "render": r.to_dict()})
             per_view[name] = records
         return {

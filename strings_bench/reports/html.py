@@ -1,5 +1,7 @@
 """The run's report as static HTML: `report/index.html` and one word-crop gallery page per scene.
 
+Size (~640 lines): one offline page generator; its CSS, script and gallery are inline by design (no CDN, no template files to lose).
+
     from strings_bench.reports.html import write_html    # called by write_report
 
 Offline from the file system: no server, no CDN, no external script; CSS and a small vanilla

@@ -1,5 +1,7 @@
 """Tables of a run, laid out like the paper's: LaTeX (booktabs, best three shaded), Markdown, CSV.
 
+Size (~660 lines): every paper table in its three layouts (LaTeX, Markdown, CSV), sharing the shading, n/a and caption rules.
+
 Every dataset figure is the mean over its scenes (OCR-CER: over the scenes where anything could be
 scored, as the authors do). Checkpoint columns are labelled by the paper iteration they stand for
 ("7K", "30K"); the iterations actually trained are given in the caption. Missing values print as

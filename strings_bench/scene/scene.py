@@ -38,8 +38,15 @@ class KnownWord:
 
     text: str
     polygon: np.ndarray  # (K, 2)
-    lang: str | None = None  # the word's language (core.scripts codes: rus, ell, hin, ara, chi_sim, eng), when recorded
-    script: str | None = None  # its script (core.scripts names: Cyrillic, Greek, Devanagari, Arabic, Han, Latin)
+    # Where the scene knows them (synthetic scenes): the angle in degrees between the surface normal and the
+    # direction to the camera at the word's centre (0 = seen head-on), and the camera's distance to that centre
+    # in scene units. None elsewhere.
+    angle_deg: float | None = None
+    distance: float | None = None
+    # Where recorded (synthetic-multi scenes): the word's language (core.scripts codes: rus, ell, hin, ara,
+    # chi_sim, eng) and script (core.scripts names: Cyrillic, Greek, Devanagari, Arabic, Han, Latin).
+    lang: str | None = None
+    script: str | None = None
 
 
 def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int], list[int]]:
@@ -210,7 +217,8 @@ class Scene:
         cam = self.model.cameras[i]
         w, h = self._image_size(i, downscale)
         s = np.array([w / cam.width, h / cam.height])
-        return [KnownWord(k.text, k.polygon * s, k.lang, k.script) for k in self.known_text.get(cam.name, [])]
+        return [KnownWord(k.text, k.polygon * s, k.angle_deg, k.distance, k.lang, k.script)
+                for k in self.known_text.get(cam.name, [])]
 
 
 def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
@@ -289,7 +297,14 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
             if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
                 raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not >= 3 finite [x, y] "
                                    f"points (shape {poly.shape})", hint=hint)
-            kept.append(KnownWord(str(w["text"]), poly, w.get("lang"), w.get("script")))
+            geo = {}
+            for key in ("angle_deg", "distance"):  # optional (synthetic scenes built since issue 30)
+                v = w.get(key)
+                if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)):
+                    raise DatasetError(f"text annotations {path}: {key} of a word of view {name!r} is not a finite "
+                                       f"number ({v!r})", hint=hint)
+                geo[key] = None if v is None else float(v)
+            kept.append(KnownWord(str(w["text"]), poly, **geo, lang=w.get("lang"), script=w.get("script")))
         out[str(name)] = kept
     return out
 
@@ -297,12 +312,10 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
 def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> None:
     from strings_bench.core.io import atomic_write_json
 
-    def entry(w: KnownWord) -> dict:
+    def word(w: KnownWord) -> dict:
         d = {"text": w.text, "polygon": np.asarray(w.polygon).tolist()}
-        if w.lang is not None:
-            d["lang"] = w.lang
-        if w.script is not None:
-            d["script"] = w.script
+        d.update({k: float(v) for k, v in (("angle_deg", w.angle_deg), ("distance", w.distance)) if v is not None})
+        d.update({k: v for k, v in (("lang", w.lang), ("script", w.script)) if v is not None})
         return d
 
-    atomic_write_json(path, {"views": {n: [entry(w) for w in ws] for n, ws in views.items()}})
+    atomic_write_json(path, {"views": {n: [word(w) for w in ws] for n, ws in views.items()}})

@@ -1,6 +1,8 @@
 """Generate a synthetic scene folder: rendered views, GT text masks and polygons, and a sparse
 point cloud triangulated by pycolmap from SIFT matches on the rendered images with the known poses.
 
+Size (~650 lines): one pipeline in data-path order (render views, masks and polygons, SfM, write); splitting it would hide the order.
+
 Layout written (COLMAP style, loadable with `Scene.load`):
 
     <cache_root>/synthetic/<scene>-<key>/
@@ -284,14 +286,21 @@ def visible_words(spec: SceneSpec, cam: Camera, settings: SyntheticSettings) -> 
         cos = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
         if np.any(cos < settings.min_facing_cos):
             continue
-        candidates.append((word, px))
+        # The viewing angle and distance at the word's centre (the middle sample): recorded with the word.
+        centre = prim.point(np.asarray([_bilinear(word.uv, 0.5, 0.5)]))
+        _, n_c = prim.surface(centre)
+        v = C - centre[0]
+        dist = float(np.linalg.norm(v))
+        angle = float(np.degrees(np.arccos(np.clip(abs(float(n_c[0] @ v)) / (np.linalg.norm(n_c[0]) * dist), 0.0, 1.0))))
+        candidates.append((word, px, angle, dist))
         sample_pts.append(pts)
     if not candidates:
         return []
     pts = np.concatenate(sample_pts)
     t = world.first_hit(C, pts - C)  # t = 1 at the sample itself
     free = (t >= 1 - 1e-4).reshape(len(candidates), -1).all(axis=1)
-    return [KnownWord(w.text, px, w.lang, w.script) for (w, px), ok in zip(candidates, free) if ok]
+    return [KnownWord(w.text, px, angle, dist, w.lang, w.script)
+            for (w, px, angle, dist), ok in zip(candidates, free) if ok]
 
 
 # ---- SfM -----------------------------------------------------------------------------------

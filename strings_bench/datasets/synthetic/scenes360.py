@@ -1,5 +1,7 @@
 """The room-scale scenes of `synthetic360`, in the spirit of STRinGS-360's captures.
 
+Size (~520 lines): the room builder and the three rooms built on it; the difficulty parameters are read in one place with the scenes that use them.
+
 Each scene is a room (floor, four walls, ceiling, posters with text on the walls) with a cluster
 of text-bearing objects in its middle and textured clutter (no text) around it; the cameras orbit
 the cluster inside the room, so the far half of the room is behind the text in every view.

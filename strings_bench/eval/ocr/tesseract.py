@@ -141,7 +141,10 @@ class TesseractBackend(OCRBackend):
         return TesseractBackend(cache=self.cache, **self._runtime, **settings, lang="+".join(languages))
 
     def check_languages(self) -> None:
-        """OCRError naming the Debian package when a language of `lang` has no traineddata here."""
+        """OCRError naming the Debian package when a language of `lang` has no traineddata here (lang=auto:
+        checked once resolved)."""
+        if self.settings["lang"] == AUTO:
+            return
         installed = tesseract_languages(self.binary)
         missing = [c for c in self.languages() if c not in installed]
         if missing:
@@ -172,6 +175,7 @@ class TesseractBackend(OCRBackend):
             im = im.resize((int(round(im.width * up)), int(round(im.height * up))), Image.Resampling.BICUBIC)
         im.save(buf, format="PNG")
         s = self.settings
+        self.languages()  # lang=auto must have been resolved
         cmd = [self.binary, "stdin", "stdout", "-l", str(s["lang"]), "--psm", str(int(s["psm"])), "--oem", str(int(s["oem"])), "tsv"]
         env = dict(os.environ, OMP_THREAD_LIMIT=str(self.threads))
         try:
