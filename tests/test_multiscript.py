@@ -392,3 +392,107 @@ def test_tesseract_lang_auto_takes_the_scene_languages():
                                  KnownWord("عسل", poly, lang="ara", script="Arabic")))
     ev = Evaluator([view], [auto], with_lpips=False, with_readability=False)
     assert ev.ocr.settings["lang"] == "ara" and ev.known_languages == ["ara"]
+
+
+def test_no_word_crop_readability_on_scripts_its_recogniser_cannot_read():
+    from strings_bench.eval.protocol import EvalView, Evaluator
+    from strings_bench.eval.ocr.tesseract import TesseractBackend
+    from strings_bench.scene.scene import KnownWord
+
+    poly = np.array([[0, 0], [20, 0], [20, 8], [0, 8]], float)
+    view = EvalView("v.png", np.zeros((16, 32, 3), np.float32), known_words=(KnownWord("СОЛЬ", poly, lang="rus"),))
+    ev = Evaluator([view], TesseractBackend(lang="rus"), with_lpips=False)
+    assert ev.readability({}) is None
+
+
+# --------------------------------------------------------------------------- Bundler scenes (saharov32)
+def _bundler_project(f, k1, k2, R, t, X, w, h):
+    """Bundler's own camera model (its manual), written out independently: stored-image pixel of X."""
+    P = R @ X + t
+    p = -P[:2] / P[2]
+    r2 = p @ p
+    q = f * (1 + k1 * r2 + k2 * r2 * r2) * p
+    return np.array([q[0] + w / 2, h / 2 - q[1]])  # Bundler's y points up from the centre
+
+
+def _random_bundle(rng, n_cams=3, n_pts=40):
+    cams = []
+    for _ in range(n_cams):
+        a = rng.normal(size=3) * 0.2
+        from scipy.spatial.transform import Rotation
+
+        R = Rotation.from_rotvec(a).as_matrix() @ np.diag([1.0, -1.0, -1.0])  # looking roughly down -z of the camera
+        t = rng.normal(size=3) * 0.1 + np.array([0, 0, -4.0])
+        cams.append((float(rng.uniform(300, 400)), -0.1, 0.05, R, t))
+    X = rng.normal(size=(n_pts, 3)) * 0.5
+    return cams, X
+
+
+@pytest.mark.parametrize("orientation", [1, 6, 8, 3])
+def test_bundler_cameras_reproject_like_bundler(orientation, tmp_path):
+    import pycolmap
+
+    from strings_bench.datasets.bundler import bundler_reconstruction, read_bundler
+
+    rng = np.random.default_rng(7)
+    w, h = 320, 240
+    cams, X = _random_bundle(rng)
+    lines = ["# Bundle file v0.3", f"{len(cams)} {len(X)}"]
+    for f, k1, k2, R, t in cams:
+        lines += [f"{f} {k1} {k2}", *(" ".join(map(str, row)) for row in R), " ".join(map(str, t))]
+    obs = {}
+    for i, x in enumerate(X):
+        lines += [" ".join(map(str, x)), "10 20 30"]
+        views = []
+        for c, (f, k1, k2, R, t) in enumerate(cams):
+            u, v = _bundler_project(f, k1, k2, R, t, x, w, h)
+            views.append(f"{c} {i} {u - w / 2} {h / 2 - v}")
+            obs[(i, c)] = (u, v)
+        lines.append(f"{len(cams)} " + " ".join(views))
+    (tmp_path / "bundle.out").write_text("\n".join(lines) + "\n")
+    model = read_bundler(tmp_path / "bundle.out")
+    assert model.focal.shape == (3,) and model.xyz.shape == (40, 3) and len(model.tracks) == 40
+    names = [f"im{c}.jpg" for c in range(len(cams))]
+    rec, kept = bundler_reconstruction(model, names, [(w, h)] * 3, [orientation] * 3)
+    assert kept == names and rec.num_points3D() == 40
+    # The stored pixel (u, v) in the upright image, as PIL's exif_transpose turns it.
+    up = {1: lambda u, v: (u, v), 3: lambda u, v: (w - u, h - v), 6: lambda u, v: (h - v, u), 8: lambda u, v: (v, w - u)}
+    err = []
+    for p in rec.points3D.values():
+        i = int(np.argmin(np.linalg.norm(X - p.xyz, axis=1)))
+        for el in p.track.elements:
+            im = rec.images[el.image_id]
+            cam = rec.cameras[im.camera_id]
+            uv = np.asarray(cam.img_from_cam(im.cam_from_world() * p.xyz)).ravel()[:2]
+            err.append(np.linalg.norm(uv - np.array(up[orientation](*obs[(i, el.image_id - 1)]))))
+    assert max(err) < 1e-6
+
+
+def test_prepare_bundler_scene_end_to_end(tmp_path):
+    from PIL import Image
+
+    from strings_bench.datasets.bundler import prepare_bundler_scene
+    from strings_bench.scene.scene import Scene
+
+    rng = np.random.default_rng(3)
+    w, h = 320, 240
+    cams, X = _random_bundle(rng, n_cams=8, n_pts=60)
+    src = tmp_path / "src"
+    (src / "images").mkdir(parents=True)
+    lines = ["# Bundle file v0.3", f"{len(cams)} {len(X)}"]
+    for f, k1, k2, R, t in cams:
+        lines += [f"{f} {k1} {k2}", *(" ".join(map(str, row)) for row in R), " ".join(map(str, t))]
+    for i, x in enumerate(X):
+        views = [f"{c} {i} {u - w / 2} {h / 2 - v}"
+                 for c, cam in enumerate(cams) for u, v in [_bundler_project(*cam, x, w, h)]]
+        lines += [" ".join(map(str, x)), "10 20 30", f"{len(cams)} " + " ".join(views)]
+    (src / "cameras.out").write_text("\n".join(lines) + "\n")
+    names = [f"IMG_{c}.JPG" for c in range(len(cams))]
+    (src / "ordered_filenames.txt").write_text(f"{len(names)}\n" + "\n".join(names) + "\n")
+    for n in names:
+        Image.fromarray(rng.integers(0, 255, (h, w, 3), dtype=np.uint8)).save(src / "images" / n)
+    res = prepare_bundler_scene(src, "bundler-test", out=tmp_path / "scene", masks=False, register=False,
+                                progress=False, echo=lambda s: None)
+    assert res.num_registered == 8 and res.num_points == 60 and res.matcher.startswith("none")
+    scene = Scene.load(tmp_path / "scene")
+    assert len(scene.names) == 8 and (tmp_path / "scene" / "images_2").is_dir()

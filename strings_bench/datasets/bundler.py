@@ -183,7 +183,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     stages: dict[str, float] = {}
-    n_stages = 5 if masks else 4
+    n_stages = 4 if masks else 3
 
     def stage(label: str) -> float:
         echo(f"[{len(stages) + 1}/{n_stages}] {label} ...")

@@ -182,6 +182,15 @@ class Evaluator:
         # An engine set to read "the scene's languages" (tesseract lang=auto) is resolved to them here.
         self.engines = [e.for_languages(self.known_languages) if hasattr(e, "for_languages") else e for e in self.engines]
         self.ocr = self.engines[0]
+        if self._readability is None and self.known_scripts:
+            # The word-crop readability runs RapidOCR's recogniser: not on text in scripts it cannot read.
+            from strings_bench.eval.ocr.languages import rapidocr_supported_scripts
+
+            unread = [sc for sc in self.known_scripts if sc not in rapidocr_supported_scripts()]
+            if unread:
+                log.info("word-crop readability is not computed: its recogniser (RapidOCR) does not read %s",
+                         ", ".join(unread))
+                self._readability = False
         for engine in self.engines:  # an engine that cannot read the scene's script refuses it, naming who can
             check = getattr(engine, "require_scripts", None)
             if check is not None and self.known_scripts:
