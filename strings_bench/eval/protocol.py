@@ -186,7 +186,10 @@ class Evaluator:
             # The word-crop readability runs RapidOCR's recogniser: not on text in scripts it cannot read.
             from strings_bench.eval.ocr.languages import rapidocr_supported_scripts
 
-            unread = [sc for sc in self.known_scripts if sc not in rapidocr_supported_scripts()]
+            try:
+                unread = [sc for sc in self.known_scripts if sc not in rapidocr_supported_scripts()]
+            except OCRError:  # no recogniser: readability() says so itself
+                unread = []
             if unread:
                 log.info("word-crop readability is not computed: its recogniser (RapidOCR) does not read %s",
                          ", ".join(unread))
@@ -350,7 +353,11 @@ class Evaluator:
         if self.known_scripts:
             return {"scripts": list(self.known_scripts), "languages": list(self.known_languages), "from": "known text"}
         texts = [w.text for gt, _ in pairs.values() if gt for w in gt]
-        return {"scripts": scripts_of(texts), "languages": [], "from": f"GT OCR ({self.ocr.name})"}
+        try:  # the languages the engine was told to read (Tesseract's lang), where it has them
+            langs = list(self.ocr.languages()) if callable(getattr(self.ocr, "languages", None)) else []
+        except OCRError:
+            langs = []
+        return {"scripts": scripts_of(texts), "languages": langs, "from": f"GT OCR ({self.ocr.name})"}
 
     def second_opinion(self, engine, renders: Mapping[str, np.ndarray], primary_pairs: dict, missing=()) -> dict:
         """A further OCR engine's reading of a cell: its words on every GT and render view, its CER and
