@@ -67,10 +67,10 @@ def _load_scene(job: Job):
 def _get_ocr(name_or_backend) -> list:
     """The OCR engines of a job: from `--ocr` ("rapidocr" or "rapidocr,tesseract"), a backend object
     (tests), or a list of either; the first is the primary."""
-    from strings_bench.eval.ocr import get_backend, parse_engines
+    from strings_bench.eval.ocr import get_engine, parse_engines
 
     if isinstance(name_or_backend, str):
-        return [get_backend(n) for n in parse_engines(name_or_backend)]
+        return [get_engine(n) for n in parse_engines(name_or_backend)]
     if isinstance(name_or_backend, (list, tuple)):
         return [x for item in name_or_backend for x in _get_ocr(item)]
     return [name_or_backend]

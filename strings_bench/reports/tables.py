@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS
+from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS, cer_per_script
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).
@@ -363,6 +363,7 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
     if "word_cer" in df and df["word_cer"].notna().any():
         tables += readability_tables(df, note)
     tables += ocr_engine_tables(df, manifest, note)
+    tables += script_tables(df, note)
     tables.append(metrics_table(df, note))
     paper = paper_comparison_table(df, note)
     if paper is not None:
@@ -371,6 +372,38 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
     if abl is not None:
         tables.append(abl)
     return tables
+
+
+# ---- text in several scripts (issue 31) -------------------------------------------------------------------
+def script_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
+    """When the run's scenes are in more than one script (results.csv `script`): OCR-CER, and known-text CER
+    where there is one, per script x checkpoint, mean over the scenes of that script; [] otherwise."""
+    if "script" not in df or df["script"].isna().all():
+        return []
+    main = df["script"].fillna("").astype(str).str.split("+").str[0]
+    scripts = [s for s in dict.fromkeys(main) if s]
+    if len(scripts) < 2:
+        return []
+    rows = df.assign(script=main).to_dict("records")
+    labels = main_labels(df)
+    methods = method_order(m for m in df["method"] if not is_ablation(m))
+    out = []
+    for value, name, corner, what in (("cer", "ocr_cer_by_script", "OCR-CER by script (lower is better)", "OCR-CER"),
+                                      ("cer_known", "known_cer_by_script", "Known-text CER by script (lower is better)",
+                                       "known-text CER")):
+        if value not in df or df[value].isna().all():
+            continue
+        per = cer_per_script(rows, value)
+        cols = []
+        for sc in scripts:
+            for l in labels:
+                vals = {r["method"]: r[value] for r in per if r["script"] == sc and r["label"] == l}
+                n = max([r["scenes"] for r in per if r["script"] == sc and r["label"] == l] or [0])
+                cols.append(Column(f"{sc} ({n} scene{'s' if n != 1 else ''})", l, l, True, ".3f", vals))
+        out.append(Table(name, corner.replace("(lower is better)", r"$\downarrow$"), corner, cols, methods,
+                         f"{what} per script of the scenes' text (results.csv `script`: from the known words, else the GT "
+                         "OCR), mean over the scenes in that script across datasets." + RANK_NOTE + note))
+    return out
 
 
 # ---- a second OCR opinion (`run --ocr rapidocr,tesseract`) ---------------------------------------------
