@@ -17,6 +17,9 @@ Gaussian count, then the mean over the scenes next to the paper's figures (withi
     # (7K = 350 steps, 30K = 1500), device cpu, run folder runs/calibrate-cpu
     python benchmarks/calibrate.py --regime cpu --grid room_scale=0.7,1
     python benchmarks/calibrate.py --regime cpu --grid room_scale=0.7,1 --report-only   # tables only, no training
+    # the frozen CPU configuration (dataset synthetic360-cpu), once the calibration chose it: every method
+    python benchmarks/calibrate.py --regime cpu --dataset synthetic360-cpu --out runs/s360cpu-compare \
+        --methods strings,3dgs,strings-no-densify,strings-pos-lr,absgs,mip-splatting,mcmc,edc-absgs
 
 Grid: `KEY=V1,V2,...` per generator setting (any field of SyntheticSettings; text_px values as
 LO:HI); the grid is their product, each point on top of `--base` (default: the synthetic360 card's
@@ -194,6 +197,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
     ap.add_argument("--target", choices=sorted(TARGET_NAMES), default=None,
                     help="the metric whose mean is held against the paper's 3DGS figures (paper: cer, cpu: cer_known)")
+    ap.add_argument("--dataset", default=None,
+                    help="train on a registered synthetic360 configuration (e.g. synthetic360-cpu, the frozen CPU "
+                         "settings) instead of a grid; --grid, --base, --width, --height and --views are then unused")
     ap.add_argument("--report-only", action="store_true",
                     help="write calibration.csv/.md from the cells already in the run folder; train nothing")
     args = ap.parse_args(argv)
@@ -220,9 +226,15 @@ def main(argv=None) -> int:
             for item in args.base:
                 key, _, value = item.partition("=")
                 base[key] = parse_value(key, value)
-        points = parse_grid(args.grid)
+        points = [] if args.dataset else parse_grid(args.grid)
         checkpoints = sorted(set(parse_checkpoints(args.checkpoints)))
         specs, labels = [], {}
+        if args.dataset:  # a registered (frozen) configuration, e.g. synthetic360-cpu: no grid
+            from strings_bench.datasets.registry import get_dataset
+
+            get_dataset(args.dataset)
+            labels[args.dataset] = {}
+            specs = [f"{args.dataset}/{s}" for s in scenes]
         for point in points:
             settings = settings_with(**{**base, "width": args.width, "height": args.height, "n_views": args.views, **point})
             label = point_label(point)
@@ -259,8 +271,12 @@ def main(argv=None) -> int:
         writer.writerow({**r, **{k: labels[r["setting"]].get(k, "") for k in labels_keys(labels)}})
     atomic_write_text(run_dir / "calibration.csv", buf.getvalue())
     schedule = "paper schedule" if args.steps_scale is None else f"schedule x{args.steps_scale:g}"
-    md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, {args.width}x{args.height}, "
-          f"{args.views} views, device {device}\n\nBase settings: {base}\n\n")
+    if args.dataset:
+        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, device {device}\n\n"
+              f"Dataset: {args.dataset} (its registered settings)\n\n")
+    else:
+        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, {args.width}x{args.height}, "
+              f"{args.views} views, device {device}\n\nBase settings: {base}\n\n")
     for method in methods:
         md += f"## {method}\n\n" + tables([r for r in rows if r["method"] == method], scenes, args.target) + "\n"
     atomic_write_text(run_dir / "calibration.md", md)

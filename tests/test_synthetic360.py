@@ -285,6 +285,32 @@ def test_card_registration_and_resolution(monkeypatch, tmp_path):
     assert calls[0] == ("office", settings_with(**SYNTHETIC360_DEFAULTS))
 
 
+def test_cpu_configuration_is_a_card_with_pinned_cache_keys(monkeypatch, tmp_path, capsys):
+    """synthetic360-cpu (issue 27): the settings frozen by the CPU calibration, registered as a dataset whose scenes
+    (runner and `datasets prepare`) build with exactly them; the cache keys are the ones docs/synthetic.md lists
+    (the calibration's run folder trained on these scenes), so a changed setting or generator fails here."""
+    from strings_bench.datasets.synthetic import SYNTHETIC360_CPU, default_settings
+
+    card = get_dataset("synthetic360-cpu")
+    assert [s.name for s in card.scenes] == list(SCENE_NAMES_360)
+    st = settings_with(**SYNTHETIC360_CPU)
+    assert (st.width, st.height, st.n_views, st.room_scale, st.text_px) == (320, 240, 48, 0.6, (10.0, 16.0))
+    assert all(getattr(st, k) == v for k, v in SYNTHETIC360_DEFAULTS.items())  # the card's camera variation
+    assert {s: st.key(s) for s in SCENE_NAMES_360} == {"pantry": "44d5d74a835b", "office": "fa06cf581d7a",
+                                                         "storeroom": "040f396a0077"}
+    assert default_settings("office", "synthetic360-cpu") == st
+    assert default_settings("office") == settings_with(**SYNTHETIC360_DEFAULTS) != st  # synthetic360 is unchanged
+    calls = []
+    fake = lambda scene, settings, progress=True, force=False: calls.append((scene, settings)) or tmp_path  # noqa: E731
+    monkeypatch.setattr("strings_bench.datasets.synthetic.build_scene", fake)
+    refs = resolve_scenes(["synthetic360-cpu/office"])
+    assert refs[0].dataset == "synthetic360-cpu" and calls == [("office", st)]
+    monkeypatch.setattr("strings_bench.cli.datasets._stats", lambda scene_id, path, seconds: {})
+    monkeypatch.setattr("strings_bench.cli.datasets._format", lambda row: "")
+    assert cli_main(["datasets", "prepare", "synthetic360-cpu/storeroom"]) == 0
+    assert calls[-1] == ("storeroom", st)
+
+
 def test_cli_prepare_rejects_room_controls_on_synthetic_scenes(capsys):
     assert cli_main(["datasets", "prepare", "synthetic/books", "--room-scale", "2"]) == 1  # clear error, no traceback
     assert "has no setting room_scale" in capsys.readouterr().err

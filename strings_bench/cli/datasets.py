@@ -95,7 +95,7 @@ def _text_px(value: str) -> tuple[float, float]:
     return lo, hi
 
 
-SYNTHETIC_IDS = ("synthetic", "synthetic360")
+SYNTHETIC_IDS = ("synthetic", "synthetic360", "synthetic360-cpu")
 OVERRIDE_FIELDS = ("width", "height", "n_views", "seed", "supersample", "room_scale", "text_px", "bg_frequency", "clutter",
                    "exposure_sd", "white_balance_sd", "vignetting", "noise_sigma", "defocus_px", "motion_blur_px")
 
@@ -114,7 +114,7 @@ def _scene_status(card, scene: str) -> str:
     if card.id in SYNTHETIC_IDS:
         from strings_bench.datasets.synthetic import default_settings, is_built, scene_dir
 
-        settings = default_settings(scene)
+        settings = default_settings(scene, card.id)
         return f"cached at {scene_dir(scene, settings)}" if is_built(scene, settings) else "not built (built on first use)"
     if card.locate is not None:
         return "located on demand"
@@ -164,7 +164,7 @@ def cmd_prepare(args) -> int:
         t0 = time.perf_counter()
         if dataset_id in SYNTHETIC_IDS:
             # Each scene's defaults (synthetic360 has camera variation on), with the options given.
-            path = build_scene(scene, replace(default_settings(scene), **overrides), force=args.force, progress=True)
+            path = build_scene(scene, replace(default_settings(scene, dataset_id), **overrides), force=args.force, progress=True)
         else:
             path = locate_scene(card, scene)
         rows.append(_stats(f"{dataset_id}/{scene}", path, time.perf_counter() - t0))

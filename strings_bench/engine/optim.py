@@ -166,7 +166,7 @@ class GaussianAdam:
             return True
         sq = self._sqrt_buf.get(name)
         if sq is None or sq.numel() != n:
-            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32)
+            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32, device=p.device)
         torch.sqrt(v_flat, out=sq)
         adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), sq.numpy(), scale_arr, row_len,
                    f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))

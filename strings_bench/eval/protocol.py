@@ -345,6 +345,40 @@ class Evaluator:
             **({"missing_renders": missing} if missing else {}),
         }
 
+    def evaluate_words(self, method: str, renders: Mapping[str, np.ndarray], missing: Iterable[str] = ()) -> dict:
+        """The cheap evaluation of a dense checkpoint (`run --checkpoints every:N`): the word-crop readability (its
+        GT side, the GT views' OCR included, is made once per Evaluator and reused) and PSNR/SSIM over the image
+        and the text region; no OCR of the renders, no LPIPS. The keys of `evaluate`, with `cer` and `cer_known`
+        None and no OCR views."""
+        import strings_bench.eval.metrics as metrics
+
+        missing = [n for n in self.names if n in set(missing) and n not in renders]
+        self.check_renders(method, renders, missing)
+        per_view: dict[str, dict] = {}
+        read_views: dict[str, tuple] = {}
+        for name in self.names:
+            if name in missing:
+                continue
+            view, gt, r = self.views[name], self.gt(name), scored_image(renders[name])
+            per_view[name] = metrics.image_metrics(r, gt, with_lpips=False, device=self.device)
+            per_view[name].update(metrics.text_region_metrics(r, gt, view.mask, with_lpips=False, device=self.device))
+            known = None if view.known_words is None else list(view.known_words)
+            read_views[name] = (r, gt, known, self.gt_words(name))
+
+        def mean(key):
+            vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
+            return float(np.mean(vals)) if vals else math.nan
+
+        return {
+            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": math.nan,
+                        **{k: mean(k) for k in metrics.TEXT_METRICS}, "per_view": per_view},
+            "readability": self.readability(read_views),
+            "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": {}},
+            "cer": None,
+            "cer_known": None,
+            **({"missing_renders": missing} if missing else {}),
+        }
+
     def text_scripts(self, pairs: Mapping[str, tuple]) -> dict:
         """The scripts (and languages, where annotated) of the scene's text: from the known words when
         the views have them, else from the primary engine's GT reading. Recorded as the result's `text`."""

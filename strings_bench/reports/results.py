@@ -184,6 +184,8 @@ def cell_row(rec: dict) -> dict:
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
         "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+        # "words": a dense checkpoint of `--checkpoints every:N`, word-crop metrics only (no OCR-CER); else "full"
+        "evaluation": rec.get("evaluation", "full"),
         **engine_columns(rec),
         **script_columns(rec),
     }

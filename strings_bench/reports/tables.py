@@ -172,6 +172,10 @@ class Column:
     lower_is_better: bool
     fmt: str  # format spec, e.g. ".3f"; "K" = thousands with a K suffix
     values: dict = field(default_factory=dict)  # method -> float
+    greyed: bool = False  # shown greyed and never ranked (e.g. a text-size bin with too few words)
+    na: str = "n/a"  # how a missing value reads (e.g. "not reached")
+    prefix: dict = field(default_factory=dict)  # method -> text before its value (e.g. "<=" for an upper bound)
+    suffix: dict = field(default_factory=dict)  # method -> text after its value (e.g. " (450)", the step)
 
 
 @dataclass
@@ -192,12 +196,12 @@ class Table:
         """The table's title as a person reads it: `heading`, else its plain corner ("OCR-CER (lower is better)")."""
         return self.heading or self.corner_plain or self.name.replace("_", " ")
 
-    def fmt(self, col: Column, x) -> str:
+    def fmt(self, col: Column, x, method: str | None = None) -> str:
         if x is None or (isinstance(x, float) and math.isnan(x)):
-            return "n/a"
+            return col.na
         if col.fmt == "K":
             return f"{x / 1000:.0f}K" if x >= 1000 else f"{x:.0f}"
-        return format(x, col.fmt)
+        return col.prefix.get(method, "") + format(x, col.fmt) + col.suffix.get(method, "")
 
     def decimals(self, col: Column) -> int | None:
         if col.fmt == "K":
@@ -209,7 +213,7 @@ class Table:
 
     def shading(self, col: Column) -> dict[str, str | None]:
         vals = [col.values.get(m, math.nan) for m in self.methods]
-        if not self.shade:
+        if not self.shade or col.greyed:
             return {m: None for m in self.methods}
         vals = [math.nan if m == GT_CEILING else v for m, v in zip(self.methods, vals)]
         return dict(zip(self.methods, rank_classes(vals, col.lower_is_better, self.decimals(col))))
@@ -245,8 +249,10 @@ def to_latex(t: Table, papers: dict | None = None) -> str:
     for m in t.methods:
         cells = [method_title(m, papers, latex=True)]
         for c, sh in zip(t.columns, shades):
-            s = t.fmt(c, c.values.get(m, math.nan))
+            s = t.fmt(c, c.values.get(m, math.nan), m).replace("<=", r"$\leq$")
             cls = sh.get(m)
+            if c.greyed:
+                s = r"\textcolor{gray}{%s}" % s
             cells.append((r"\cellcolor{%s}" % cls if cls else "") + s)
         lines.append(" & ".join(cells) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\caption{" + t.caption + "}", r"\label{tab:%s}" % t.name, r"\end{table}"]
@@ -261,7 +267,8 @@ def to_markdown(t: Table) -> str:
     for m in t.methods:
         cells = [method_title(m)]
         for c, sh in zip(t.columns, shades):
-            cells.append(t.fmt(c, c.values.get(m, math.nan)) + marks.get(sh.get(m) or "", ""))
+            v = t.fmt(c, c.values.get(m, math.nan), m)
+            cells.append((f"_{v}_" if c.greyed else v) + marks.get(sh.get(m) or "", ""))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -279,9 +286,14 @@ def to_csv(t: Table) -> str:
 
 # ---- the paper's tables ------------------------------------------------------------------------------
 def main_labels(df: pd.DataFrame) -> list[str]:
-    """Checkpoint labels of the tables: every checkpoint the run evaluated, in order (the paper's layout
-    has 7K and 30K; a run that also evaluated 3K shows it too)."""
-    return sorted(set(df["label"]), key=label_value) if not df.empty else []
+    """Checkpoint labels of the tables: every checkpoint the run evaluated fully, in order (the paper's layout
+    has 7K and 30K; a run that also evaluated 3K shows it too). The dense checkpoints of `--checkpoints every:N`
+    evaluated with the word-crop metrics only (results.csv `evaluation` = words) are not columns: they feed the
+    time-to-legibility table and the curves."""
+    if df.empty:
+        return []
+    full = df[df["evaluation"].fillna("full") != "words"] if "evaluation" in df else df
+    return sorted(set((full if not full.empty else df)["label"]), key=label_value)
 
 
 def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
@@ -676,12 +688,14 @@ def ablation_csv(t: Table) -> str:
     return pd.DataFrame(rows).to_csv(index=False)
 
 
-def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None) -> dict[str, dict[str, Path]]:
-    """Write every table as .tex, .md and .csv, plus preamble.tex and a compilable tables.tex."""
+def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None,
+                 extra: list[Table] | None = None) -> dict[str, dict[str, Path]]:
+    """Write every table (build_tables', then `extra`) as .tex, .md and .csv, plus preamble.tex and a compilable
+    tables.tex."""
     out_dir.mkdir(parents=True, exist_ok=True)
     papers = {m: v.get("paper", "") for m, v in ((manifest or {}).get("methods") or {}).items()}
     written: dict[str, dict[str, Path]] = {}
-    for t in build_tables(df, manifest):
+    for t in build_tables(df, manifest) + list(extra or []):
         if t.name == "ablations":
             tex, md, csv_text = ablation_latex(t), ablation_markdown(t), ablation_csv(t)
         else:
