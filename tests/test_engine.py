@@ -447,3 +447,18 @@ def test_corrupt_training_image_fails_in_setup(tiny_scene, tmp_path):
     scene.image_path(scene.train_idx[-1]).write_bytes(b"not an image")
     with pytest.raises(DatasetError, match="cannot read image"):
         GaussianSplatting(TrainConfig(sh_degree=0), Strategy()).setup(scene)
+
+
+def test_cpu_threads_sets_and_restores_torch_threads():
+    from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads
+
+    before = torch.get_num_threads()
+    with cpu_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    with cpu_threads(None):
+        assert torch.get_num_threads() == before
+    with pytest.raises(RuntimeError):
+        with cpu_threads(1):
+            raise RuntimeError("the body failed")
+    assert torch.get_num_threads() == before and CPU_TORCH_THREADS == 1
