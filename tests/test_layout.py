@@ -146,10 +146,8 @@ def test_every_folder_has_a_layer():
 
 
 def test_folders_import_only_folders_below():
-    # docs/architecture.md, "Arrows that run back up": core/method.py names scene.Scene for type checking only;
-    # eval/metrics.py scores with the training loss's own SSIM/PSNR (one implementation of each).
-    allowed = {("strings_bench.core.method", "strings_bench.scene.scene"),
-               ("strings_bench.eval.metrics", "strings_bench.engine.losses")}
+    # docs/architecture.md, "Arrows that run back up": core/method.py names scene.Scene for type checking only.
+    allowed = {("strings_bench.core.method", "strings_bench.scene.scene")}
     bad = [e for e in upward_imports(import_graph()) if e not in allowed]
     assert not bad, "imports of a folder above: " + ", ".join(f"{m} -> {t}" for m, t in bad)
 

@@ -9,8 +9,8 @@ Conventions follow the 3DGS evaluation script the paper's numbers come from:
 - LPIPS: VGG, v0.1 linear layers, inputs scaled to [-1, 1] (see lpips_net.py). NaN when the
   weights are not installed (tables then show "n/a", never 0).
 
-PSNR and SSIM are the training loss's own functions (`strings_bench.engine.losses`, the suite's only
-implementation; eval depends on the engine, never the reverse), evaluated here in float64.
+PSNR and SSIM are the suite's only implementation (`strings_bench.eval.image_quality`), which the
+training loss uses too (`strings_bench.engine.losses` imports it), evaluated here in float64.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ import torch
 import torch.nn.functional as F
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.engine import losses
-from strings_bench.engine.losses import SSIM_SIGMA, SSIM_WINDOW
+from strings_bench.eval import image_quality
+from strings_bench.eval.image_quality import SSIM_SIGMA, SSIM_WINDOW
 
 log = logging.getLogger(__name__)
 
@@ -48,13 +48,13 @@ def _check_pair(img: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def psnr(img: np.ndarray, gt: np.ndarray) -> float:
     """PSNR in dB (data range 1) of an (H, W, 3) render against its ground truth, in float64; inf when equal."""
     a, b = _check_pair(img, gt)
-    return losses.psnr(torch.from_numpy(a), torch.from_numpy(b))
+    return image_quality.psnr(torch.from_numpy(a), torch.from_numpy(b))
 
 
 def ssim(img: np.ndarray, gt: np.ndarray, strip_rows: int = SSIM_STRIP_ROWS) -> float:
     """SSIM (3DGS convention, zero padding) of an (H, W, 3) render against its ground truth, in float64.
 
-    The map is `losses.ssim_map` over the image zero-padded once, taken `strip_rows` rows at a time
+    The map is `image_quality.ssim_map` over the image zero-padded once, taken `strip_rows` rows at a time
     with padding "valid": each strip sees the same window contents as the whole-image "same" map, so
     the result is that map's mean (to float rounding) at a fraction of the memory traffic.
     """
@@ -69,7 +69,7 @@ def ssim(img: np.ndarray, gt: np.ndarray, strip_rows: int = SSIM_STRIP_ROWS) -> 
     with torch.no_grad():
         for r0 in range(0, h, strip_rows):
             r1 = min(h, r0 + strip_rows) + 2 * half
-            total += float(losses.ssim_map(x[:, :, r0:r1], y[:, :, r0:r1], padding="valid").sum())
+            total += float(image_quality.ssim_map(x[:, :, r0:r1], y[:, :, r0:r1], padding="valid").sum())
     return total / a.size
 
 
@@ -168,7 +168,7 @@ def masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, strip_rows: i
             rows = mt[r0:r1]
             if not bool(rows.any()):
                 continue
-            smap = losses.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")[0]
+            smap = image_quality.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")[0]
             total += float(smap[:, rows].sum())
     return total / (3 * int(m.sum()))
 
