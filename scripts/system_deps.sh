@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Install the Debian programs the test suite uses, where missing (idempotent):
 #   tesseract-ocr  the second OCR engine (its tests run instead of skipping);
-#   chromium       the headless browser that opens the HTML report in the report test.
+#   chromium       the headless browser that opens the HTML report in the report test;
+#   fonts-noto-core, fonts-noto-cjk   the fonts of the multilingual synthetic scenes (synthetic-multi);
+#   tesseract-ocr-{rus,ell,hin,ara,chi-sim}   Tesseract's Russian, Greek, Hindi, Arabic, Simplified
+#                  Chinese language data (the OCR of those scenes; docs/ocr.md "Other scripts").
 # Needs root (or sudo without a password) and apt; without them it says so and the tests that need
 # these programs skip with that reason. STRINGS_BENCH_NO_SYSTEM_DEPS=1 skips this step.
 set -uo pipefail
@@ -9,7 +12,13 @@ set -uo pipefail
 missing=()
 command -v tesseract >/dev/null 2>&1 || missing+=(tesseract-ocr)
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)
-[ ${#missing[@]} -eq 0 ] && { echo "[system] tesseract and chromium present"; exit 0; }
+[ -f /usr/share/fonts/truetype/noto/NotoSansDevanagari-Regular.ttf ] || missing+=(fonts-noto-core)
+[ -f /usr/share/fonts/opentype/noto/NotoSansCJK-Regular.ttc ] || missing+=(fonts-noto-cjk)
+langs=$(tesseract --list-langs 2>/dev/null || true)
+for l in rus ell hin ara chi_sim; do
+  echo "$langs" | grep -qx "$l" || missing+=("tesseract-ocr-${l//_/-}")
+done
+[ ${#missing[@]} -eq 0 ] && { echo "[system] tesseract (with its languages), chromium and the Noto fonts present"; exit 0; }
 if ! command -v apt-get >/dev/null 2>&1; then
   echo "[system] apt-get not found: cannot install ${missing[*]}; the tests that need them will skip"; exit 0
 fi

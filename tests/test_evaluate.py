@@ -128,6 +128,15 @@ def test_gt_as_renders_reads_like_gt_and_gray_reads_nothing(tmp_path, ocr):
     assert cell["cer"]["chars"] >= 12 and cell["cer"]["cer"] == 0.0
     rd = cell["readability"]
     assert rd["render"]["word_cer"] == pytest.approx(rd["gt"]["word_cer"], abs=1e-12)  # the GT ceiling
+    # evaluate writes the cell's words.csv too; its sums are the cell's word-crop figures (issue 30)
+    from strings_bench.reports.results import WORDS_FILE, read_words_csv, words_summary
+
+    (words_csv,) = sorted((tmp_path / "same" / "cells").glob(f"*/*/*/*/{WORDS_FILE}"))
+    rows = read_words_csv(words_csv)
+    assert len(rows) == rd["render"]["words"] + sum(not w["headline"] for v in rd["views"].values() for w in v)
+    for side in ("render", "gt"):
+        assert words_summary(rows, side)["word_cer"] == rd[side]["word_cer"]
+        assert words_summary(rows, side)["text_nll"] == rd[side]["text_nll"]
     gray_out = evaluate(gray, EvaluateOptions(gt=gt_dir, out=tmp_path / "grayout", ocr=ocr, with_lpips=False,
                                               report=False), say=_quiet)
     (cell,) = _cells(gray_out)

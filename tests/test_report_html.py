@@ -331,3 +331,70 @@ def test_report_page_in_headless_chromium(fake_run, tmp_path):
         with Image.open(tmp_path / shot) as im:
             assert im.size[0] >= 1000 and im.size[1] > 300
     print(f"screenshots: {tmp_path / 'index.png'} {tmp_path / 'gallery.png'}")
+
+
+def test_readability_analysis_in_report_and_headless_chromium(fake_run, tmp_path):
+    """Issue 30's tables and figures: in report.md, tables.tex and the page; in a browser, the size table's bins
+    carry their word counts, greyed bins are never ranked, the front lists the methods that results.csv's means
+    put on it, and the new figures load."""
+    from strings_bench.reports import readability_analysis as ra
+
+    rep = fake_run / "report"
+    md = (rep / "report.md").read_text(encoding="utf-8")
+    assert "## Word CER by text size" in md and "## Time to legibility" in md and "## Speed/accuracy front" in md
+    assert r"\input{word_cer_by_size}" in (rep / "tables" / "tables.tex").read_text()
+    csv = pd.read_csv(fake_run / "results.csv")
+    final = csv[csv["label"] == "30K"]
+    pts = {m: (g["total_seconds"].mean() / 60, g["cer"].mean()) for m, g in final.groupby("method")}
+    # the front, worked out here: no other method at most as slow and as bad, and better on one
+    front = sorted(m for m, (t, v) in pts.items()
+                   if not any(t2 <= t and v2 <= v and (t2 < t or v2 < v) for m2, (t2, v2) in pts.items() if m2 != m))
+    parsed = Parsed((rep / "index.html").read_text(encoding="utf-8"))
+    rows = parsed.tables["table-pareto-front"]
+    ocr_30k = [r for r in rows if r[0][1] == "30K" and r[1][1] == "OCR-CER"]
+    assert len(ocr_30k) == 1 and sorted(ocr_30k[0][2][0]["data-front"].split(",")) == front
+    size_rows = parsed.tables["table-word_cer_by_size"]
+    assert [r[0][1] for r in size_rows][-1] == "GT view (ceiling)"
+    for r in size_rows:
+        for attrs, _text in r[1:]:
+            assert attrs.get("class") in (None, "greyed", "first", "second", "third")
+
+    sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright's Python package is not installed")
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("no chromium executable (/usr/bin/chromium; scripts/system_deps.sh installs Debian's)")
+    problems: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None)
+            page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+            page.goto((rep / "index.html").as_uri())
+            page.wait_for_load_state("load")
+            for table in ("#table-word_cer_by_size", "#table-time_to_legibility", "#table-pareto-front"):
+                assert page.locator(table).is_visible()
+            # Word counts in the bin headers; the size table has a row per method plus the GT ceiling.
+            heads = page.locator("#table-word_cer_by_size th").all_inner_texts()
+            assert any("(n=" in h for h in heads)
+            assert page.locator("#table-word_cer_by_size tbody tr").count() == 4
+            # A greyed cell is styled so (grey text) and never carries a rank.
+            greyed = page.locator("td.greyed")
+            if greyed.count():
+                color = greyed.first.evaluate("e => getComputedStyle(e).color")
+                assert color == "rgb(154, 154, 154)"
+            n_min = ra.MIN_BIN_WORDS
+            counts = [int(h.split("(n=")[1].rstrip(")")) for h in heads if "(n=" in h]
+            assert page.locator("#table-word_cer_by_size td.greyed").count() == 4 * sum(c < n_min for c in counts)
+            # Time to legibility: "not reached" or minutes with the step in parentheses, in every cell.
+            cells = page.locator("#table-time_to_legibility tbody td:not(.name)").all_inner_texts()
+            assert cells and all(c == "not reached" or "(" in c for c in cells)
+            # The new figures load.
+            for name in ("word_cer_by_size_30K", "word_cer_vs_training_time", "cer_vs_training_time"):
+                w = page.evaluate(f"document.querySelector(\"figure img[alt='{name}']\").naturalWidth")
+                assert w > 0, name
+            page.locator("#h-pareto_front").scroll_into_view_if_needed()
+            page.screenshot(path=str(tmp_path / "readability.png"), full_page=True)
+        finally:
+            browser.close()
+    assert not problems, problems

@@ -269,3 +269,49 @@ def test_full_size_scene(name):
     assert meta["fallback"] is None
     assert meta["text_points"] > 0
     assert meta["timings_s"]["total"] < 60, meta["timings_s"]
+
+
+def test_viewing_angle_and_distance_of_words_match_their_corners():
+    """Issue 30: each visible word records the angle between its surface normal and the direction to the camera
+    at its centre, and the distance; checked here from the word's 3D corners (plane through them, their mean)
+    on the planar (Quad) words, which is another route than the generator's (the primitive's normal there)."""
+    from strings_bench.datasets.synthetic.raycast import Quad
+
+    spec = generate.make_spec("books", 0)
+    cams = generate.orbit_cameras(spec, settings_with(), np.random.default_rng([0, 2]))
+    from collections import Counter
+
+    unique = {t for t, n in Counter(w.text for w in spec.words).items() if n == 1}  # a visible word names its box
+    corners = {w.text: c for w, c in zip(spec.words, generate.word_corners_3d(spec))
+               if isinstance(spec.world.primitives[w.prim], Quad) and w.text in unique}
+    checked = 0
+    for cam in cams[:12]:
+        for kw in generate.visible_words(spec, cam, settings_with()):
+            assert 0 <= kw.angle_deg < 90 and kw.distance > 0
+            c = corners.get(kw.text)
+            if c is None:
+                continue
+            n = np.cross(c[1] - c[0], c[3] - c[0])
+            centre = c.mean(axis=0)
+            v = cam.center - centre
+            want = np.degrees(np.arccos(abs(n @ v) / (np.linalg.norm(n) * np.linalg.norm(v))))
+            assert kw.angle_deg == pytest.approx(want, abs=1e-6)
+            assert kw.distance == pytest.approx(np.linalg.norm(v), rel=1e-9)
+            checked += 1
+    assert checked > 20
+    angles = [kw.angle_deg for cam in cams[:12] for kw in generate.visible_words(spec, cam, settings_with())]
+    assert max(angles) - min(angles) > 10  # the orbit sees words at different angles
+
+
+def test_annotations_round_trip_angle_and_distance(tmp_path):
+    from strings_bench.scene.scene import KnownWord, _read_annotations, write_annotations
+
+    poly = np.array([[0, 0], [10, 0], [10, 4], [0, 4]], float)
+    write_annotations(tmp_path / "a.json", {"v.png": [KnownWord("a", poly, 12.5, 3.0), KnownWord("b", poly)]})
+    got = _read_annotations(tmp_path / "a.json")["v.png"]
+    assert (got[0].angle_deg, got[0].distance, got[1].angle_deg, got[1].distance) == (12.5, 3.0, None, None)
+    (tmp_path / "b.json").write_text('{"views": {"v.png": [{"text": "a", "polygon": [[0,0],[1,0],[1,1]], "angle_deg": "x"}]}}')
+    from strings_bench.core.errors import StringsBenchError
+
+    with pytest.raises(StringsBenchError, match="angle_deg"):
+        _read_annotations(tmp_path / "b.json")

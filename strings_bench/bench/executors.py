@@ -36,6 +36,9 @@ class Job:
     save_every: str = "10"  # minutes, "<N>steps" or "off" (engine.trainer.SaveEvery.parse)
     keep_models: bool = False  # write each cell's model.ply
     method_presets: tuple[str, ...] = ()  # the method's presets in order: dataset-conditional ones, then --presets
+    # of `checkpoints`, those that only `--checkpoints every:N` adds: evaluated with the word-crop metrics only
+    # (Evaluator.evaluate_words); () when there are none or the run asked for --dense-eval full
+    dense_checkpoints: tuple[int, ...] = ()
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

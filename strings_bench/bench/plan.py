@@ -27,6 +27,9 @@ DEFAULT_RUN_DIR = Path("runs") / "default"
 # method named); a method's own entry wins over it, key by key.
 ALL_METHODS = "*"
 LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
+# How the checkpoints that only `--checkpoints every:N` adds are evaluated: "words" (default: word-crop readability
+# and PSNR/SSIM, no OCR of the renders; cheap) or "full" (OCR-CER and every metric, as the other checkpoints).
+DENSE_EVAL = ("words", "full")
 
 
 @dataclass
@@ -38,6 +41,9 @@ class RunConfig:
     run_dir: the run folder; the same folder resumes.
     schedule: the run's schedule (bench/schedules.py: paper, standard, early, quick, tiny).
     steps_scale, checkpoints: replace the schedule's scale / paper checkpoints.
+    dense_every: also evaluate every that many paper iterations (`--checkpoints every:500`); dense_eval: how the
+        checkpoints only it adds are evaluated: "words" (the word-crop metrics and PSNR/SSIM; no OCR of the renders,
+        no LPIPS) or "full" (as every other checkpoint).
     downscale: image downscale (None: the schedule's).
     method_presets: method -> preset names chosen for it (`--presets strings=release`).
     method_overrides: method (or ALL_METHODS) -> settings (`--set`).
@@ -51,6 +57,8 @@ class RunConfig:
     schedule: str = DEFAULT_SCHEDULE
     steps_scale: float | None = None
     checkpoints: Iterable[int] | None = None
+    dense_every: int | None = None
+    dense_eval: str = "words"
     downscale: float | None = None
     method_presets: dict = field(default_factory=dict)
     method_overrides: dict = field(default_factory=dict)
@@ -107,7 +115,9 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     methods = list(c.methods)
     if not methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
-    p = schedule(c.schedule, c.steps_scale, c.checkpoints)
+    p = schedule(c.schedule, c.steps_scale, c.checkpoints, c.dense_every)
+    if c.dense_eval not in DENSE_EVAL:
+        raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
     datasets = list(c.datasets) if c.datasets else p.default_datasets()
     get_profile(c.cer_profile)  # fails early on an unknown name
     specs = {m: get_method(m) for m in methods}  # fails early on an unknown name
@@ -151,7 +161,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         if fixed:
             steps = sorted(int(c) for c in fixed)  # e.g. the ply adapter: the model's own iteration
         labels = {it: p.label_of(it, m_scale) for it in steps}
-        planned.append((m, chosen, m_over, steps, labels))
+        dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(m_scale))
+        planned.append((m, chosen, m_over, steps, labels, dense))
     if set(for_all) - taken:
         raise StringsBenchError(f"no method of this run has the setting(s) {', '.join(sorted(set(for_all) - taken))}",
                                 hint="see `strings-bench methods show METHOD` for each method's settings")
@@ -160,13 +171,14 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
     jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps), labels,
                 p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every), bool(c.keep_models),
-                tuple(specs[m].presets_for(ref.dataset, ref.scene)) + tuple(chosen))
-            for m, chosen, m_over, steps, labels in planned for ref in refs]
+                tuple(specs[m].presets_for(ref.dataset, ref.scene)) + tuple(chosen), dense)
+            for m, chosen, m_over, steps, labels, dense in planned for ref in refs]
     manifest = {
         "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
         # --steps-scale / --checkpoints as given (None: the schedule's); `preset` above holds the schedule in effect.
         "steps_scale": None if c.steps_scale is None else p.steps_scale,
         "checkpoints": None if c.checkpoints is None else list(p.paper_checkpoints),
+        "dense_every": c.dense_every, "dense_eval": c.dense_eval if c.dense_every else None,
         "method_presets": {m: chosen for m, chosen, *_ in planned},
         "method_overrides": {m: jsonable(given_settings[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description, "title": specs[m].title or m,
@@ -216,7 +228,8 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
     # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
     # run gave the option; folders made without it keep resuming as before.
     for k, field_name, option in (("steps_scale", "steps_scale", "--steps-scale"),
-                                  ("checkpoints", "paper_checkpoints", "--checkpoints")):
+                                  ("checkpoints", "paper_checkpoints", "--checkpoints"),
+                                  ("dense_every", "dense_every", "--checkpoints every:N")):
         if old.get(k) is None and manifest.get(k) is None:
             continue
         was = (old.get("preset") or {}).get(field_name)
@@ -225,6 +238,10 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
             raise StringsBenchError(
                 f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",
                 hint=f"use another --out folder, or the same {option} to resume")
+    if manifest.get("dense_every") and old.get("dense_eval") not in (None, manifest.get("dense_eval")):
+        raise StringsBenchError(f"{run_dir} holds dense checkpoints evaluated with --dense-eval {old.get('dense_eval')}; "
+                                f"this run asks for {manifest.get('dense_eval')}",
+                                hint="use another --out folder, or the same --dense-eval to resume")
     # A finished cell is skipped on resume, so cells trained with other --set values must not be
     # taken for this run's (folders made before overrides were recorded carry no such entry).
     old_over = old.get("method_overrides")

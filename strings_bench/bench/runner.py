@@ -67,10 +67,10 @@ def _load_scene(job: Job):
 def _get_ocr(name_or_backend) -> list:
     """The OCR engines of a job: from `--ocr` ("rapidocr" or "rapidocr,tesseract"), a backend object
     (tests), or a list of either; the first is the primary."""
-    from strings_bench.eval.ocr import get_backend, parse_engines
+    from strings_bench.eval.ocr import get_engine, parse_engines
 
     if isinstance(name_or_backend, str):
-        return [get_backend(n) for n in parse_engines(name_or_backend)]
+        return [get_engine(n) for n in parse_engines(name_or_backend)]
     if isinstance(name_or_backend, (list, tuple)):
         return [x for item in name_or_backend for x in _get_ocr(item)]
     return [name_or_backend]
@@ -94,6 +94,7 @@ class Runner:
         self.lpips_at = lpips_at
         self.progress = progress
         self.on_cell = on_cell
+        self._evaluators: dict[tuple, Evaluator] = {}  # per scene; see run_job
 
     def __call__(self, job: Job) -> list[CellKey]:
         return self.run_job(job)
@@ -111,8 +112,17 @@ class Runner:
         from strings_bench.engine.trainer import resolve_device
 
         device = resolve_device(job.device)  # checked here, where the job runs
-        evaluator = Evaluator.for_scene(scene, ocr, job.downscale, with_lpips=self.with_lpips,
-                                        cer_profile=job.cer_profile, device=device)
+        # One Evaluator per scene in this process: the GT side (GT OCR, GT word crops, LPIPS features) is read once
+        # and reused by every method's job on the scene.
+        ekey = (job.scene_path, json.dumps(job.scene_settings, sort_keys=True, default=str), job.downscale,
+                job.cer_profile, device, self.with_lpips, job.ocr)
+        evaluator = self._evaluators.get(ekey)
+        if evaluator is None:
+            evaluator = Evaluator.for_scene(scene, ocr, job.downscale, with_lpips=self.with_lpips,
+                                            cer_profile=job.cer_profile, device=device)
+            self._evaluators[ekey] = evaluator
+            while len(self._evaluators) > EVALUATORS_KEPT:
+                del self._evaluators[next(iter(self._evaluators))]  # the scene seen longest ago
         write_gt_pngs(run_dir, job.dataset, job.scene, evaluator)
         wanted = set(job.checkpoints)
         written: list[CellKey] = []
@@ -162,7 +172,9 @@ class Runner:
         # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
         # the paper reports it at 30K.
         lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
-        ev = evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here)
+        dense = key.iteration in set(job.dense_checkpoints)  # only `every:N` asked for it: word-crop metrics only
+        ev = (evaluator.evaluate_words(job.method, result.renders) if dense
+              else evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here))
         cell_dir = key.path(Path(job.run_dir))  # the job's folder: absolute when it runs on a Ray worker
         for name, img in result.renders.items():
             if name in evaluator.names:
@@ -194,6 +206,7 @@ class Runner:
             "gaussians": int(result.gaussians),
             "peak_memory_mb": result.peak_memory_mb,
             "extra": result.extra,
+            "evaluation": "words" if dense else "full",
             **ev,
         }
         write_words_csv(cell_dir, jsonable(record))  # before result.json: a finished cell has its words.csv
@@ -213,6 +226,7 @@ def _metrics_describe() -> dict:
     return metrics.describe()
 
 
+EVALUATORS_KEPT = 8  # scenes whose Evaluator a runner keeps (jobs run method by method over the scenes)
 POLL_SECONDS = 2.0  # how often the driver looks at the run folder while jobs run elsewhere
 
 

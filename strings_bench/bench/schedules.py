@@ -37,18 +37,35 @@ class Schedule:
     description: str = ""
     # the scenes a run of this preset uses when no --datasets is given (None: every synthetic scene)
     datasets: tuple[str, ...] | None = None
+    # `--checkpoints every:N`: also evaluate every N paper iterations up to the last checkpoint (None: no dense
+    # checkpoints). The dense ones that are not paper_checkpoints are evaluated cheaply (`dense_checkpoints`).
+    dense_every: int | None = None
 
     def default_datasets(self) -> list[str]:
         """The --datasets of a run of this preset that names none."""
         return list(self.datasets or DEFAULT_DATASETS)
 
+    def dense_paper_checkpoints(self) -> list[int]:
+        """The paper iterations of `every:N` (N, 2N, ... up to the last paper checkpoint), [] without it."""
+        if not self.dense_every:
+            return []
+        return list(range(self.dense_every, max(self.paper_checkpoints) + 1, self.dense_every))
+
     def checkpoints(self, steps_scale: float | None = None) -> list[int]:
+        """Every iteration trained to and evaluated: the paper checkpoints and the dense ones, scaled."""
         s = self.steps_scale if steps_scale is None else steps_scale
-        return sorted({max(1, int(round(c * s))) for c in self.paper_checkpoints})
+        return sorted({max(1, int(round(c * s))) for c in (*self.paper_checkpoints, *self.dense_paper_checkpoints())})
+
+    def dense_checkpoints(self, steps_scale: float | None = None) -> list[int]:
+        """The iterations that only `every:N` adds (not a paper checkpoint's): evaluated with the word-crop
+        metrics only unless the run asks for full evaluation (`--dense-eval full`)."""
+        s = self.steps_scale if steps_scale is None else steps_scale
+        main = {max(1, int(round(c * s))) for c in self.paper_checkpoints}
+        return sorted({max(1, int(round(c * s))) for c in self.dense_paper_checkpoints()} - main)
 
     def label_of(self, iteration: int, steps_scale: float | None = None) -> str:
         s = self.steps_scale if steps_scale is None else steps_scale
-        for c in self.paper_checkpoints:
+        for c in (*self.paper_checkpoints, *self.dense_paper_checkpoints()):
             if max(1, int(round(c * s))) == iteration:
                 return iteration_label(c)
         return iteration_label(iteration)
@@ -78,11 +95,13 @@ def get_schedule(name: str) -> Schedule:
     return SCHEDULES[name]
 
 
-def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None) -> Schedule:
+def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None,
+             dense_every: int | None = None) -> Schedule:
     """The run's schedule: schedule `name` with `run --steps-scale` and `--checkpoints` applied.
 
     steps_scale replaces the schedule's scale (every method is then scaled by it); checkpoints are
-    paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale).
+    paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale); dense_every
+    (`--checkpoints every:500`) adds a checkpoint every that many paper iterations.
     """
     p = get_schedule(name)
     if steps_scale is not None:
@@ -97,4 +116,9 @@ def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[
                                     hint="e.g. --checkpoints 3000,7000")
         its = tuple(sorted({int(c) for c in given}))
         p = replace(p, paper_checkpoints=its, description=f"{p.description} [--checkpoints {','.join(map(str, its))}]")
+    if dense_every is not None:
+        if not (isinstance(dense_every, numbers.Integral) and not isinstance(dense_every, bool) and dense_every >= 1):
+            raise StringsBenchError(f"every:N needs N paper iterations (an integer >= 1), got {dense_every!r}",
+                                    hint="e.g. --checkpoints every:500")
+        p = replace(p, dense_every=int(dense_every), description=f"{p.description} [every:{int(dense_every)}]")
     return p

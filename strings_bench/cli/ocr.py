@@ -56,6 +56,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print("OCR backends:")
     for name, st in statuses.items():
         print(f"  {name:<10} {'available' if st.available else 'unavailable':<12} {st.detail}")
+    print_languages(statuses)
     if args.all:
         names = [n for n, st in statuses.items() if st.available]
     else:
@@ -86,6 +87,34 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(f"  first read {t1 - t0:.2f} s (includes loading), second read {t2 - t1:.2f} s")
         print(f"  known-text CER {res.cer:.3f} ({res.errors} errors / {res.chars} chars)")
     return rc
+
+
+def print_languages(statuses) -> None:
+    """The languages and scripts each available backend reads here (docs/ocr.md, "Other scripts")."""
+    from strings_bench.core.scripts import LANGUAGES
+    from strings_bench.eval.ocr.languages import (RAPIDOCR_MEASURED_UNREADABLE, rapidocr_scripts, rapidocr_supported_scripts,
+                                                   tesseract_languages)
+
+    print("\nLanguages and scripts:")
+    if statuses.get("tesseract") and statuses["tesseract"].available:
+        installed = tesseract_languages()
+        print(f"  tesseract  installed languages (set with lang=..., e.g. --ocr tesseract:lang=rus): {' '.join(installed) or 'none'}")
+        for code, lang in LANGUAGES.items():
+            state = "installed" if code in installed else f"missing (apt-get install {lang.debian_package})"
+            print(f"    {code:<8} {lang.name:<19} {lang.script:<11} {lang.direction}  {state}")
+    else:
+        print("  tesseract  not installed")
+    if statuses.get("rapidocr") and statuses["rapidocr"].available:
+        try:
+            cover = rapidocr_scripts()
+        except StringsBenchError as exc:
+            print(f"  rapidocr   cannot read its dictionary: {exc.message}")
+        else:
+            reads = sorted(rapidocr_supported_scripts())
+            shares = ", ".join(f"{s} {100 * v:.0f}%" for s, v in cover.items())
+            print(f"  rapidocr   reads {', '.join(reads)} (letters of each script in its recogniser's dictionary: {shares}); "
+                  f"refuses scenes in other scripts" + "".join(f"; {k}: {v}" for k, v in RAPIDOCR_MEASURED_UNREADABLE.items()))
+    print("  gcv        every script (Google Cloud Vision; billed)")
 
 
 # --------------------------------------------------------------------------- ocr read

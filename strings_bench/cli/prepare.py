@@ -26,9 +26,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--no-masks", action="store_true", help="skip the OCR text masks")
     p.add_argument("--matcher", choices=["auto", "exhaustive", "sequential"], default="auto",
                    help="feature matching: exhaustive for small sets (auto: up to 80 photos), sequential for video-like order")
-    p.add_argument("--ocr", default="rapidocr", help="OCR backend for the text masks (default rapidocr)")
+    p.add_argument("--ocr", default="rapidocr",
+                   help="OCR backend for the text masks (default rapidocr), with settings as in `run --ocr`, e.g. "
+                        "tesseract:lang=rus")
     p.add_argument("--threads", type=int, default=-1, help="threads for SfM (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="rebuild the scene folder if it exists")
+    p.add_argument("--bundler", nargs="?", const="auto", default=None, metavar="FILE",
+                   help="the cameras are given by a Bundler reconstruction in PHOTOS_DIR (bundle.out or cameras.out, "
+                        "or FILE; images in PHOTOS_DIR/images, listed by list.txt or ordered_filenames.txt): convert "
+                        "them and run no SfM (datasets/bundler.py)")
     p.set_defaults(func=run)
     return p
 
@@ -38,6 +44,16 @@ def run(args: argparse.Namespace) -> int:
     from strings_bench.datasets.sfm import prepare_scene
 
     name = valid_name(args.name)
+    if args.bundler:
+        from strings_bench.datasets.bundler import prepare_bundler_scene
+
+        result = prepare_bundler_scene(args.photos_dir, name, out=args.out,
+                                       bundle_file=None if args.bundler == "auto" else args.bundler,
+                                       max_size=args.max_size, masks=not args.no_masks, ocr_backend=args.ocr,
+                                       overwrite=args.overwrite)
+        print(result.summary())
+        print(f"registered as {name!r}: use `--datasets {name}`")
+        return 0
     result = prepare_scene(args.photos_dir, name, out=args.out, max_size=args.max_size, masks=not args.no_masks,
                            matcher=args.matcher, num_threads=args.threads, overwrite=args.overwrite,
                            ocr_backend=args.ocr)

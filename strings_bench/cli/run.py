@@ -41,7 +41,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "recorded in run.json, a run folder holds one scale")
     p.add_argument("--checkpoints", type=parse_checkpoints, default=None, metavar="ITERS",
                    help="paper iterations to evaluate, e.g. 3000,7000 or 3K,7K (each trained as round(it x scale)); "
-                        "default: the schedule's; recorded in run.json")
+                        "default: the schedule's; every:N adds a checkpoint every N paper iterations up to the last "
+                        "(e.g. every:500, or 3K,7K,every:500), for time to legibility (docs/readability.md); the "
+                        "checkpoints only every:N adds get the word-crop metrics only (see --dense-eval); recorded "
+                        "in run.json")
+    p.add_argument("--dense-eval", choices=("words", "full"), default="words",
+                   help="how the checkpoints that only --checkpoints every:N adds are evaluated: words (default: "
+                        "word-crop readability and PSNR/SSIM; no OCR of the renders, no LPIPS; GT reads are made once "
+                        "per scene) or full (OCR-CER and every metric, as the other checkpoints)")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
                    help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
     p.add_argument("--ocr", default="rapidocr",
@@ -111,12 +118,16 @@ def run_config(args: argparse.Namespace):
     """The run the command line asks for, as one RunConfig (bench/plan.py)."""
     from strings_bench.bench.plan import RunConfig
 
+    given = args.checkpoints or []  # paper iterations and ("every", N) (parse_checkpoints)
     return RunConfig(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None,
                      run_dir=args.out, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
                      executor=args.executor, executor_options=executor_options(args), with_lpips=not args.no_lpips,
                      progress=not args.no_progress, method_presets=parse_presets(args.method_presets),
                      method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
-                     cer_profile=args.cer_profile, steps_scale=args.steps_scale, checkpoints=args.checkpoints,
+                     cer_profile=args.cer_profile, steps_scale=args.steps_scale,
+                     checkpoints=[c for c in given if isinstance(c, int)] or None,
+                     dense_every=next((c[1] for c in given if isinstance(c, tuple)), None),
+                     dense_eval=args.dense_eval,
                      device=args.device, save_every=args.save_every, keep_models=args.keep_models)
 
 
@@ -135,10 +146,19 @@ def parse_presets(items: list[str]) -> dict[str, list[str]]:
     return out
 
 
-def parse_checkpoints(text: str) -> list[int]:
-    """'3000,7000' or '3K,7k' -> [3000, 7000] (paper iterations; argparse type of --checkpoints)."""
-    its = []
+def parse_checkpoints(text: str) -> list:
+    """'3000,7000' or '3K,7k' -> [3000, 7000] (paper iterations; argparse type of --checkpoints); an 'every:N'
+    item (N paper iterations, e.g. every:500 or every:1K) becomes ("every", N)."""
+    its: list = []
     for item in _split(text):
+        if item.lower().startswith("every:"):
+            if any(isinstance(x, tuple) for x in its):
+                raise argparse.ArgumentTypeError("every:N given twice")
+            n = parse_checkpoints(item[6:]) if item[6:] else []
+            if len(n) != 1 or not isinstance(n[0], int):
+                raise argparse.ArgumentTypeError(f"{item!r} is not every:N with N paper iterations (e.g. every:500)")
+            its.append(("every", n[0]))
+            continue
         digits, mult = (item[:-1], 1000) if item[-1:] in ("k", "K") else (item, 1)
         try:
             value = int(digits) * mult
@@ -148,7 +168,7 @@ def parse_checkpoints(text: str) -> list[int]:
             raise argparse.ArgumentTypeError(f"{item!r} is not a paper iteration (an integer >= 1, e.g. 7000 or 7K)")
         its.append(value)
     if not its:
-        raise argparse.ArgumentTypeError("no checkpoints given (e.g. 3000,7000)")
+        raise argparse.ArgumentTypeError("no checkpoints given (e.g. 3000,7000 or every:500)")
     return its
 
 

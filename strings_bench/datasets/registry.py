@@ -40,7 +40,8 @@ def _register_builtin_cards() -> None:
     import strings_bench.datasets.cards as cards
     import strings_bench.datasets.synthetic as synthetic
 
-    for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD, synthetic.CARD_360, synthetic.CARD_360_CPU):
+    for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD, synthetic.CARD_360, synthetic.CARD_360_CPU,
+                 synthetic.CARD_MULTI):
         register_dataset(card)
     _BUILTINS_REGISTERED = True
     try:

@@ -225,44 +225,8 @@ def prepare_scene(
             best_dir.mkdir(parents=True)
             best.write(str(best_dir))
 
-        # 5. undistort into the final layout
-        t = stage("undistort to pinhole cameras")
-        undist = work / "undistorted"
-        undistort_options = pycolmap.UndistortCameraOptions()
-        if max_size and max_size > 0:
-            # The undistorted frame can come out larger than the input; keep the --max-size promise.
-            undistort_options.max_image_size = max_size
-        pycolmap.undistort_images(undist, best_dir, raw, output_type="COLMAP", undistort_options=undistort_options)
-        scene_tmp = work / "scene"
-        scene_tmp.mkdir()
-        os.replace(undist / "images", scene_tmp / "images")
-        (scene_tmp / "sparse").mkdir()
-        model_src = undist / "sparse"
-        if (model_src / "0").is_dir():
-            model_src = model_src / "0"
-        os.replace(model_src, scene_tmp / "sparse" / "0")
-        stages["undistort"] = time.perf_counter() - t
-
-        # 6. downscaled copies at the sizes Scene.image_path expects
-        t = stage("write images_2/ and images_4/")
-        images = sorted((scene_tmp / "images").iterdir())
-        for f in DOWNSCALES:
-            d = scene_tmp / f"images_{f}"
-            d.mkdir()
-            for p in tqdm(images, desc=f"images_{f}", unit="img", disable=not progress):
-                with Image.open(p) as im:
-                    w, h = im.size
-                    size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
-                    _save_like(im.convert("RGB").resize(size, Image.Resampling.LANCZOS), d / p.name)
-        stages["downscale"] = time.perf_counter() - t
-
-        # 7. text masks
-        num_masks = num_text = None
-        if masks:
-            t = stage(f"text masks from OCR ({ocr_backend})")
-            num_masks, num_text = write_text_masks(scene_tmp / "images", scene_tmp / "masks", ocr_backend, progress)
-            stages["masks"] = time.perf_counter() - t
-
+        scene_tmp, num_masks, num_text = finish_scene(best_dir, raw, work, max_size, masks, ocr_backend, progress, stage,
+                                                      stages)
         rec = pycolmap.Reconstruction(str(scene_tmp / "sparse" / "0"))
         result = PrepareResult(
             scene_dir=scene_dir, num_photos=len(photos), num_registered=num_registered,
@@ -287,6 +251,55 @@ def prepare_scene(
         write_index(index)
         register_local_copies()
     return result
+
+
+def finish_scene(model_dir: Path, raw: Path, work: Path, max_size: int, masks: bool, ocr_backend: str, progress: bool,
+                 stage: Callable[[str], float], stages: dict[str, float]) -> tuple[Path, int | None, int | None]:
+    """The stages after the model is known (SfM here, given cameras in datasets/bundler.py): undistort
+    `raw` images with the model in `model_dir` into work/scene (images/, sparse/0/), write images_2/ and
+    images_4/, and the text masks. Returns (the scene folder, masks written, masks with text)."""
+    import pycolmap
+
+    best_dir = model_dir
+    # 5. undistort into the final layout
+    t = stage("undistort to pinhole cameras")
+    undist = work / "undistorted"
+    undistort_options = pycolmap.UndistortCameraOptions()
+    if max_size and max_size > 0:
+        # The undistorted frame can come out larger than the input; keep the --max-size promise.
+        undistort_options.max_image_size = max_size
+    pycolmap.undistort_images(undist, best_dir, raw, output_type="COLMAP", undistort_options=undistort_options)
+    scene_tmp = work / "scene"
+    scene_tmp.mkdir()
+    os.replace(undist / "images", scene_tmp / "images")
+    (scene_tmp / "sparse").mkdir()
+    model_src = undist / "sparse"
+    if (model_src / "0").is_dir():
+        model_src = model_src / "0"
+    os.replace(model_src, scene_tmp / "sparse" / "0")
+    stages["undistort"] = time.perf_counter() - t
+
+    # 6. downscaled copies at the sizes Scene.image_path expects
+    t = stage("write images_2/ and images_4/")
+    images = sorted((scene_tmp / "images").iterdir())
+    for f in DOWNSCALES:
+        d = scene_tmp / f"images_{f}"
+        d.mkdir()
+        for p in tqdm(images, desc=f"images_{f}", unit="img", disable=not progress):
+            with Image.open(p) as im:
+                w, h = im.size
+                size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
+                _save_like(im.convert("RGB").resize(size, Image.Resampling.LANCZOS), d / p.name)
+    stages["downscale"] = time.perf_counter() - t
+
+    # 7. text masks
+    num_masks = num_text = None
+    if masks:
+        t = stage(f"text masks from OCR ({ocr_backend})")
+        num_masks, num_text = write_text_masks(scene_tmp / "images", scene_tmp / "masks", ocr_backend, progress)
+        stages["masks"] = time.perf_counter() - t
+
+    return scene_tmp, num_masks, num_text
 
 
 def _drop_invalid_cameras(rec) -> list[str]:
@@ -333,10 +346,10 @@ def write_text_masks(images_dir: Path, masks_dir: Path, backend: str = "rapidocr
     time with the chosen kernel (paper 5 % of the width), exactly as it does for Hi-SAM masks.
     Returns (masks written, masks with any text).
     """
-    from strings_bench.eval.ocr import get_backend, read_many
+    from strings_bench.eval.ocr import get_engine, read_many
     from strings_bench.eval.text_masks import word_polygon_mask
 
-    ocr = get_backend(backend)
+    ocr = get_engine(backend)
     masks_dir.mkdir(parents=True, exist_ok=True)
     photos = sorted(images_dir.iterdir())
 

@@ -25,6 +25,7 @@ import re
 import resource
 import sys
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable, Iterator
@@ -42,6 +43,25 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STATE_VERSION = 1
+
+# torch's intra-op threads while a method trains on the CPU (issue 28). The CPU rasterizer's numba
+# kernels use every core already; torch's own threads (SSIM convolutions, small element-wise ops)
+# then only contend with them (measured in docs/engine.md, "Where a step's time goes").
+CPU_TORCH_THREADS = 1
+
+
+@contextmanager
+def cpu_threads(n: int | None = CPU_TORCH_THREADS):
+    """Run the body with torch's intra-op thread count set to `n` (None: unchanged), restored after."""
+    if n is None:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
 def check_device_name(device: str | None) -> None:
@@ -157,12 +177,17 @@ class Trainer:
         model_path: step -> file; the model is written there (PLY) at each checkpoint.
         render_test: render the test views at checkpoints (False: renders are empty).
         fingerprint: what must match for a saved state to be continued (method, settings, scene).
+        cpu_torch_threads: torch's intra-op threads during the optimisation steps on the CPU
+            (`CPU_TORCH_THREADS`, 1: the rasterizer's numba kernels use the cores; None leaves
+            torch's setting alone). Checkpoint renders and whatever the caller does between
+            checkpoints run with the caller's setting. Results do not depend on it.
     """
 
     def __init__(self, method: "Method", scene: "Scene", checkpoints: Iterable[int], *, downscale: float = 1.0,
                  device: str | None = "auto", seed: int | None = None, progress: bool = True,
                  state_path: str | Path | None = None, save_every: SaveEvery | None = None,
-                 model_path: Callable[[int], Path] | None = None, render_test: bool = True, fingerprint: dict | None = None):
+                 model_path: Callable[[int], Path] | None = None, render_test: bool = True, fingerprint: dict | None = None,
+                 cpu_torch_threads: int | None = CPU_TORCH_THREADS):
         steps = sorted({int(c) for c in checkpoints})
         if not steps or steps[0] < 1:
             raise StringsBenchError(f"checkpoints must be positive step numbers, got {list(checkpoints)}")
@@ -179,6 +204,13 @@ class Trainer:
         self.render_test = render_test
         self.fingerprint = fingerprint or {}
         self.resumed_from_step = 0
+        if cpu_torch_threads is not None and int(cpu_torch_threads) < 1:
+            raise StringsBenchError(f"cpu_torch_threads must be >= 1 or None, got {cpu_torch_threads}")
+        self.cpu_torch_threads = cpu_torch_threads
+
+    def _step_threads(self):
+        """The thread setting of an optimisation step (CPU training only)."""
+        return cpu_threads(self.cpu_torch_threads) if self.device == "cpu" else nullcontext()
 
     def _sync(self) -> None:
         if self.device.startswith("cuda"):
@@ -250,7 +282,8 @@ class Trainer:
         try:
             for step in range(start + 1, total + 1):
                 t0 = self._clock()
-                loss = self.method.train_step(step)
+                with self._step_threads():
+                    loss = self.method.train_step(step)
                 train_seconds += self._clock() - t0
                 if step in at_steps:
                     # Evaluated after the step's update, before its densification / opacity reset, as
@@ -258,7 +291,8 @@ class Trainer:
                     # 3K in 3DGS, would otherwise be evaluated at opacity 0.01).
                     yield self.checkpoint(step, train_seconds, preprocess_seconds)
                 t0 = self._clock()
-                self.method.refine(step)
+                with self._step_threads():
+                    self.method.refine(step)
                 train_seconds += self._clock() - t0
                 bar.update(1)
                 if step % 10 == 0 or step == total:

@@ -133,6 +133,16 @@ def scene_views(scene: "Scene", downscale: float, mask_settings: Mapping | None 
     return views
 
 
+def known_text_scripts(views: Sequence[EvalView]) -> tuple[list[str], list[str]]:
+    """(scripts, languages) of the views' known words: scripts by their characters (core.scripts), most
+    frequent first; languages as annotated (`lang` of the words, synthetic-multi scenes)."""
+    from strings_bench.core.scripts import scripts_of
+
+    words = [k for v in views for k in (v.known_words or ())]
+    langs = list(dict.fromkeys(lang for k in words if (lang := getattr(k, "lang", None))))
+    return scripts_of(str(k.text) for k in words), langs
+
+
 class Evaluator:
     """Scores renders of a fixed set of test views. GT-side work (GT OCR, LPIPS features, GT word crops) is
     done once and reused for every checkpoint and method.
@@ -168,6 +178,26 @@ class Evaluator:
         self._gt_ocr_error: dict[tuple[str, str], str] = {}
         self._lpips_ref: dict[str, object] = {}
         self._readability = None if with_readability else False  # eval.readability.SceneReadability, made once
+        self.known_scripts, self.known_languages = known_text_scripts(views)
+        # An engine set to read "the scene's languages" (tesseract lang=auto) is resolved to them here.
+        self.engines = [e.for_languages(self.known_languages) if hasattr(e, "for_languages") else e for e in self.engines]
+        self.ocr = self.engines[0]
+        if self._readability is None and self.known_scripts:
+            # The word-crop readability runs RapidOCR's recogniser: not on text in scripts it cannot read.
+            from strings_bench.eval.ocr.languages import rapidocr_supported_scripts
+
+            try:
+                unread = [sc for sc in self.known_scripts if sc not in rapidocr_supported_scripts()]
+            except OCRError:  # no recogniser: readability() says so itself
+                unread = []
+            if unread:
+                log.info("word-crop readability is not computed: its recogniser (RapidOCR) does not read %s",
+                         ", ".join(unread))
+                self._readability = False
+        for engine in self.engines:  # an engine that cannot read the scene's script refuses it, naming who can
+            check = getattr(engine, "require_scripts", None)
+            if check is not None and self.known_scripts:
+                check(self.known_scripts, f"these test views (known text in {', '.join(self.known_scripts)})")
 
     @classmethod
     def for_scene(cls, scene: "Scene", ocr_backend, downscale: float, **kwargs) -> "Evaluator":
@@ -310,9 +340,58 @@ class Evaluator:
             "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
             "cer": scene_cer.to_dict(),
             "cer_known": None if known_cer is None else known_cer.to_dict(),
+            "text": self.text_scripts(pairs),
             **({"ocr_engines": engines} if engines else {}),
             **({"missing_renders": missing} if missing else {}),
         }
+
+    def evaluate_words(self, method: str, renders: Mapping[str, np.ndarray], missing: Iterable[str] = ()) -> dict:
+        """The cheap evaluation of a dense checkpoint (`run --checkpoints every:N`): the word-crop readability (its
+        GT side, the GT views' OCR included, is made once per Evaluator and reused) and PSNR/SSIM over the image
+        and the text region; no OCR of the renders, no LPIPS. The keys of `evaluate`, with `cer` and `cer_known`
+        None and no OCR views."""
+        import strings_bench.eval.metrics as metrics
+
+        missing = [n for n in self.names if n in set(missing) and n not in renders]
+        self.check_renders(method, renders, missing)
+        per_view: dict[str, dict] = {}
+        read_views: dict[str, tuple] = {}
+        for name in self.names:
+            if name in missing:
+                continue
+            view, gt, r = self.views[name], self.gt(name), scored_image(renders[name])
+            per_view[name] = metrics.image_metrics(r, gt, with_lpips=False, device=self.device)
+            per_view[name].update(metrics.text_region_metrics(r, gt, view.mask, with_lpips=False, device=self.device))
+            known = None if view.known_words is None else list(view.known_words)
+            read_views[name] = (r, gt, known, self.gt_words(name))
+
+        def mean(key):
+            vals = [v[key] for v in per_view.values() if not math.isnan(v[key])]
+            return float(np.mean(vals)) if vals else math.nan
+
+        return {
+            "metrics": {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": math.nan,
+                        **{k: mean(k) for k in metrics.TEXT_METRICS}, "per_view": per_view},
+            "readability": self.readability(read_views),
+            "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": {}},
+            "cer": None,
+            "cer_known": None,
+            **({"missing_renders": missing} if missing else {}),
+        }
+
+    def text_scripts(self, pairs: Mapping[str, tuple]) -> dict:
+        """The scripts (and languages, where annotated) of the scene's text: from the known words when
+        the views have them, else from the primary engine's GT reading. Recorded as the result's `text`."""
+        from strings_bench.core.scripts import scripts_of
+
+        if self.known_scripts:
+            return {"scripts": list(self.known_scripts), "languages": list(self.known_languages), "from": "known text"}
+        texts = [w.text for gt, _ in pairs.values() if gt for w in gt]
+        try:  # the languages the engine was told to read (Tesseract's lang), where it has them
+            langs = list(self.ocr.languages()) if callable(getattr(self.ocr, "languages", None)) else []
+        except OCRError:
+            langs = []
+        return {"scripts": scripts_of(texts), "languages": langs, "from": f"GT OCR ({self.ocr.name})"}
 
     def second_opinion(self, engine, renders: Mapping[str, np.ndarray], primary_pairs: dict, missing=()) -> dict:
         """A further OCR engine's reading of a cell: its words on every GT and render view, its CER and

@@ -16,6 +16,14 @@ def _np(x: torch.Tensor, dtype) -> np.ndarray:
     return np.ascontiguousarray(x.detach().cpu().numpy(), dtype=dtype)
 
 
+def _np_in(x: torch.Tensor) -> np.ndarray:
+    """A float32 or float64 tensor as an array without a copy (the preprocessing kernels read both and
+    compute in float64); other dtypes as a float64 copy."""
+    if x.dtype in (torch.float32, torch.float64):
+        return x.detach().contiguous().numpy()
+    return _np(x, np.float64)
+
+
 class RasterizeTiles(torch.autograd.Function):
     """Blend (means2d, conics, opacities, features) over an H x W image.
 
@@ -99,7 +107,7 @@ class Preprocess(torch.autograd.Function):
         N = means.shape[0]
         cam = camera_array(camera)
         eps = MIP_FILTER if mip else DILATION
-        arrs = [_np(x, np.float64) for x in (means, quats, log_scales, opacity_logits, sh)]
+        arrs = [_np_in(x) for x in (means, quats, log_scales, opacity_logits, sh)]
         means2d = np.empty((N, 2), np.float32)
         conics = np.empty((N, 3), np.float32)
         opac = np.empty(N, np.float32)
@@ -108,7 +116,9 @@ class Preprocess(torch.autograd.Function):
         bbox = np.empty((N, 4), np.int32)
         preprocess_forward(*arrs, int(deg), cam, int(camera.width), int(camera.height), float(near), float(far),
                            eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
-        ctx.arrs = arrs
+        # The kernels read the parameters' own memory: saved for backward (torch's version check
+        # refuses a backward after an in-place change), converted again there.
+        ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh)
         ctx.setup = (int(deg), cam, eps, bool(mip), radii)
         ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)]
         dt = means.dtype
@@ -121,11 +131,13 @@ class Preprocess(torch.autograd.Function):
     def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
         from strings_bench.raster.cpu_preprocess import preprocess_backward
 
-        means, quats, log_scales, logits, sh = ctx.arrs
+        means, quats, log_scales, logits, sh = (_np_in(x) for x in ctx.saved_tensors)
         deg, cam, eps, mip, radii = ctx.setup
         N = means.shape[0]
-        grads_in = [(_np(g, np.float64) if g is not None else np.zeros(shape))
+        grads_in = [(_np_in(g) if g is not None else np.zeros(shape))
                     for g, shape in ((g_means2d, (N, 2)), (g_conics, (N, 3)), (g_opac, (N,)), (g_feats, (N, K.NF)))]
+        # Gradients are written in the inputs' dtype (float32: rounded once at the store, as the
+        # float64 result's conversion did).
         outs = [np.empty_like(x) for x in (means, quats, log_scales, logits, sh)]
         preprocess_backward(means, quats, log_scales, logits, sh, deg, cam, eps, mip, radii, *grads_in, *outs)
         res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs, ctx.dtypes)]

@@ -294,12 +294,13 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             buf[k, 7 + NF] = abs_y
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def reduce_intersections(buf, g_start, isect_pos, out):
-    """out[i] = sum of buf rows of Gaussian i's intersections (float64)."""
+    """out[i] = sum of buf rows of Gaussian i's intersections (float64), in intersection order: each
+    Gaussian's sum is one thread's, so the result does not depend on the thread count."""
     V = g_start.shape[0] - 1
     n = buf.shape[1]
-    for i in range(V):
+    for i in prange(V):
         for j in range(n):
             out[i, j] = 0.0
         for s in range(g_start[i], g_start[i + 1]):

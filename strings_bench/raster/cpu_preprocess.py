@@ -3,7 +3,11 @@
 Forward, per Gaussian (same rules as `projection.py`, which is the torch-autograd version used as
 an independent check in the tests): camera transform, culling, means2d, EWA 2D covariance with the
 clamped Jacobian, dilation or mip filter (+ opacity compensation), conic, radius, pixel box,
-sigmoid opacity and the SH colour seen from the camera centre. All arithmetic is float64.
+sigmoid opacity and the SH colour seen from the camera centre. All arithmetic is float64: inputs
+may be float32 or float64 arrays and every value read is converted to float64 first (exact; with
+`np.float64(x)`: numba types `float(x)` of a float32 as float32), so a float32 parameter gives the
+same result as its float64 copy did; gradient outputs take the inputs' dtype and are rounded once,
+at the store.
 
 Backward: the chain rule through the same steps, written out (conic = inverse 2D covariance:
 dL/dSigma = -Q G Q; quaternion -> rotation derivatives; clamped-Jacobian and normalisation cases
@@ -120,7 +124,7 @@ def _geometry(g, means, quats, log_scales, cam, Rq, RS, M):
     R = cam[0:9]
     fx, fy, cx, cy = cam[12], cam[13], cam[14], cam[15]
     lxn, lxp, lyn, lyp = cam[16], cam[17], cam[18], cam[19]
-    mx, my, mz = means[g, 0], means[g, 1], means[g, 2]
+    mx, my, mz = np.float64(means[g, 0]), np.float64(means[g, 1]), np.float64(means[g, 2])
     x = R[0] * mx + R[1] * my + R[2] * mz + cam[9]
     y = R[3] * mx + R[4] * my + R[5] * mz + cam[10]
     z = R[6] * mx + R[7] * my + R[8] * mz + cam[11]
@@ -141,8 +145,10 @@ def _geometry(g, means, quats, log_scales, cam, Rq, RS, M):
     j02 = -fx * tx / (z * z)
     j11 = fy / z
     j12 = -fy * ty / (z * z)
-    qw, qx, qy, qz, qn = _quat_rot(quats[g, 0], quats[g, 1], quats[g, 2], quats[g, 3], Rq)
-    s0, s1, s2 = math.exp(log_scales[g, 0]), math.exp(log_scales[g, 1]), math.exp(log_scales[g, 2])
+    qw, qx, qy, qz, qn = _quat_rot(np.float64(quats[g, 0]), np.float64(quats[g, 1]), np.float64(quats[g, 2]), np.float64(quats[g, 3]), Rq)
+    s0 = math.exp(np.float64(log_scales[g, 0]))
+    s1 = math.exp(np.float64(log_scales[g, 1]))
+    s2 = math.exp(np.float64(log_scales[g, 2]))
     for i in range(3):
         for k in range(3):
             RS[i, k] = R[3 * i] * Rq[0, k] + R[3 * i + 1] * Rq[1, k] + R[3 * i + 2] * Rq[2, k]
@@ -185,7 +191,7 @@ def preprocess_forward(means, quats, log_scales, opacity_logits, sh, deg, cam, W
             radii[g] = 0
             for j in range(4):
                 bbox[g, j] = 0
-            z = cam[6] * means[g, 0] + cam[7] * means[g, 1] + cam[8] * means[g, 2] + cam[11]
+            z = cam[6] * np.float64(means[g, 0]) + cam[7] * np.float64(means[g, 1]) + cam[8] * np.float64(means[g, 2]) + cam[11]
             if not (z > near and z < far):
                 means2d[g, 0] = 0.0
                 means2d[g, 1] = 0.0
@@ -204,22 +210,22 @@ def preprocess_forward(means, quats, log_scales, opacity_logits, sh, deg, cam, W
             conics[g, 0] = C / det
             conics[g, 1] = -b / det
             conics[g, 2] = A / det
-            sig = 1.0 / (1.0 + math.exp(-opacity_logits[g]))
+            sig = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[g])))
             if mip:
                 r = det_raw / det
                 sig *= math.sqrt(max(r, 1e-12))
             opac[g] = sig
             feats[g, 3] = z
             # colour
-            dx = means[g, 0] - cam[20]
-            dy = means[g, 1] - cam[21]
-            dz = means[g, 2] - cam[22]
+            dx = np.float64(means[g, 0]) - cam[20]
+            dy = np.float64(means[g, 1]) - cam[21]
+            dz = np.float64(means[g, 2]) - cam[22]
             dn = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
             _sh_basis(dx / dn, dy / dn, dz / dn, deg, Y)
             for ci in range(3):
                 acc = 0.0
                 for k in range(nk):
-                    acc += Y[k] * sh[g, k, ci]
+                    acc += Y[k] * np.float64(sh[g, k, ci])
                 feats[g, ci] = max(acc + 0.5, 0.0)
             # radius and pixel box
             mid = 0.5 * (A + C)
@@ -274,8 +280,8 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
             A, C = a + eps, c + eps
 
             # ---- opacity (sigmoid, mip compensation)
-            sig = 1.0 / (1.0 + math.exp(-opacity_logits[g]))
-            go = g_opac[g]
+            sig = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[g])))
+            go = np.float64(g_opac[g])
             ga = 0.0
             gb = 0.0
             gc = 0.0
@@ -295,7 +301,7 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
             # ---- conic = inverse of [[A, b], [b, C]]: dL/dSigma = -Q G Q
             inv_det = 1.0 / det
             q00, q01, q11 = C * inv_det, -b * inv_det, A * inv_det
-            g00, g01, g11 = g_conics[g, 0], 0.5 * g_conics[g, 1], g_conics[g, 2]
+            g00, g01, g11 = np.float64(g_conics[g, 0]), 0.5 * np.float64(g_conics[g, 1]), np.float64(g_conics[g, 2])
             # QG
             t00 = q00 * g00 + q01 * g01
             t01 = q00 * g01 + q01 * g11
@@ -363,14 +369,14 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
                 d_quats[g, 3] = gz / 1e-12
 
             # ---- Jacobian entries and means2d -> camera point
-            gu, gv = g_means2d[g, 0], g_means2d[g, 1]
+            gu, gv = np.float64(g_means2d[g, 0]), np.float64(g_means2d[g, 1])
             iz = 1.0 / z
             iz2 = iz * iz
             tx = x if txc > 0 else -j02 * z * z / fx
             ty = y if tyc > 0 else -j12 * z * z / fy
             g_x = gu * fx * iz
             g_y = gv * fy * iz
-            g_z = -gu * fx * x * iz2 - gv * fy * y * iz2 + g_feats[g, 3]
+            g_z = -gu * fx * x * iz2 - gv * fy * y * iz2 + np.float64(g_feats[g, 3])
             g_z += -gj00 * fx * iz2 - gj11 * fy * iz2 + gj02 * 2 * fx * tx * iz2 * iz + gj12 * 2 * fy * ty * iz2 * iz
             g_tx = -gj02 * fx * iz2
             g_ty = -gj12 * fy * iz2
@@ -382,13 +388,16 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
                 g_y += g_ty
             else:
                 g_z += g_ty * ty * iz
-            for j in range(3):
-                d_means[g, j] = cam[j] * g_x + cam[3 + j] * g_y + cam[6 + j] * g_z
+            # float64 until the one store: the outputs may be float32 arrays (rounded once, as a
+            # float64 result converted afterwards would be)
+            dm0 = cam[0] * g_x + cam[3] * g_y + cam[6] * g_z
+            dm1 = cam[1] * g_x + cam[4] * g_y + cam[7] * g_z
+            dm2 = cam[2] * g_x + cam[5] * g_y + cam[8] * g_z
 
             # ---- colour
-            dx = means[g, 0] - cam[20]
-            dy = means[g, 1] - cam[21]
-            dz = means[g, 2] - cam[22]
+            dx = np.float64(means[g, 0]) - cam[20]
+            dy = np.float64(means[g, 1]) - cam[21]
+            dz = np.float64(means[g, 2]) - cam[22]
             dnr = math.sqrt(dx * dx + dy * dy + dz * dz)
             dn = max(dnr, 1e-12)
             ux, uy, uz = dx / dn, dy / dn, dz / dn
@@ -401,24 +410,27 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
             for ci in range(3):
                 acc = 0.0
                 for k in range(nk):
-                    acc += Y[k] * sh[g, k, ci]
-                gcol = g_feats[g, ci] if acc + 0.5 >= 0.0 else 0.0
+                    acc += Y[k] * np.float64(sh[g, k, ci])
+                gcol = np.float64(g_feats[g, ci]) if acc + 0.5 >= 0.0 else 0.0
                 if gcol == 0.0:
                     continue
                 for k in range(nk):
                     d_sh[g, k, ci] = Y[k] * gcol
                     if deg > 0:
-                        w_k = sh[g, k, ci] * gcol
+                        w_k = np.float64(sh[g, k, ci]) * gcol
                         gdir0 += w_k * dY[k, 0]
                         gdir1 += w_k * dY[k, 1]
                         gdir2 += w_k * dY[k, 2]
             if deg > 0:
                 if dnr > 1e-12:
                     dot = gdir0 * ux + gdir1 * uy + gdir2 * uz
-                    d_means[g, 0] += (gdir0 - ux * dot) / dn
-                    d_means[g, 1] += (gdir1 - uy * dot) / dn
-                    d_means[g, 2] += (gdir2 - uz * dot) / dn
+                    dm0 += (gdir0 - ux * dot) / dn
+                    dm1 += (gdir1 - uy * dot) / dn
+                    dm2 += (gdir2 - uz * dot) / dn
                 else:
-                    d_means[g, 0] += gdir0 / dn
-                    d_means[g, 1] += gdir1 / dn
-                    d_means[g, 2] += gdir2 / dn
+                    dm0 += gdir0 / dn
+                    dm1 += gdir1 / dn
+                    dm2 += gdir2 / dn
+            d_means[g, 0] = dm0
+            d_means[g, 1] = dm1
+            d_means[g, 2] = dm2

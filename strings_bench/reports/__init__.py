@@ -42,8 +42,14 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     use_run_methods(manifest)  # method titles and groups as the run recorded them
     df = load_results(run_dir)
     out = run_dir / "report"
-    tables = write_tables(df, out / "tables", manifest)
+    from strings_bench.reports.readability_analysis import analyse, front_lines, write_fronts
+    from strings_bench.reports.tables import schedule_note
+
+    analysis = analyse(run_dir, df, schedule_note(df, manifest))  # CER by text size, time to legibility, fronts
+    tables = write_tables(df, out / "tables", manifest, extra=analysis.tables)
     figures = write_figures(df, run_dir, out / "figures", metrics)
+    if analysis.fronts:
+        write_fronts(analysis.fronts, out / "tables" / "pareto_front.csv")
     lines = [f"# strings-bench report: {run_dir.name}", ""]
     preset = manifest.get("preset") or {}
     if preset:
@@ -69,6 +75,11 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
         lines += [f"## {files['title']}", "", files["md"].read_text(encoding="utf-8"),
                   f"LaTeX: `{files['tex'].relative_to(out)}` (preamble `tables/preamble.tex`, all tables `tables/tables.tex`); "
                   f"CSV: `{files['csv'].relative_to(out)}`", ""]
+    if analysis.fronts:
+        lines += ["## Speed/accuracy front", "",
+                  "At each checkpoint, the methods that no other method beats on both mean training time "
+                  "(preprocessing + optimisation) and the mean CER over the scenes (circled in the scatter figures; "
+                  "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts), ""]
     if figures:
         lines += ["## figures", ""]
         for name, p in figures.items():
@@ -77,5 +88,6 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
                 lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
     md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
-    write_html(run_dir, out, df, manifest, build_tables(df, manifest), figures, notes)
+    write_html(run_dir, out, df, manifest, build_tables(df, manifest) + analysis.tables, figures, notes,
+               fronts=analysis.fronts)
     return md

@@ -10,7 +10,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from strings_bench.reports.tables import is_ablation, main_labels, method_order, method_title, with_total_seconds
+from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WORDS, THRESHOLDS, cer_by_size, load_words,
+                                                        pareto_front)
+from strings_bench.reports.tables import (GT_CEILING, dataset_title, is_ablation, main_labels, method_order, method_title,
+                                          with_total_seconds)
 from strings_bench.reports.results import read_cell
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
@@ -92,6 +95,14 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
     methods = method_order(g["method"])
     colors = _colors(methods)
     fig, ax = plt.subplots(figsize=(4.8, 3.6))
+    # The speed/accuracy front: the methods no other beats on both training time and the metric (circled).
+    sign = 1 if lower else -1
+    front = pareto_front({r.method: (r.minutes, sign * r.v) for r in g.itertuples()})
+    fr = g[g["method"].isin(front)].sort_values("minutes")
+    if len(fr):
+        ax.scatter(fr["minutes"], fr["v"], s=260, facecolors="none", edgecolors="k", linewidths=1.0, zorder=4,
+                   label="Pareto front")
+        ax.step(fr["minutes"], fr["v"], where="post", color="k", linewidth=0.8, linestyle=":", zorder=2)
     for r in g.itertuples():
         y = r.v if not math.isnan(r.v) else np.nan
         ax.scatter([r.minutes], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
@@ -105,6 +116,8 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
     ax.grid(True, alpha=0.3)
     ax.set_title(f"Readability vs training time ({label})" if metric == "cer" else f"{name} vs training time ({label})",
                  fontsize=10)
+    if len(fr):
+        ax.legend(handles=[ax.collections[0]], labels=["Pareto front (circled)"], fontsize=7, loc="best")
     return _save(fig, out)
 
 
@@ -140,7 +153,7 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
         panels.append(("mean over scenes", mean))
     for ax, (title, sub) in zip(axes.flat, panels):
         for m in methods:
-            s = sub[sub["method"] == m].sort_values("iteration")
+            s = sub[sub["method"] == m].sort_values("iteration").dropna(subset=[metric])  # dense checkpoints have no OCR-CER
             if s.empty:
                 continue
             ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=method_title(m),
@@ -156,6 +169,80 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
     handles, labels = axes.flat[0].get_legend_handles_labels()
     if handles:
         fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, bbox_to_anchor=(0.5, -0.02))
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return _save(fig, out)
+
+
+# ---- readability analysis (reports/readability_analysis.py) ---------------------------------------
+def size_figure(by_size: pd.DataFrame, label: str, out: Path) -> Path | None:
+    """Word CER per height bin, one line per method and a dashed GT ceiling, one panel per dataset; greyed bins
+    have a grey background."""
+    if by_size.empty or not (by_size["words"] > 0).any():
+        return None
+    plt = _plt()
+    datasets = list(dict.fromkeys(by_size["dataset"]))
+    fig, axes = plt.subplots(1, len(datasets), figsize=(4.8 * len(datasets), 3.6), squeeze=False)
+    for ax, d in zip(axes.flat, datasets):
+        sub = by_size[(by_size["dataset"] == d) & (by_size["words"] > 0)]
+        bins = [b for b, _lo, _hi in HEIGHT_BINS if b in set(sub["bin"])]
+        x = {b: i for i, b in enumerate(bins)}
+        for b in bins:
+            if bool(sub[sub["bin"] == b]["greyed"].iloc[0]):
+                ax.axvspan(x[b] - 0.5, x[b] + 0.5, color="0.85", zorder=0)
+        methods = [m for m in method_order(sub["method"]) if m != GT_CEILING]
+        colors = _colors(methods)
+        for m in [*methods, GT_CEILING]:
+            s = sub[sub["method"] == m]
+            ax.plot([x[b] for b in s["bin"]], s["cer"], marker="o", color="k" if m == GT_CEILING else colors[m],
+                    linestyle="--" if m == GT_CEILING else "-", label="GT view (ceiling)" if m == GT_CEILING else method_title(m))
+        n = {r.bin: r.words for r in sub.drop_duplicates("bin").itertuples()}
+        ax.set_xticks(range(len(bins)), [f"{b}\n(n={n[b]})" for b in bins], fontsize=7)
+        ax.set_xlabel("word height (px at the evaluated resolution)", fontsize=8)
+        ax.set_ylabel(f"word CER at {label}", fontsize=8)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(dataset_title(d), fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"Word CER by text size (grey: fewer than {MIN_BIN_WORDS} words, not ranked)", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def readability_vs_time(df: pd.DataFrame, out: Path, metric: str = "word_cer") -> Path | None:
+    """A CER against training minutes, one line per method (a point per evaluated checkpoint), one panel per
+    scene, with the THRESHOLDS as dotted lines: the paper's text-evolution figure, for any method and scene."""
+    df = with_total_seconds(df)
+    if df.empty or metric not in df or pd.to_numeric(df[metric], errors="coerce").isna().all():
+        return None
+    df = df.assign(_v=pd.to_numeric(df[metric], errors="coerce"), _min=df["total_seconds"] / 60)
+    plt = _plt()
+    scenes = list(dict.fromkeys(zip(df["dataset"], df["scene"])))
+    cols = min(3, len(scenes))
+    rows = math.ceil(len(scenes) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    methods = method_order(df["method"])
+    colors = _colors(methods)
+    for ax, (d, s) in zip(axes.flat, scenes):
+        sub = df[(df["dataset"] == d) & (df["scene"] == s)]
+        for m in methods:
+            g = sub[sub["method"] == m].sort_values("iteration").dropna(subset=["_v", "_min"])
+            if not g.empty:
+                ax.plot(g["_min"], g["_v"], marker="o", ms=3, color=colors[m], label=method_title(m),
+                        linestyle="--" if is_ablation(m) else "-")
+        for thr in THRESHOLDS:
+            ax.axhline(thr, color="0.5", linestyle=":", linewidth=0.8)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"{d}/{s}", fontsize=9)
+        ax.set_xlabel("training time, preprocessing + optimisation (minutes)", fontsize=7)
+        ax.set_ylabel(METRICS[metric][0], fontsize=8)
+        ax.grid(True, alpha=0.3)
+    for ax in list(axes.flat)[len(scenes):]:
+        ax.axis("off")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=8, bbox_to_anchor=(0.5, -0.03))
+    fig.suptitle(f"{METRICS[metric][0]} against training time (dotted: thresholds {', '.join(f'{t:g}' for t in THRESHOLDS)})",
+                 fontsize=9)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     return _save(fig, out)
 
@@ -327,4 +414,13 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
         p = metric_over_iterations(df, out_dir / f"{metric}_over_iterations.png", metric)
         if p:
             written[f"{metric}_over_iterations"] = p
+    # The readability analysis (issue 30): CER by text size at the last checkpoint, CER against training time.
+    label = main_labels(df)[-1]
+    p = size_figure(cer_by_size(load_words(run_dir, df), label), label, out_dir / f"word_cer_by_size_{label}.png")
+    if p:
+        written[f"word_cer_by_size_{label}"] = p
+    for metric in [m for m in ("word_cer", "cer") if m in chosen]:
+        p = readability_vs_time(df, out_dir / f"{metric}_vs_training_time.png", metric)
+        if p:
+            written[f"{metric}_vs_training_time"] = p
     return written

@@ -70,7 +70,7 @@ th.sortable { cursor: pointer; user-select: none; white-space: nowrap; }
 th.sortable::after { content: " \\2195"; color: #999; }
 th[aria-sort="ascending"]::after { content: " \\25B2"; color: #333; }
 th[aria-sort="descending"]::after { content: " \\25BC"; color: #333; }
-td.first { background: var(--first); } td.second { background: var(--second); } td.third { background: var(--third); }
+td.greyed { color: #9a9a9a; background: #f2f2f2; font-style: italic; } td.first { background: var(--first); } td.second { background: var(--second); } td.third { background: var(--third); }
 tr.ceiling td { font-style: italic; color: #555; background: #fafafa; }
 td.best { font-weight: bold; }
 .caption { color: #555; max-width: 1000px; font-size: 13px; }
@@ -254,8 +254,9 @@ def table_html(t: Table) -> str:
             v = c.values.get(m, math.nan)
             rank = sh.get(m)
             data_v = sort_key(v)
-            cells.append(f'<td{f" class={chr(34)}{rank}{chr(34)}" if rank else ""} data-v="{esc(data_v)}">'
-                         f"{esc(t.fmt(c, v))}</td>")
+            klass = "greyed" if c.greyed else rank
+            cells.append(f'<td{f" class={chr(34)}{klass}{chr(34)}" if klass else ""} data-v="{esc(data_v)}">'
+                         f"{esc(t.fmt(c, v, m))}</td>")
         out.append(f"<tr{cls}>" + "".join(cells) + "</tr>")
     out += ["</tbody>", "</table>"]
     return "\n".join(out)
@@ -401,6 +402,8 @@ def collect_galleries(run_dir: Path, df: pd.DataFrame) -> list[SceneGallery]:
     if df.empty:
         return []
     rows = df.sort_values(["dataset", "scene", "iteration"], kind="stable")
+    if "evaluation" in rows:  # the dense checkpoints of `every:N` get no gallery tab (there may be dozens)
+        rows = rows[rows["evaluation"].fillna("full") != "words"]
     for r in rows.itertuples(index=False):
         g = out.setdefault((r.dataset, r.scene), SceneGallery(str(r.dataset), str(r.scene)))
         path = CellKey(str(r.method), str(r.dataset), str(r.scene), int(r.iteration)).path(run_dir) / RESULT_FILE
@@ -567,13 +570,31 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
     return _page(title, "\n".join(parts) + "</main>", back)
 
 
+def _fronts_html(fronts: list[dict]) -> str:
+    """The speed/accuracy fronts as a table: one row per (checkpoint, metric), the front's methods."""
+    from strings_bench.reports.readability_analysis import FRONT_METRICS
+
+    rows = []
+    for f in fronts:
+        members = "; ".join(f"{method_title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
+        rows.append(f'<tr><td class="name">{esc(f["label"])}</td><td class="name">{esc(FRONT_METRICS[f["metric"]])}</td>'
+                    f'<td class="name" data-front="{esc(",".join(f["front"]))}">{esc(members or "none")}</td></tr>')
+    return ('<h3 id="h-pareto_front">Speed/accuracy front</h3><table class="data" id="table-pareto-front"><thead><tr>'
+            '<th class="name" data-col="0" data-type="text">checkpoint</th><th class="name" data-col="1" data-type="text">'
+            'metric</th><th class="name" data-col="2" data-type="text">front (mean training minutes, mean CER)</th>'
+            "</tr></thead><tbody>" + "".join(rows) + '</tbody></table><p class="caption">The methods that no other '
+            "method beats on both mean training time (preprocessing + optimisation) and mean CER over the scenes; "
+            "circled in the scatter figures. CSV: <a href=\"tables/pareto_front.csv\">tables/pareto_front.csv</a>.</p>")
+
+
 # ---- the index -------------------------------------------------------------------------------------------------
 def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest: dict, tables: list[Table],
-               figures: dict[str, Path], notes: list[str] | None = None) -> Path:
+               figures: dict[str, Path], notes: list[str] | None = None, fronts: list[dict] | None = None) -> Path:
     """Write out/index.html and out/gallery/<dataset>/<scene>/ (pages and crops); returns index.html's path.
 
     tables: the report's Table objects (tables.build_tables); figures: name -> PNG path under `out`;
-    notes: plain-text remarks shown under the title (OCR failures, LPIPS n/a, ...).
+    notes: plain-text remarks shown under the title (OCR failures, LPIPS n/a, ...); fronts: the speed/accuracy
+    fronts (readability_analysis.fronts), listed under the figures.
     """
     run_dir, out = Path(run_dir), Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -607,6 +628,9 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         # Figures load eagerly (a dozen at most); the thousands of crops are the lazy ones.
         parts.append(f'<figure><img src="{href(rel)}" alt="{esc(name)}">'
                      f"<figcaption>{esc(name.replace('_', ' '))}</figcaption></figure>")
+
+    if fronts:
+        parts.append(_fronts_html(fronts))
 
     parts.append('<h2 id="galleries">Word crops</h2><p>Per scene, every reference word of the word-crop readability '
                  "metric: its ground-truth crop and each method's render crop side by side, per checkpoint, with what "

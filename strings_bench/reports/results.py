@@ -22,7 +22,7 @@ from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellK
 __all__ = [
     "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV",
     "RUN_FILE", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
-    "safe_name", "timing_columns", "write_results_csv",
+    "safe_name", "timing_columns", "write_results_csv", "script_columns", "cer_per_script",
 ]
 
 # Word-crop readability (eval.readability) of the render, its GT-view ceiling (_gt), and the text-region image
@@ -184,7 +184,10 @@ def cell_row(rec: dict) -> dict:
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
         "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
+        # "words": a dense checkpoint of `--checkpoints every:N`, word-crop metrics only (no OCR-CER); else "full"
+        "evaluation": rec.get("evaluation", "full"),
         **engine_columns(rec),
+        **script_columns(rec),
     }
 
 
@@ -207,6 +210,37 @@ def engine_columns(rec: dict) -> dict:
         for col, v in zip(ENGINE_COLUMNS, values):
             out[col.format(engine=engine)] = "" if v is None else v
     return out
+
+
+# ---- scripts and languages (issue 31) ------------------------------------------------------------------
+def script_columns(rec: dict) -> dict:
+    """`script` and `language` of a cell: the scripts of its scene's text, most frequent first, joined with
+    '+' (from the known words, else from the GT OCR; the result's `text`), and the annotated languages.
+    {} for cells written before they were recorded."""
+    t = rec.get("text")
+    if not isinstance(t, dict):
+        return {}
+    return {"script": "+".join(t.get("scripts") or []), "language": "+".join(t.get("languages") or [])}
+
+
+def cer_per_script(rows: Iterable[dict], value: str = "cer") -> list[dict]:
+    """Mean `value` (a results.csv column: cer, cer_known, ...) per script x method x checkpoint label, over
+    the scenes of that script (every dataset together): [{"script", "method", "label", value, "scenes"}],
+    sorted by script, method, label. A scene's script is its main one (the first of `script`); rows without
+    a script or a number are left out."""
+    groups: dict[tuple, list[float]] = {}
+    for r in rows:
+        script = str(r.get("script") or "").split("+")[0]
+        v = r.get(value)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            continue
+        if not script or v != v:  # no script recorded, or NaN
+            continue
+        groups.setdefault((script, r["method"], str(r["label"])), []).append(v)
+    return [{"script": s, "method": m, "label": l, value: sum(vs) / len(vs), "scenes": len(vs)}
+            for (s, m, l), vs in sorted(groups.items())]
 
 
 def write_results_csv(run_dir: str | Path) -> Path:

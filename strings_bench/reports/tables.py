@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS
+from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS, cer_per_script
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).
@@ -172,6 +172,10 @@ class Column:
     lower_is_better: bool
     fmt: str  # format spec, e.g. ".3f"; "K" = thousands with a K suffix
     values: dict = field(default_factory=dict)  # method -> float
+    greyed: bool = False  # shown greyed and never ranked (e.g. a text-size bin with too few words)
+    na: str = "n/a"  # how a missing value reads (e.g. "not reached")
+    prefix: dict = field(default_factory=dict)  # method -> text before its value (e.g. "<=" for an upper bound)
+    suffix: dict = field(default_factory=dict)  # method -> text after its value (e.g. " (450)", the step)
 
 
 @dataclass
@@ -192,12 +196,12 @@ class Table:
         """The table's title as a person reads it: `heading`, else its plain corner ("OCR-CER (lower is better)")."""
         return self.heading or self.corner_plain or self.name.replace("_", " ")
 
-    def fmt(self, col: Column, x) -> str:
+    def fmt(self, col: Column, x, method: str | None = None) -> str:
         if x is None or (isinstance(x, float) and math.isnan(x)):
-            return "n/a"
+            return col.na
         if col.fmt == "K":
             return f"{x / 1000:.0f}K" if x >= 1000 else f"{x:.0f}"
-        return format(x, col.fmt)
+        return col.prefix.get(method, "") + format(x, col.fmt) + col.suffix.get(method, "")
 
     def decimals(self, col: Column) -> int | None:
         if col.fmt == "K":
@@ -209,7 +213,7 @@ class Table:
 
     def shading(self, col: Column) -> dict[str, str | None]:
         vals = [col.values.get(m, math.nan) for m in self.methods]
-        if not self.shade:
+        if not self.shade or col.greyed:
             return {m: None for m in self.methods}
         vals = [math.nan if m == GT_CEILING else v for m, v in zip(self.methods, vals)]
         return dict(zip(self.methods, rank_classes(vals, col.lower_is_better, self.decimals(col))))
@@ -245,8 +249,10 @@ def to_latex(t: Table, papers: dict | None = None) -> str:
     for m in t.methods:
         cells = [method_title(m, papers, latex=True)]
         for c, sh in zip(t.columns, shades):
-            s = t.fmt(c, c.values.get(m, math.nan))
+            s = t.fmt(c, c.values.get(m, math.nan), m).replace("<=", r"$\leq$")
             cls = sh.get(m)
+            if c.greyed:
+                s = r"\textcolor{gray}{%s}" % s
             cells.append((r"\cellcolor{%s}" % cls if cls else "") + s)
         lines.append(" & ".join(cells) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\caption{" + t.caption + "}", r"\label{tab:%s}" % t.name, r"\end{table}"]
@@ -261,7 +267,8 @@ def to_markdown(t: Table) -> str:
     for m in t.methods:
         cells = [method_title(m)]
         for c, sh in zip(t.columns, shades):
-            cells.append(t.fmt(c, c.values.get(m, math.nan)) + marks.get(sh.get(m) or "", ""))
+            v = t.fmt(c, c.values.get(m, math.nan), m)
+            cells.append((f"_{v}_" if c.greyed else v) + marks.get(sh.get(m) or "", ""))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -279,9 +286,14 @@ def to_csv(t: Table) -> str:
 
 # ---- the paper's tables ------------------------------------------------------------------------------
 def main_labels(df: pd.DataFrame) -> list[str]:
-    """Checkpoint labels of the tables: every checkpoint the run evaluated, in order (the paper's layout
-    has 7K and 30K; a run that also evaluated 3K shows it too)."""
-    return sorted(set(df["label"]), key=label_value) if not df.empty else []
+    """Checkpoint labels of the tables: every checkpoint the run evaluated fully, in order (the paper's layout
+    has 7K and 30K; a run that also evaluated 3K shows it too). The dense checkpoints of `--checkpoints every:N`
+    evaluated with the word-crop metrics only (results.csv `evaluation` = words) are not columns: they feed the
+    time-to-legibility table and the curves."""
+    if df.empty:
+        return []
+    full = df[df["evaluation"].fillna("full") != "words"] if "evaluation" in df else df
+    return sorted(set((full if not full.empty else df)["label"]), key=label_value)
 
 
 def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
@@ -351,6 +363,7 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
     if "word_cer" in df and df["word_cer"].notna().any():
         tables += readability_tables(df, note)
     tables += ocr_engine_tables(df, manifest, note)
+    tables += script_tables(df, note)
     tables.append(metrics_table(df, note))
     paper = paper_comparison_table(df, note)
     if paper is not None:
@@ -359,6 +372,38 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
     if abl is not None:
         tables.append(abl)
     return tables
+
+
+# ---- text in several scripts (issue 31) -------------------------------------------------------------------
+def script_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
+    """When the run's scenes are in more than one script (results.csv `script`): OCR-CER, and known-text CER
+    where there is one, per script x checkpoint, mean over the scenes of that script; [] otherwise."""
+    if "script" not in df or df["script"].isna().all():
+        return []
+    main = df["script"].fillna("").astype(str).str.split("+").str[0]
+    scripts = [s for s in dict.fromkeys(main) if s]
+    if len(scripts) < 2:
+        return []
+    rows = df.assign(script=main).to_dict("records")
+    labels = main_labels(df)
+    methods = method_order(m for m in df["method"] if not is_ablation(m))
+    out = []
+    for value, name, corner, what in (("cer", "ocr_cer_by_script", "OCR-CER by script (lower is better)", "OCR-CER"),
+                                      ("cer_known", "known_cer_by_script", "Known-text CER by script (lower is better)",
+                                       "known-text CER")):
+        if value not in df or df[value].isna().all():
+            continue
+        per = cer_per_script(rows, value)
+        cols = []
+        for sc in scripts:
+            for l in labels:
+                vals = {r["method"]: r[value] for r in per if r["script"] == sc and r["label"] == l}
+                n = max([r["scenes"] for r in per if r["script"] == sc and r["label"] == l] or [0])
+                cols.append(Column(f"{sc} ({n} scene{'s' if n != 1 else ''})", l, l, True, ".3f", vals))
+        out.append(Table(name, corner.replace("(lower is better)", r"$\downarrow$"), corner, cols, methods,
+                         f"{what} per script of the scenes' text (results.csv `script`: from the known words, else the GT "
+                         "OCR), mean over the scenes in that script across datasets." + RANK_NOTE + note))
+    return out
 
 
 # ---- a second OCR opinion (`run --ocr rapidocr,tesseract`) ---------------------------------------------
@@ -643,12 +688,14 @@ def ablation_csv(t: Table) -> str:
     return pd.DataFrame(rows).to_csv(index=False)
 
 
-def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None) -> dict[str, dict[str, Path]]:
-    """Write every table as .tex, .md and .csv, plus preamble.tex and a compilable tables.tex."""
+def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None,
+                 extra: list[Table] | None = None) -> dict[str, dict[str, Path]]:
+    """Write every table (build_tables', then `extra`) as .tex, .md and .csv, plus preamble.tex and a compilable
+    tables.tex."""
     out_dir.mkdir(parents=True, exist_ok=True)
     papers = {m: v.get("paper", "") for m, v in ((manifest or {}).get("methods") or {}).items()}
     written: dict[str, dict[str, Path]] = {}
-    for t in build_tables(df, manifest):
+    for t in build_tables(df, manifest) + list(extra or []):
         if t.name == "ablations":
             tex, md, csv_text = ablation_latex(t), ablation_markdown(t), ablation_csv(t)
         else:

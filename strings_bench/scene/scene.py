@@ -8,7 +8,7 @@ Folder layout (COLMAP style):
       images_2/, images_4/  optional pre-downscaled copies (used when present)
       sparse/0/             COLMAP model (.bin or .txt)
       masks/                optional text masks, one PNG per image named <image stem>.png
-      text_annotations.json optional known text: {"views": {image_name: [{"text", "polygon"}]}}
+      text_annotations.json optional known text: {"views": {image_name: [{"text", "polygon"[, "lang", "script"]}]}}
       split.json            optional split override: {"test": [names], "train": [names]}
 """
 
@@ -43,6 +43,10 @@ class KnownWord:
     # in scene units. None elsewhere.
     angle_deg: float | None = None
     distance: float | None = None
+    # Where recorded (synthetic-multi scenes): the word's language (core.scripts codes: rus, ell, hin, ara,
+    # chi_sim, eng) and script (core.scripts names: Cyrillic, Greek, Devanagari, Arabic, Han, Latin).
+    lang: str | None = None
+    script: str | None = None
 
 
 def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int], list[int]]:
@@ -213,7 +217,8 @@ class Scene:
         cam = self.model.cameras[i]
         w, h = self._image_size(i, downscale)
         s = np.array([w / cam.width, h / cam.height])
-        return [KnownWord(k.text, k.polygon * s, k.angle_deg, k.distance) for k in self.known_text.get(cam.name, [])]
+        return [KnownWord(k.text, k.polygon * s, k.angle_deg, k.distance, k.lang, k.script)
+                for k in self.known_text.get(cam.name, [])]
 
 
 def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
@@ -299,7 +304,7 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
                     raise DatasetError(f"text annotations {path}: {key} of a word of view {name!r} is not a finite "
                                        f"number ({v!r})", hint=hint)
                 geo[key] = None if v is None else float(v)
-            kept.append(KnownWord(str(w["text"]), poly, **geo))
+            kept.append(KnownWord(str(w["text"]), poly, **geo, lang=w.get("lang"), script=w.get("script")))
         out[str(name)] = kept
     return out
 
@@ -310,6 +315,7 @@ def write_annotations(path: str | Path, views: dict[str, list[KnownWord]]) -> No
     def word(w: KnownWord) -> dict:
         d = {"text": w.text, "polygon": np.asarray(w.polygon).tolist()}
         d.update({k: float(v) for k, v in (("angle_deg", w.angle_deg), ("distance", w.distance)) if v is not None})
+        d.update({k: v for k, v in (("lang", w.lang), ("script", w.script)) if v is not None})
         return d
 
     atomic_write_json(path, {"views": {n: [word(w) for w in ws] for n, ws in views.items()}})

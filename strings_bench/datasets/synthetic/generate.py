@@ -43,6 +43,8 @@ from strings_bench.core.io import atomic_write_json, cache_root, sweep_stale_tem
 from strings_bench.scene.scene import KnownWord, write_annotations
 from strings_bench.datasets.synthetic.photometric import apply_photometry, draw_view_photometry
 from strings_bench.datasets.synthetic.scenes import BUILDERS, SceneSpec
+from strings_bench.datasets.synthetic.multiscript import (MULTISCRIPT_VERSION, SCENE_NAMES_MULTI, WORDS, build_multi,
+                                                         check_fonts, scene_script)
 from strings_bench.datasets.synthetic.scenes360 import BUILDERS_360, DEFAULT_TEXT_PX, RoomParams
 
 log = logging.getLogger(__name__)
@@ -51,6 +53,7 @@ log = logging.getLogger(__name__)
 GENERATOR_VERSION = "2"
 SCENE_NAMES = tuple(BUILDERS)  # the `synthetic` dataset (easy: object-centred, clean images)
 SCENE_NAMES_360 = tuple(BUILDERS_360)  # the `synthetic360` dataset (room-scale)
+# SCENE_NAMES_MULTI: the `synthetic-multi` dataset (one scene per script; multiscript.py)
 META_FILE = "scene_meta.json"
 
 
@@ -110,7 +113,8 @@ class SyntheticSettings:
         for name in DIFFICULTY_FIELDS:
             if fields[name] == _DEFAULTS[name]:
                 del fields[name]
-        blob = json.dumps({"version": GENERATOR_VERSION, "scene": scene, **fields}, sort_keys=True)
+        extra = {"multiscript_version": MULTISCRIPT_VERSION} if scene in SCENE_NAMES_MULTI else {}
+        blob = json.dumps({"version": GENERATOR_VERSION, "scene": scene, **extra, **fields}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
     def photometric(self) -> bool:
@@ -131,9 +135,10 @@ _DEFAULTS = {f.name: f.default for f in fields(SyntheticSettings)}
 
 
 def check_scene_name(scene: str) -> None:
-    if scene not in BUILDERS and scene not in BUILDERS_360:
+    if scene not in BUILDERS and scene not in BUILDERS_360 and scene not in SCENE_NAMES_MULTI:
         raise DatasetError(f"unknown synthetic scene {scene!r}",
-                           hint=f"synthetic scenes: {', '.join(SCENE_NAMES)}; synthetic360: {', '.join(SCENE_NAMES_360)}")
+                           hint=f"synthetic scenes: {', '.join(SCENE_NAMES)}; synthetic360: {', '.join(SCENE_NAMES_360)}; "
+                                f"synthetic-multi: {', '.join(SCENE_NAMES_MULTI)}")
 
 
 def scene_dir(scene: str, settings: SyntheticSettings | None = None) -> Path:
@@ -294,7 +299,8 @@ def visible_words(spec: SceneSpec, cam: Camera, settings: SyntheticSettings) -> 
     pts = np.concatenate(sample_pts)
     t = world.first_hit(C, pts - C)  # t = 1 at the sample itself
     free = (t >= 1 - 1e-4).reshape(len(candidates), -1).all(axis=1)
-    return [KnownWord(w.text, px, angle, dist) for (w, px, angle, dist), ok in zip(candidates, free) if ok]
+    return [KnownWord(w.text, px, angle, dist, w.lang, w.script)
+            for (w, px, angle, dist), ok in zip(candidates, free) if ok]
 
 
 # ---- SfM -----------------------------------------------------------------------------------
@@ -484,9 +490,13 @@ def make_spec(scene: str, seed: int, settings: SyntheticSettings | None = None) 
         return BUILDERS_360[scene](rng, settings.room_params())
     changed = [n for n in CONTENT_FIELDS if getattr(settings, n) != _DEFAULTS[n]]
     if changed:
-        raise DatasetError(f"synthetic/{scene} has no setting {', '.join(changed)}",
+        raise DatasetError(f"{'synthetic-multi' if scene in SCENE_NAMES_MULTI else 'synthetic'}/{scene} has no setting "
+                           f"{', '.join(changed)}",
                            hint=f"room size, text height, background frequency and clutter are controls of the "
                                 f"synthetic360 scenes ({', '.join(SCENE_NAMES_360)}); the photometric ones apply to all")
+    if scene in SCENE_NAMES_MULTI:
+        check_fonts(scene)
+        return build_multi(scene, rng)
     return BUILDERS[scene](rng)
 
 
@@ -647,6 +657,7 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
         "word_height_px": ({"p10": float(np.percentile(heights, 10)), "median": float(np.median(heights)),
                             "p90": float(np.percentile(heights, 90))} if heights else None),
         "text_px": list(settings.room_params().text_px) if scene in BUILDERS_360 else None,
+        **({"language": WORDS[scene].lang, "script": scene_script(scene)} if scene in SCENE_NAMES_MULTI else {}),
         "photometry": photometry or None,
         "fallback": fallback,
         "sfm_attempts": attempts,

@@ -29,6 +29,8 @@ class SceneWord:
     text: str
     prim: int  # index into world.primitives
     uv: np.ndarray  # (4, 2) box corners in texture uv, reading order TL, TR, BR, BL
+    lang: str | None = None  # recorded in the annotations when set (multilingual scenes)
+    script: str | None = None
 
 
 @dataclass
@@ -60,7 +62,7 @@ class Builder:
             boxes = np.array([[c[:, 0].min(), c[:, 1].min(), c[:, 0].max(), c[:, 1].max()] for c in uvs]).reshape(-1, 4)
             material = Material(canvas.array(), word_boxes=boxes)
             for wb, uv in zip(canvas.words, uvs):
-                self.words.append(SceneWord(wb.text, len(self.prims), uv))
+                self.words.append(SceneWord(wb.text, len(self.prims), uv, canvas.lang, canvas.script))
         else:
             material = canvas_or_material
         prim = prim_factory(material)

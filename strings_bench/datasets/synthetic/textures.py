@@ -41,7 +41,28 @@ def font_path(style: str) -> str:
 
 @lru_cache(maxsize=256)
 def load_font(style: str, size_px: int) -> ImageFont.FreeTypeFont:
+    if style.startswith(NOTO_PREFIX):  # "noto-Cyrillic": the Noto font of that script (fonts.py)
+        from strings_bench.datasets.synthetic.fonts import load_noto
+
+        return load_noto(style[len(NOTO_PREFIX):], int(round(size_px)))
     return ImageFont.truetype(font_path(style), size=max(4, int(round(size_px))))
+
+
+NOTO_PREFIX = "noto-"
+
+
+def text_direction(style: str) -> str | None:
+    """"rtl" for the fonts of right-to-left scripts (Arabic is laid out right to left by raqm), else None."""
+    from strings_bench.core.scripts import RTL_SCRIPTS
+
+    return "rtl" if style.startswith(NOTO_PREFIX) and style[len(NOTO_PREFIX):] in RTL_SCRIPTS else None
+
+
+def _check_glyphs(style: str, text: str) -> None:
+    if style.startswith(NOTO_PREFIX):
+        from strings_bench.datasets.synthetic.fonts import check_glyphs
+
+        check_glyphs(style[len(NOTO_PREFIX):], text)
 
 
 @dataclass(frozen=True)
@@ -129,6 +150,8 @@ class Canvas:
     def __init__(self, image: np.ndarray):
         self.image = Image.fromarray(np.asarray(image, np.uint8)).convert("RGB")
         self.words: list[WordBox] = []
+        self.lang: str | None = None  # language and script of its words, recorded in the annotations when set
+        self.script: str | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -149,11 +172,13 @@ class Canvas:
         sphere's poles). The box is the ink's bounding box plus a margin of 12 % of the size.
         """
         font = load_font(style, size_px)
-        left, top, right, bottom = font.getbbox(text)
+        _check_glyphs(style, text)  # never a tofu box: every character must have a glyph in the font
+        direction = text_direction(style)
+        left, top, right, bottom = font.getbbox(text, direction=direction)
         pad = max(1, int(round(0.12 * size_px)))
         w, h = right - left + 2 * pad, bottom - top + 2 * pad
         label = Image.new("L", (w, h), 0)
-        ImageDraw.Draw(label).text((pad - left, pad - top), text, font=font, fill=255)
+        ImageDraw.Draw(label).text((pad - left, pad - top), text, font=font, fill=255, direction=direction)
         if stretch_x != 1.0:
             label = label.resize((max(1, int(round(w * stretch_x))), h), Image.Resampling.BICUBIC)
             w = label.size[0]
@@ -186,16 +211,24 @@ class Canvas:
         """Draw space-separated words as one line (each word gets its own box).
 
         anchor "lt": (x, y) is where the line starts (top-left as read); "mm": the line's centre.
+        The words are drawn, and their boxes recorded, in reading order.
         """
         font = load_font(style, size_px)
         words = text.split()
+        direction = text_direction(style)
         space = font.getlength(" ") * stretch_x
         pad = max(1, int(round(0.12 * size_px)))
-        widths = [(font.getbbox(w)[2] - font.getbbox(w)[0] + 2 * pad) * stretch_x for w in words]
-        height = max(font.getbbox(w)[3] - font.getbbox(w)[1] for w in words) + 2 * pad
+        bboxes = [font.getbbox(w, direction=direction) for w in words]
+        widths = [(b[2] - b[0] + 2 * pad) * stretch_x for b in bboxes]
+        height = max(b[3] - b[1] for b in bboxes) + 2 * pad
         total = sum(widths) + space * (len(words) - 1)
-        # Reading direction and "down" (towards the glyph bottoms) in canvas coordinates.
+        # Reading direction and "down" (towards the glyph bottoms) in canvas coordinates. Right-to-left
+        # scripts (Arabic) read leftwards: the first word is the rightmost, (x, y) of "lt" its top-right.
         along, down = {0: ((1, 0), (0, 1)), -90: ((0, 1), (-1, 0)), 90: ((0, -1), (1, 0))}[rotate]
+        if direction == "rtl":
+            if rotate != 0:
+                raise ValueError("right-to-left text is drawn horizontally only (rotate=0)")
+            along = (-1, 0)
         along, down = np.array(along, float), np.array(down, float)
         start = np.array([x, y], float)
         if anchor == "mm":

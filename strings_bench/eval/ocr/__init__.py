@@ -31,6 +31,8 @@ __all__ = [
     "available_backends",
     "backend_class",
     "get_backend",
+    "get_engine",
+    "engine_settings",
     "parse_engines",
     "load_image",
     "load_mask",
@@ -70,16 +72,39 @@ def parse_engines(spec: str | list[str] | tuple[str, ...], strict: bool = True) 
         raise OCRError(f"no OCR engine in {spec!r}", hint=f"e.g. --ocr rapidocr or --ocr rapidocr,tesseract; engines: {', '.join(BACKENDS)}")
     names = []
     for item in items:
-        key = ALIASES.get(item.lower(), item.lower())
+        name, _, rest = item.partition(":")
+        key = ALIASES.get(name.lower(), name.lower())
         if key not in BACKENDS:
             if strict:
-                raise OCRError(f"unknown OCR backend {item!r}",
+                raise OCRError(f"unknown OCR backend {name!r}",
                                hint=f"choose from: {', '.join(BACKENDS)} (comma-separated for several)")
-            key = item
-        if key in names:
+            key = name
+        if key in [n.partition(":")[0] for n in names]:
             raise OCRError(f"OCR engine {key!r} is named twice in {spec!r}", hint="name each engine once")
-        names.append(key)
+        settings = engine_settings(item)
+        names.append(key + "".join(f":{k}={v}" for k, v in settings.items()))
     return names
+
+
+def engine_settings(item: str) -> dict[str, Any]:
+    """The settings of one `--ocr` entry: "tesseract:lang=rus+eng:psm=6" -> {"lang": "rus+eng", "psm": 6}
+    (values parsed as JSON when they can be, else kept as strings)."""
+    out: dict[str, Any] = {}
+    for part in item.split(":")[1:]:
+        key, eq, value = part.partition("=")
+        if not eq or not key.strip():
+            raise OCRError(f"OCR engine setting {part!r} in {item!r} is not KEY=VALUE",
+                           hint="e.g. --ocr tesseract:lang=rus or tesseract:lang=rus+eng:psm=6")
+        try:
+            out[key.strip()] = json.loads(value)
+        except ValueError:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def get_engine(spec: str) -> OCRBackend:
+    """The backend of one `--ocr` entry with its settings ("tesseract:lang=rus")."""
+    return get_backend(spec.partition(":")[0], **engine_settings(spec))
 
 
 def get_backend(name: str = "rapidocr", cache: bool | OCRCache = True, **settings: Any) -> OCRBackend:

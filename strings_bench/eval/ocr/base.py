@@ -200,6 +200,35 @@ class OCRBackend:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r}, version={self.version!r}, settings={self.settings!r})"
 
+    def supported_scripts(self) -> frozenset[str] | None:
+        """The scripts (core.scripts names) this backend can read with its settings; None: any script."""
+        return None
+
+    def require_scripts(self, scripts: Iterable[str], what: str = "this text") -> None:
+        """Raise OCRError naming the backend, the scripts it cannot read and who can read them, when
+        `scripts` holds one it cannot read (rather than scoring text it cannot read as CER 1)."""
+        supported = self.supported_scripts()
+        if supported is None:
+            return
+        missing = [s for s in scripts if s not in supported]
+        if missing:
+            from strings_bench.eval.ocr.languages import readers_hint
+
+            why = "".join(f" ({s}: {self.unreadable_reason(s)})" for s in missing if self.unreadable_reason(s))
+            raise OCRError(
+                f"OCR backend {self.name} ({self.settings_summary()}) cannot read {', '.join(missing)} text in {what}"
+                f"{why}; it reads {', '.join(sorted(supported)) or 'no known script'}",
+                hint=readers_hint(missing),
+            )
+
+    def unreadable_reason(self, script: str) -> str | None:
+        """Why this backend does not read `script`, where more than 'not supported' is known."""
+        return None
+
+    def settings_summary(self) -> str:
+        """A short description of the settings that decide the scripts read (for messages)."""
+        return "default models"
+
     def read(self, image: np.ndarray | str | os.PathLike, mask: np.ndarray | str | os.PathLike | None = None) -> list[Word]:
         """Words found in `image` (RGB HxWx3 uint8 array or file), after `image * mask` when a mask is given.
 

@@ -323,6 +323,25 @@ class RapidOCRBackend(OCRBackend):
             return BackendStatus(cls.name, False, f"not installed ({type(exc).__name__}: {exc})")
         return BackendStatus(cls.name, True, f"rapidocr {_rapidocr_version()} on onnxruntime {onnxruntime.__version__}")
 
+    def supported_scripts(self) -> frozenset[str] | None:
+        """The scripts the bundled recogniser reads (languages.rapidocr_supported_scripts): Latin and Han with
+        rapidocr 3.10's PP-OCRv6 model (its dictionary has no Cyrillic, Devanagari or Arabic letter at all;
+        Greek letters it has, but it was measured not to read them)."""
+        from strings_bench.eval.ocr.languages import rapidocr_supported_scripts
+
+        return rapidocr_supported_scripts()
+
+    def settings_summary(self) -> str:
+        return "its bundled PP-OCR recogniser"
+
+    def unreadable_reason(self, script: str) -> str | None:
+        from strings_bench.eval.ocr.languages import RAPIDOCR_MEASURED_UNREADABLE, rapidocr_scripts
+
+        if script in RAPIDOCR_MEASURED_UNREADABLE:
+            return RAPIDOCR_MEASURED_UNREADABLE[script]
+        share = rapidocr_scripts().get(script)
+        return None if share is None else f"its dictionary holds {100 * share:.0f}% of the script's letters"
+
     def _get_engine(self):
         if self._engine is not None:
             return self._engine
