@@ -209,7 +209,11 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     seen = {}
 
     def grab(fig, path):
-        seen["x"] = sorted(float(c.get_offsets()[0][0]) for c in fig.axes[0].collections)
+        # one point per method; the Pareto front's circles (issue 30) are drawn over them, labelled
+        seen["x"] = sorted(float(c.get_offsets()[0][0]) for c in fig.axes[0].collections
+                           if c.get_label() != "Pareto front")
+        seen["front"] = sorted(float(x) for c in fig.axes[0].collections if c.get_label() == "Pareto front"
+                               for x, _ in c.get_offsets())
         seen["xlabel"] = fig.axes[0].get_xlabel()
         return Path(path)
 
@@ -218,6 +222,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     with mock.patch.object(figures, "_save", grab):
         figures.cer_vs_time(df, tmp_path / "x.png", "7K")
     assert seen["x"] == pytest.approx([0.4, 0.9]) and "preprocessing" in seen["xlabel"]
+    assert seen["front"] and set(seen["front"]) <= set(seen["x"])  # the front circles method points
 
     # A cell written before the new columns: no preprocess/total in timings. STRinGS' old cells kept
     # their preprocessing in extra["preprocess_seconds"]; other methods had none.

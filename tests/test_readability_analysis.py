@@ -110,3 +110,12 @@ def test_time_to_legibility_table(monkeypatch):
     md = to_markdown(ra.legibility_table(ra.legibility(df, thresholds=(0.5,))))
     assert "not reached" in md and "2.50 (250)" in md
 
+
+
+def test_size_label_is_the_latest_checkpoint_the_most_methods_reached():
+    df = pd.DataFrame({"method": ["a", "a", "a", "b", "b"], "label": ["3K", "7K", "30K", "3K", "7K"],
+                       "dataset": "d", "scene": "s"})
+    assert ra.size_label(df) == "7K"
+    df["evaluation"] = ["full", "full", "full", "full", "words"]  # b's 7K is a dense (word-crop only) checkpoint
+    assert ra.size_label(df) == "3K"
+    assert ra.size_label(df.iloc[:0]) is None

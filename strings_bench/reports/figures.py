@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WORDS, THRESHOLDS, cer_by_size, load_words,
-                                                        pareto_front)
+                                                        pareto_front, size_label)
 from strings_bench.reports.tables import (GT_CEILING, dataset_title, is_ablation, main_labels, method_order, method_title,
                                           with_total_seconds)
 from strings_bench.reports.results import read_cell
@@ -415,7 +415,7 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
         if p:
             written[f"{metric}_over_iterations"] = p
     # The readability analysis (issue 30): CER by text size at the last checkpoint, CER against training time.
-    label = main_labels(df)[-1]
+    label = size_label(df)
     p = size_figure(cer_by_size(load_words(run_dir, df), label), label, out_dir / f"word_cer_by_size_{label}.png")
     if p:
         written[f"word_cer_by_size_{label}"] = p

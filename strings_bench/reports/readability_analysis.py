@@ -6,9 +6,9 @@ efficiency and accuracy (its teaser scatter). Each becomes a measured table here
 
 - **CER by text size** (`cer_by_size`): word-crop CER (eval/readability.py) of the headline reference words,
   pooled over the scenes of a dataset, per word-height bin (`HEIGHT_BINS`, the height of the word's box at the
-  evaluated resolution, words.csv's `height_px`), with the known-text words' CER per bin where the scene knows its
-  text, the word count of each bin and the GT ceiling (the same words read on the ground-truth views). A bin with
-  fewer than `MIN_BIN_WORDS` words is shown greyed and never ranked.
+  evaluated resolution, words.csv's `height_px`) at one checkpoint (`size_label`), with the known-text words' CER
+  per bin where the scene knows its text, the word count of each bin and the GT ceiling (the same words read on
+  the ground-truth views). A bin with fewer than `MIN_BIN_WORDS` words is shown greyed and never ranked.
 - **Time to legibility** (`time_to_threshold`): per method and scene, the training time (preprocessing +
   optimisation, results.csv's total_seconds) and the trained step at which word CER and OCR-CER first fall below
   each of `THRESHOLDS`, linearly interpolated between the two evaluated checkpoints that straddle it; "not reached"
@@ -77,6 +77,18 @@ def load_words(run_dir: str | Path, df: pd.DataFrame) -> pd.DataFrame:
 
 
 # ---- CER by text size ----------------------------------------------------------------------------------------
+def size_label(df: pd.DataFrame) -> str | None:
+    """The checkpoint of the CER-by-size tables: the latest fully evaluated one (tables.main_labels) among those
+    that the most methods reached (a run stopped early for some methods still compares them all)."""
+    labels = main_labels(df)
+    if not labels:
+        return None
+    full = df[df["evaluation"].fillna("full") != "words"] if "evaluation" in df else df
+    n = {lab: full[full["label"] == lab]["method"].nunique() for lab in labels}
+    best = max(n.values())
+    return [lab for lab in labels if n[lab] == best][-1]
+
+
 def cer_by_size(words: pd.DataFrame, label: str, known: bool = False) -> pd.DataFrame:
     """CER per (dataset, method, height bin) at checkpoint `label`, pooled over the dataset's scenes: errors over
     reference characters of the headline words (`known`: of the known-text words only), rows for the GT ceiling
@@ -280,11 +292,11 @@ class Analysis:
 
 
 def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "") -> Analysis:
-    """The tables (CER by size and known-text CER by size at the last checkpoint, time to legibility) and the
+    """The tables (CER by size and known-text CER by size at `size_label`, time to legibility) and the
     speed/accuracy fronts of a run."""
     if df.empty:
         return Analysis([], [], pd.DataFrame(), pd.DataFrame(), None)
-    label = main_labels(df)[-1]
+    label = size_label(df)
     words = load_words(run_dir, df)
     by_size = cer_by_size(words, label)
     tables: list[Table] = []
