@@ -193,7 +193,8 @@ def test_interrupted_build_leaves_no_cache(monkeypatch):
     assert not list(scene_dir("globe", st).parent.glob(".build-*"))
 
 
-def test_fallback_is_flagged_when_sfm_gives_too_few_points(caplog):
+def test_fallback_is_flagged_when_sfm_gives_too_few_points(caplog, monkeypatch, tmp_path):
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path))  # a build, not a cached scene (whose log is gone)
     st = settings_with(width=96, height=72, n_views=8, seed=5, min_points=10 ** 9)
     with caplog.at_level(logging.WARNING):
         path = build_scene("extinguisher", st, progress=False)
