@@ -17,7 +17,6 @@ undistortion to PINHOLE, images_2/ and images_4/, OCR text masks.
 
 from __future__ import annotations
 
-import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -163,7 +162,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     """`src` (a folder with images/, a Bundler file and its image list) -> a registered scene folder."""
     import pycolmap
 
-    from strings_bench.datasets.sfm import PrepareResult, _save_like, default_scene_dir, finish_scene
+    from strings_bench.datasets.sfm import PrepareResult, _save_like, default_scene_dir, finish_scene, publish_scene, register_scene
 
     src = Path(src)
     bundle = src / bundle_file if bundle_file else next((src / n for n in ("bundle.out", "cameras.out") if (src / n).is_file()), None)
@@ -217,17 +216,9 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
         atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(src.resolve()),
                                                        "bundler_file": str(bundle.resolve()), "max_size": max_size,
                                                        "exif_orientations": sorted(set(orientations))})
-        if scene_dir.exists():
-            shutil.rmtree(scene_dir)
-        scene_dir.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(scene_tmp, scene_dir)
+        publish_scene(scene_tmp, scene_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     if register:
-        from strings_bench.datasets.registry import read_index, register_local_copies, write_index
-
-        index = read_index()
-        index[name] = str(scene_dir)
-        write_index(index)
-        register_local_copies()
+        register_scene(name, scene_dir)
     return result

@@ -235,23 +235,33 @@ def prepare_scene(
         )
         atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(Path(photos_dir).resolve()),
                                                        "max_size": max_size})
-        if scene_dir.exists():
-            shutil.rmtree(scene_dir)
-        scene_dir.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(scene_tmp, scene_dir)
+        publish_scene(scene_tmp, scene_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
         pycolmap.logging.minloglevel = old_log_level
 
     if register:
-        from strings_bench.datasets.registry import read_index, register_local_copies, write_index
-
-        index = read_index()
-        index[name] = str(scene_dir)
-        write_index(index)
-        register_local_copies()
+        register_scene(name, scene_dir)
     return result
 
+
+
+def publish_scene(scene_tmp: Path, scene_dir: Path) -> None:
+    """Move a finished scene folder into place, replacing an older one (prepare and prepare --bundler)."""
+    if scene_dir.exists():
+        shutil.rmtree(scene_dir)
+    scene_dir.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(scene_tmp, scene_dir)
+
+
+def register_scene(name: str, scene_dir: Path) -> None:
+    """Record a prepared scene in the user's index of local copies and register it."""
+    from strings_bench.datasets.registry import read_index, register_local_copies, write_index
+
+    index = read_index()
+    index[name] = str(scene_dir)
+    write_index(index)
+    register_local_copies()
 
 def finish_scene(model_dir: Path, raw: Path, work: Path, max_size: int, masks: bool, ocr_backend: str, progress: bool,
                  stage: Callable[[str], float], stages: dict[str, float]) -> tuple[Path, int | None, int | None]:
