@@ -191,7 +191,12 @@ def main(argv=None) -> int:
     ap.add_argument("--height", type=int, default=None)
     ap.add_argument("--views", type=int, default=None, help="views per scene (the paper's captures: 150-300)")
     ap.add_argument("--steps-scale", type=float, default=None, help="schedule scale (default: the regime's)")
-    ap.add_argument("--checkpoints", default="3000,7000,30000", help="paper iterations to evaluate")
+    ap.add_argument("--checkpoints", default="3000,7000,30000",
+                    help="paper iterations to evaluate; every:N adds word-crop-only checkpoints every N paper "
+                         "iterations (time to legibility, docs/readability.md)")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="the trainer's seed for every method (default 0, the methods' own); a seed other than 0 "
+                         "needs its own run folder (default: the regime's folder with -seed<N>)")
     ap.add_argument("--methods", default="3dgs", help="3dgs to calibrate; strings once the settings are frozen")
     ap.add_argument("--ocr", default="rapidocr")
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
@@ -207,6 +212,7 @@ def main(argv=None) -> int:
 
     import strings_bench.bench.runner as runner
     from strings_bench.reports.results import cell_row, iter_cells
+    from strings_bench.bench.plan import ALL_METHODS
     from strings_bench.cli.run import parse_checkpoints
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.core.io import atomic_write_text
@@ -227,7 +233,11 @@ def main(argv=None) -> int:
                 key, _, value = item.partition("=")
                 base[key] = parse_value(key, value)
         points = [] if args.dataset else parse_grid(args.grid)
-        checkpoints = sorted(set(parse_checkpoints(args.checkpoints)))
+        given = parse_checkpoints(args.checkpoints)
+        checkpoints = sorted({c for c in given if not isinstance(c, tuple)})
+        dense_every = next((c[1] for c in given if isinstance(c, tuple)), None)
+        # seed 0 is every method's default: recorded as no override, so folders made before --seed resume
+        overrides = {ALL_METHODS: {"seed": args.seed}} if args.seed else {}
         specs, labels = [], {}
         if args.dataset:  # a registered (frozen) configuration, e.g. synthetic360-cpu: no grid
             from strings_bench.datasets.registry import get_dataset
@@ -248,7 +258,8 @@ def main(argv=None) -> int:
                 raise StringsBenchError(f"--report-only: no run folder {run_dir}", hint="run without --report-only first")
         else:
             runner.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False,
-                       write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints, device=device)
+                       write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints or None,
+                       dense_every=dense_every, method_overrides=overrides, device=device)
     except StringsBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -257,6 +268,8 @@ def main(argv=None) -> int:
     for rec in iter_cells(run_dir):
         r = cell_row(rec)
         if r["dataset"] not in labels or r["scene"] not in scenes or r["method"] not in methods:
+            continue
+        if r["evaluation"] != "full":  # every:N's word-crop-only checkpoints: docs/readability.md's analysis reads them
             continue
         rows.append({"setting": r["dataset"], "scene": r["scene"], "label": r["label"], "iteration": int(r["iteration"]),
                      **{k: _num(r[k]) for k in ("cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
@@ -286,9 +299,12 @@ def main(argv=None) -> int:
 
 
 def apply_regime(args) -> None:
-    """Fill the options left unset (None) from --regime's defaults, in place."""
+    """Fill the options left unset (None) from --regime's defaults, in place (the default run folder of a
+    seed other than 0 gets a -seed<N> suffix: a folder holds one seed)."""
     for key, value in REGIMES[args.regime].items():
         if getattr(args, key) is None:
+            if key == "out" and getattr(args, "seed", 0):
+                value = f"{value}-seed{args.seed}"
             setattr(args, key, list(value) if isinstance(value, list) else value)
 
 

@@ -380,6 +380,31 @@ def test_calibrate_cpu_regime_defaults_and_overrides(tmp_path, capsys):
     assert (tmp_path / "run" / "calibration.md").read_text().startswith("# synthetic360 calibration: 3dgs, schedule x0.05")
 
 
+def test_calibrate_seed_and_dense_checkpoints_reach_the_runner(tmp_path, monkeypatch):
+    """--seed N becomes every method's seed (seed 0 records no override, so older folders resume) and the
+    default folder gets -seed<N>; every:N reaches the runner as dense_every, apart from the checkpoints."""
+    cal = _calibrate()
+    import argparse
+
+    import strings_bench.bench.runner as runner
+
+    args = argparse.Namespace(regime="cpu", device=None, width=None, height=None, views=None, steps_scale=None,
+                              grid=None, out=None, target=None, seed=2)
+    cal.apply_regime(args)
+    assert args.out == "runs/calibrate-cpu-seed2"
+    calls = []
+    monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append((methods, specs, kw)))
+    (tmp_path / "run").mkdir()
+    base = ["--regime", "cpu", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
+    assert cal.main([*base, "--seed", "2", "--checkpoints", "30K,3K,every:5K"]) == 0
+    assert cal.main(base) == 0
+    (m1, s1, k1), (_, _, k0) = calls
+    assert m1 == ["3dgs"] and s1 == ["synthetic360-cpu/pantry"]
+    assert k1["checkpoints"] == [3000, 30000] and k1["dense_every"] == 5000
+    assert k1["method_overrides"] == {"*": {"seed": 2}} and k0["method_overrides"] == {}
+    assert k0["checkpoints"] == [3000, 7000, 30000] and k0["dense_every"] is None
+
+
 def test_views_rendered_in_worker_processes_equal_the_one_process_render(monkeypatch):
     """render_views(workers=2): each worker rebuilds the scene from its name and settings; every view
     (pixels, mask, depth, camera effects drawn, words) must equal the one-process render, in order."""
