@@ -420,7 +420,7 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
                  "--set", "lr_means=1e-3", "--set", "a.n_max=25", "--no-progress"]) == 0
     assert seen["steps_scale"] == 0.2 and seen["checkpoints"] == [3000, 7000] and seen["methods"] == ["a", "b"]
     assert seen["method_overrides"] == {"*": {"lr_means": 1e-3}, "a": {"n_max": 25}}
-    assert seen["schedule"] == "early" and seen["method_presets"] == {}
+    assert seen["schedule"] == "cpu" and seen["method_presets"] == {}
     assert main(["run", "--no-progress", "--schedule", "quick", "--presets", "strings=release", "--presets", "a=x+y,b=z"]) == 0
     assert seen["steps_scale"] is None and seen["checkpoints"] is None and seen["method_overrides"] == {}
     assert seen["schedule"] == "quick" and seen["method_presets"] == {"strings": ["release"], "a": ["x", "y"], "b": ["z"]}
