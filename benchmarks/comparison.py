@@ -19,6 +19,7 @@ others have is reported, not averaged.
 
     python benchmarks/comparison.py runs/s360cpu-compare runs/s360cpu-seed1 runs/s360cpu-seed2
     python benchmarks/comparison.py runs/s360cpu-compare --json      # the numbers, for scripts
+    python benchmarks/comparison.py runs/s360cpu-compare runs/s360cpu-seed1 --per-scene cer_known   # every cell
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ def cell_seed(rec: dict) -> int:
 
 def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
     """{(method, label): {seed: {scene: {value: float}}}} from the fully evaluated cells of the folders.
-    The same (method, seed, scene, label) in two folders is an error: a seed must not count twice."""
+    The same (method, seed, scene, label) in two folders counts once when its figures agree (training time
+    aside) and is an error when they differ: a seed must not count twice."""
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.reports.results import cell_row, iter_cells
 
@@ -60,11 +62,19 @@ def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
                 continue
             seed = cell_seed(rec)
             key = (row["method"], seed, row["dataset"], row["scene"], row["label"])
-            if key in seen:
-                raise StringsBenchError(f"{key} is in both {seen[key]} and {run_dir}",
-                                        hint="give each seed's folder once (or --dataset to pick one dataset)")
-            seen[key] = run_dir
             vals = {k: float(row[k]) if row[k] != "" else math.nan for k in VALUES}
+            vals["iteration"] = int(row["iteration"])
+            if key in seen:
+                # the same cell trained in two folders (e.g. a 7K-only seed run and a 30K one): the CPU engine is
+                # deterministic, so it must have given the same figures; it then counts once
+                first_dir, first = seen[key]
+                same = all(first[k] == vals[k] or (math.isnan(first[k]) and math.isnan(vals[k]))
+                           for k in VALUES if k != "train_seconds")
+                if not same:
+                    raise StringsBenchError(f"{key} is in both {first_dir} and {run_dir}, with different figures",
+                                            hint="give each seed's folder once (or --dataset to pick one dataset)")
+                continue
+            seen[key] = (run_dir, vals)
             out.setdefault((row["method"], row["label"]), {}).setdefault(seed, {})[row["scene"]] = vals
     return out
 
@@ -139,11 +149,34 @@ def tables(data: dict) -> tuple[str, dict]:
     return "\n".join(lines) + "\n", numbers
 
 
+def per_scene_table(data: dict, value: str = "cer_known") -> str:
+    """One row per method and checkpoint: `value` per scene, the seeds' figures joined with '/' (seed order)."""
+    methods = sorted({m for m, _ in data}, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+    scenes = sorted({sc for per_seed in data.values() for by_scene in per_seed.values() for sc in by_scene})
+    labels = sorted({lab for _, lab in data}, key=lambda lab: next(
+        (min(v["iteration"] for by_scene in data[k].values() for v in by_scene.values()) for k in data if k[1] == lab), 0))
+    lines = [f"{value} per scene; several seeds as seed0 / seed1 / ... (seeds: the cells' own)", "",
+             "| method | ckpt | " + " | ".join(scenes) + " |", "|---|---|" + "---|" * len(scenes)]
+    for label in labels:
+        for m in methods:
+            per_seed = data.get((m, label))
+            if not per_seed:
+                continue
+            cells = []
+            for sc in scenes:
+                vals = [f"{per_seed[seed][sc][value]:.3f}" for seed in sorted(per_seed) if sc in per_seed[seed]]
+                cells.append(" / ".join(vals) or "-")
+            lines.append(f"| {m} | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dirs", nargs="+", type=Path, help="run folders, one seed each")
     ap.add_argument("--dataset", default=None, help="only this dataset's cells (e.g. synthetic360-cpu)")
     ap.add_argument("--json", action="store_true", help="print the numbers as JSON instead of markdown")
+    ap.add_argument("--per-scene", metavar="VALUE", default=None,
+                    help="also print VALUE (cer, cer_known, word_cer, ...) per method, checkpoint and scene, every seed")
     args = ap.parse_args(argv)
     from strings_bench.core.errors import StringsBenchError
 
@@ -157,6 +190,11 @@ def main(argv=None) -> int:
         return 1
     md, numbers = tables(data)
     print(json.dumps(numbers, indent=1) if args.json else md)
+    if args.per_scene:
+        if args.per_scene not in VALUES:
+            print(f"error: --per-scene {args.per_scene}: one of {', '.join(VALUES)}", file=sys.stderr)
+            return 1
+        print(per_scene_table(data, args.per_scene))
     return 0
 
 

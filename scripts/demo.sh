@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set up (idempotent) and run the main job: STRinGS vs 3DGS on the embedded synthetic benchmark.
+# Set up (idempotent) and run the main job: STRinGS vs 3DGS on an embedded synthetic room (the default schedule, cpu).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh

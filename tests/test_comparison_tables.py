@@ -57,15 +57,25 @@ def test_means_over_scenes_then_seeds_with_the_range(tmp_path, capsys):
     # training time in minutes: seed means (120 + 180) / 2 s = 2.5 min for both seeds
     assert "| strings | - | 2.50 (2.50-2.50) |" in md
     assert "3dgs 30K: seed 0 also has office (left out of the means)" in md
+    # every cell per scene, the seeds in order
+    assert cmp.main([str(s0), str(s1), "--per-scene", "cer"]) == 0
+    per = capsys.readouterr().out
+    assert "| method | ckpt | office | pantry |" in per
+    assert "| strings | 30K | 0.400 / 0.600 | 0.200 / 0.400 |" in per and "| 3dgs | 30K | 0.700 | 0.900 / 0.500 |" in per
+    assert cmp.main([str(s0), "--per-scene", "nonsense"]) == 1
 
 
-def test_a_seed_given_twice_or_no_folder_is_an_error(tmp_path, capsys):
+def test_a_cell_given_twice_counts_once_or_is_an_error(tmp_path, capsys):
     cmp = _comparison()
     for run in (tmp_path / "a", tmp_path / "b"):
-        _cell(run, "strings", "pantry", "7K", 350, 0.5, 0.5)
-    with pytest.raises(StringsBenchError, match="in both"):
-        cmp.collect([tmp_path / "a", tmp_path / "b"])
-    assert cmp.main([str(tmp_path / "a"), str(tmp_path / "b")]) == 1
+        _cell(run, "strings", "pantry", "7K", 350, 0.5, 0.5, seconds=10 if run.name == "a" else 20)
+    _cell(tmp_path / "c", "strings", "pantry", "7K", 350, 0.5, 0.4)
+    # the same cell in two folders with the same figures (training time aside) counts once
+    once = cmp.collect([tmp_path / "a", tmp_path / "b"])
+    assert list(once[("strings", "7K")]) == [0] and once[("strings", "7K")][0]["pantry"]["train_seconds"] == 10
+    with pytest.raises(StringsBenchError, match="different figures"):
+        cmp.collect([tmp_path / "a", tmp_path / "c"])
+    assert cmp.main([str(tmp_path / "a"), str(tmp_path / "c")]) == 1
     assert cmp.main([str(tmp_path / "none")]) == 1
     assert "no run folder" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
