@@ -98,3 +98,20 @@ def test_dense_eval_full_evaluates_every_checkpoint(tmp_path, scene_dir):
     assert [r["label"] for r in rows] == ["1K", "2K", "3K"]
     assert all(r["evaluation"] == "full" and r["cer"] != "" for r in rows)
     assert ocr.calls == 2 + 3 * 2
+
+
+def test_dense_checkpoints_do_not_change_the_fully_evaluated_cells(tmp_path, scene_dir):
+    """Evaluating at the extra checkpoints of every:N must leave training alone: a real 3DGS trained with and
+    without them gives the same figures at the shared checkpoints (the CPU engine is deterministic)."""
+    rf.register_fakes()
+    kw = dict(schedule="tiny", checkpoints=[3000, 7000], ocr="fake", with_lpips=False, progress=False,
+              write_report=False)
+    runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "plain", ocr_backend=rf.FakeOCR(), **kw)
+    runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "dense", ocr_backend=rf.FakeOCR(), dense_every=1000,
+               **kw)
+    plain = {r["iteration"]: r for r in _rows(tmp_path / "plain")}
+    dense = {r["iteration"]: r for r in _rows(tmp_path / "dense")}
+    assert len(dense) > len(plain) == 2
+    for it, r in plain.items():
+        for col in ("psnr", "ssim", "gaussians", "word_cer", "cer", "text_nll"):
+            assert dense[it][col] == r[col], (it, col)
