@@ -2,7 +2,7 @@
 
     python benchmarks/engine_ab.py --old COMMIT [--at 0,450,1050] [--steps 12,8,5] [--reps 2] [--json]
 
-The default run's 3DGS (schedule `early`, synthetic/extinguisher, 320x240) is sampled at the sizes it
+The 3DGS of the default run of issue 28 (schedule `early`, synthetic/extinguisher, 320x240) is sampled at the sizes it
 passes through: its initial model (step 0) and the trained states of benchmarks/engine_profile.py
 (cached; after steps 450 and 1 050, about 40 000 and 300 000 Gaussians). From each, both code
 versions run the same training steps (`train_step` + `refine`, each under its own Trainer's CPU

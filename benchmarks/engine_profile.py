@@ -4,7 +4,7 @@ a lower bound measured in the same run (issue 28).
     python benchmarks/engine_profile.py [--scene synthetic/extinguisher] [--schedule early]
                                         [--at 450,1050] [--steps 8] [--big-at 450] [--json]
 
-Models: the default run's 3DGS (schedule `early`, synthetic/extinguisher, 320x240) trained with the
+Models: the 3DGS of the default run of issue 28 (schedule `early`, synthetic/extinguisher, 320x240) trained with the
 suite's own loop to the 3K and 7K checkpoints (steps 450 and 1 050 by default; about 40 000 and
 300 000 Gaussians), then one more case: the 3K model trained at 640x480 (the scene's images upsampled
 x2 and its cameras resized, `downscale=0.5`). The trained states are cached under
