@@ -213,7 +213,7 @@ def main(argv=None) -> int:
     import strings_bench.bench.runner as runner
     from strings_bench.reports.results import cell_row, iter_cells
     from strings_bench.bench.plan import ALL_METHODS
-    from strings_bench.cli.run import parse_checkpoints
+    from strings_bench.cli.run import parse_checkpoints, split_checkpoints
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.core.io import atomic_write_text
     from strings_bench.datasets.registry import register_dataset
@@ -233,9 +233,8 @@ def main(argv=None) -> int:
                 key, _, value = item.partition("=")
                 base[key] = parse_value(key, value)
         points = [] if args.dataset else parse_grid(args.grid)
-        given = parse_checkpoints(args.checkpoints)
-        checkpoints = sorted({c for c in given if not isinstance(c, tuple)})
-        dense_every = next((c[1] for c in given if isinstance(c, tuple)), None)
+        checkpoints, dense_every = split_checkpoints(parse_checkpoints(args.checkpoints))
+        checkpoints = sorted(set(checkpoints)) if checkpoints else None
         # seed 0 is every method's default: recorded as no override, so folders made before --seed resume
         overrides = {ALL_METHODS: {"seed": args.seed}} if args.seed else {}
         specs, labels = [], {}
@@ -258,7 +257,7 @@ def main(argv=None) -> int:
                 raise StringsBenchError(f"--report-only: no run folder {run_dir}", hint="run without --report-only first")
         else:
             runner.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False,
-                       write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints or None,
+                       write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints,
                        dense_every=dense_every, method_overrides=overrides, device=device)
     except StringsBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)

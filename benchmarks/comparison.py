@@ -38,6 +38,11 @@ METHOD_ORDER = ["3dgs", "mip-splatting", "mcmc", "absgs", "edc-absgs", "strings"
 VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "gaussians", "train_seconds")
 
 
+def method_order(methods) -> list[str]:
+    """The methods in the paper's order (METHOD_ORDER), any others after them by name."""
+    return sorted(set(methods), key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER), m))
+
+
 def cell_seed(rec: dict) -> int:
     """The trainer seed a cell was made with (its method settings' `seed`, else the default 0)."""
     settings = ((rec.get("config") or {}).get("method") or {}).get("settings") or {}
@@ -108,7 +113,7 @@ def fmt(s: dict | None, spec: str = "{:.3f}", scale: float = 1.0) -> str:
 
 def tables(data: dict) -> tuple[str, dict]:
     """The markdown and the numbers ({method: {label: {value: summary}}})."""
-    methods = sorted({m for m, _ in data}, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+    methods = method_order(m for m, _ in data)
     numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES}
                    for (mm, label) in data if mm == m} for m in methods}
 
@@ -151,10 +156,14 @@ def tables(data: dict) -> tuple[str, dict]:
 
 def per_scene_table(data: dict, value: str = "cer_known") -> str:
     """One row per method and checkpoint: `value` per scene, the seeds' figures joined with '/' (seed order)."""
-    methods = sorted({m for m, _ in data}, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+    methods = method_order(m for m, _ in data)
     scenes = sorted({sc for per_seed in data.values() for by_scene in per_seed.values() for sc in by_scene})
-    labels = sorted({lab for _, lab in data}, key=lambda lab: next(
-        (min(v["iteration"] for by_scene in data[k].values() for v in by_scene.values()) for k in data if k[1] == lab), 0))
+    first_iteration: dict = {}  # label -> the smallest iteration trained for it (checkpoint order)
+    for (_, label), per_seed in data.items():
+        for by_scene in per_seed.values():
+            for v in by_scene.values():
+                first_iteration[label] = min(first_iteration.get(label, v["iteration"]), v["iteration"])
+    labels = sorted(first_iteration, key=first_iteration.get)
     lines = [f"{value} per scene; several seeds as seed0 / seed1 / ... (seeds: the cells' own)", "",
              "| method | ckpt | " + " | ".join(scenes) + " |", "|---|---|" + "---|" * len(scenes)]
     for label in labels:

@@ -118,15 +118,14 @@ def run_config(args: argparse.Namespace):
     """The run the command line asks for, as one RunConfig (bench/plan.py)."""
     from strings_bench.bench.plan import RunConfig
 
-    given = args.checkpoints or []  # paper iterations and ("every", N) (parse_checkpoints)
+    checkpoints, dense_every = split_checkpoints(args.checkpoints)
     return RunConfig(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None,
                      run_dir=args.out, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
                      executor=args.executor, executor_options=executor_options(args), with_lpips=not args.no_lpips,
                      progress=not args.no_progress, method_presets=parse_presets(args.method_presets),
                      method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
                      cer_profile=args.cer_profile, steps_scale=args.steps_scale,
-                     checkpoints=[c for c in given if isinstance(c, int)] or None,
-                     dense_every=next((c[1] for c in given if isinstance(c, tuple)), None),
+                     checkpoints=checkpoints, dense_every=dense_every,
                      dense_eval=args.dense_eval,
                      device=args.device, save_every=args.save_every, keep_models=args.keep_models)
 
@@ -144,6 +143,12 @@ def parse_presets(items: list[str]) -> dict[str, list[str]]:
                                         hint="e.g. --presets strings=release; `strings-bench methods show strings` lists them")
             out.setdefault(method.strip(), []).extend(presets)
     return out
+
+
+def split_checkpoints(given: list | None) -> tuple[list[int] | None, int | None]:
+    """`parse_checkpoints`' result -> (the paper iterations in the order given, or None; every:N's N, or None)."""
+    given = given or []
+    return [c for c in given if isinstance(c, int)] or None, next((c[1] for c in given if isinstance(c, tuple)), None)
 
 
 def parse_checkpoints(text: str) -> list:

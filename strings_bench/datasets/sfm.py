@@ -245,7 +245,6 @@ def prepare_scene(
     return result
 
 
-
 def publish_scene(scene_tmp: Path, scene_dir: Path) -> None:
     """Move a finished scene folder into place, replacing an older one (prepare and prepare --bundler)."""
     if scene_dir.exists():
@@ -262,6 +261,7 @@ def register_scene(name: str, scene_dir: Path) -> None:
     index[name] = str(scene_dir)
     write_index(index)
     register_local_copies()
+
 
 def finish_scene(model_dir: Path, raw: Path, work: Path, max_size: int, masks: bool, ocr_backend: str, progress: bool,
                  stage: Callable[[str], float], stages: dict[str, float]) -> tuple[Path, int | None, int | None]:
