@@ -46,6 +46,11 @@ def worker(state: str, first: int, steps: int) -> int:
         threads = cpu_threads()
     except ImportError:  # older commits: torch's own setting
         threads = nullcontext()
+    try:  # the Trainer's CPU memory setting, where the arm's version has one
+        from strings_bench.engine.trainer import keep_freed_memory
+        keep_freed_memory()
+    except ImportError:
+        pass
     from strings_bench.engine.trainer import seed_everything
 
     scene = E.load_scene("synthetic/extinguisher")

@@ -398,7 +398,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     from strings_bench.core.io import cache_root
-    from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads
+    from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory
+
+    keep_freed_memory()  # as the Trainer does on the CPU
 
     threads = {"trainer": CPU_TORCH_THREADS, "none": None}.get(args.torch_threads)
     if args.torch_threads not in ("trainer", "none"):

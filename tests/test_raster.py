@@ -479,9 +479,11 @@ _CACHE_PROBE = """
 import numba  # imported first: the package must still redirect numba's cache (config read at import)
 import numpy as np
 import strings_bench.raster.cpu_kernels as cpu_kernels
-out = np.zeros((2, 2))
-cpu_kernels.reduce_intersections(np.arange(6.0).reshape(3, 2), np.array([0, 2, 3]), np.array([0, 2, 1]), out)
-print(out.tolist())
+buf = np.arange(36.0, dtype=np.float32).reshape(3, 12)
+outs = [np.full(shape, 9.0, np.float32) for shape in ((3, 2), (3, 3), (3,), (3, 4), (3, 2))]
+# two Gaussians, drawn in the order [1, 0]; the first has intersections 0 and 2 (buf rows 0 and 2)
+cpu_kernels.reduce_intersections(buf, np.array([0, 2, 3]), np.array([0, 2, 1]), np.array([1, 0]), *outs)
+print(outs[0].tolist())
 """
 
 
@@ -495,7 +497,8 @@ def test_compiled_kernels_are_cached_under_the_suite_cache(tmp_path):
     env["STRINGS_BENCH_CACHE"] = str(tmp_path / "suite")
     done = subprocess.run([sys.executable, "-c", _CACHE_PROBE], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "[[4.0, 6.0], [2.0, 3.0]]"  # rows 0+2 and row 1 of buf
+    # input row 1: buf rows 0 + 2; input row 0: buf row 1; input row 2 (not drawn): zero
+    assert done.stdout.strip().splitlines()[-1] == "[[12.0, 13.0], [24.0, 26.0], [0.0, 0.0]]"
     names = {p.suffix for p in (tmp_path / "suite" / "numba").rglob("*reduce_intersections*")}
     assert {".nbi", ".nbc"} <= names, sorted(p.name for p in tmp_path.rglob("*"))
 
@@ -553,3 +556,50 @@ def test_gsplat_means2d_hook_frees_each_steps_graph():
         if was_enabled:
             gc.enable()
     assert all(r() is None for r in previous)
+
+
+def _blend_with_boxes(P, BB, W, H, seed=5):
+    """Forward and backward blend of P with pixel boxes BB; per-Gaussian gradients (input order = P's)."""
+    import strings_bench.raster.cpu_kernels as K
+
+    tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
+    tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
+    out_f = np.empty((H, W, K.NF), np.float32)
+    out_T = np.empty((H, W))
+    out_last = np.empty((H, W), np.int64)
+    K.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+    rng = np.random.default_rng(seed)
+    gF = rng.standard_normal((H, W, K.NF)).astype(np.float32)
+    gA = rng.standard_normal((H, W)).astype(np.float32)
+    buf = np.empty((lst.shape[0], K.N_GRAD), np.float32)
+    K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
+    V = P.shape[0]
+    grads = [np.empty(shape, np.float32) for shape in ((V, 2), (V, 3), (V,), (V, K.NF), (V, 2))]
+    K.reduce_intersections(buf, g_start, isect_pos, np.arange(V), *grads)
+    return out_f, out_T, grads, lst.shape[0]
+
+
+def test_tight_boxes_skip_work_without_changing_a_bit():
+    """The blend visits each Gaussian only inside the bounding box of the ellipse where it can reach
+    alpha >= 1/255 (cpu_kernels.tight_box), not its whole 3-sigma box: faint, elongated Gaussians then
+    touch far fewer tiles, and the image and every gradient must be the same bit for bit."""
+    import strings_bench.raster.cpu_kernels as K
+    from strings_bench.raster.cpu import Preprocess
+
+    W, H = 96, 80
+    cam = make_camera(W=W, H=H)
+    params = random_scene(n=300, seed=11, opacity_mean=-3.0, opacity_std=2.0, scale=(0.005, 0.25))
+    with torch.no_grad():
+        means2d, conics, opac, feats, radii, bbox = Preprocess.apply(*params[:5], 3, cam, False, 0.01, 1e10)
+    vis = torch.nonzero(radii > 0).flatten()
+    order = vis[torch.argsort(feats[vis, 3], stable=True)].numpy()
+    P, tight = K.pack(order, means2d.numpy(), conics.numpy(), opac.numpy(), feats.numpy(), bbox.numpy())
+    full = bbox.numpy()[order].astype(np.int64)
+    assert (opac.numpy()[order] < K.ALPHA_MIN).any()  # some are never blended: empty tight boxes
+    f_t, T_t, g_t, m_t = _blend_with_boxes(P, tight, W, H)
+    f_f, T_f, g_f, m_f = _blend_with_boxes(P, full, W, H)
+    assert m_t < 0.75 * m_f, (m_t, m_f)  # the test scene exercises the skipping
+    assert np.array_equal(f_t, f_f) and np.array_equal(T_t, T_f)
+    for a, b in zip(g_t, g_f):
+        assert np.array_equal(a, b)
+    assert np.abs(g_f[0]).sum() > 0 and (T_f < 1).mean() > 0.2  # something was drawn and differentiated

@@ -19,6 +19,7 @@ seed (the CPU rasterizer is deterministic). A state made with other settings is 
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import random
 import re
@@ -48,6 +49,31 @@ STATE_VERSION = 1
 # kernels use every core already; torch's own threads (SSIM convolutions, small element-wise ops)
 # then only contend with them (measured in docs/engine.md, "Where a step's time goes").
 CPU_TORCH_THREADS = 1
+
+
+# glibc's malloc hands every block above its mmap threshold (adaptive, 128 KiB to 32 MiB) back to the
+# kernel when it is freed, and the next block of that size costs a page fault per 4 KiB page when it
+# is first written. A CPU training step allocates and frees arrays of tens of MB (gradients, the SH
+# concatenation, the rasterizer's buffers): at 335 000 Gaussians that was a third of the step
+# (docs/engine.md, "Memory reuse"). Served from the heap and kept there, the same blocks are reused
+# from step to step. Nothing computed changes; the process keeps its peak heap until it exits.
+CPU_MMAP_THRESHOLD = 1 << 30
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt parameters (malloc.h)
+_freed_memory_kept: bool | None = None  # not tried yet
+
+
+def keep_freed_memory() -> bool:
+    """Have glibc's malloc serve blocks up to CPU_MMAP_THRESHOLD from the heap and never trim it, once
+    per process. False where the C library is not glibc (nothing is changed there)."""
+    global _freed_memory_kept
+    if _freed_memory_kept is None:
+        try:
+            libc = ctypes.CDLL("libc.so.6")
+            _freed_memory_kept = bool(libc.mallopt(_M_MMAP_THRESHOLD, CPU_MMAP_THRESHOLD)
+                                      and libc.mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+        except (OSError, AttributeError):
+            _freed_memory_kept = False
+    return _freed_memory_kept
 
 
 @contextmanager
@@ -210,7 +236,10 @@ class Trainer:
 
     def _step_threads(self):
         """The thread setting of an optimisation step (CPU training only)."""
-        return cpu_threads(self.cpu_torch_threads) if self.device == "cpu" else nullcontext()
+        if self.device != "cpu":
+            return nullcontext()
+        keep_freed_memory()
+        return cpu_threads(self.cpu_torch_threads)
 
     def _sync(self) -> None:
         if self.device.startswith("cuda"):

@@ -39,10 +39,7 @@ class RasterizeTiles(torch.autograd.Function):
         with torch.no_grad():
             vis = torch.nonzero(radii > 0).flatten()
             order = vis[torch.argsort(depths.detach()[vis], stable=True)]
-            P = torch.cat([means2d[order], conics[order], opacities[order, None], feats[order]], dim=1)
-        P = _np(P, np.float64)
-        P = np.concatenate([P, K.span_limit(P[:, 5])[:, None]], axis=1)
-        BB = _np(bbox[order], np.int64)
+        P, BB = K.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)), bbox.numpy())
         tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
         out_f = np.empty((H, W, K.NF), np.float32)
         out_T = np.empty((H, W), np.float64)
@@ -74,15 +71,17 @@ class RasterizeTiles(torch.autograd.Function):
         buf = np.empty((M, K.N_GRAD), np.float32)
         with numba.parallel_chunksize(CHUNK):
             K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
-        red = np.empty((P.shape[0], K.N_GRAD), np.float64)
-        K.reduce_intersections(buf, g_start, isect_pos, red)
-        g = torch.zeros((N, K.N_GRAD), dtype=torch.float64)
-        g[ctx.order] = torch.from_numpy(red)
-        d_m, d_c, d_o, d_f = ctx.dtypes
-        if ctx.absgrad_out is not None:
-            ctx.absgrad_out.copy_(g[:, 6 + K.NF:])
-        return (g[:, 0:2].to(d_m), g[:, 2:5].to(d_c), g[:, 5].to(d_o), g[:, 6:6 + K.NF].to(d_f),
-                None, None, None, None, None, None)
+        # Each gradient in its input's dtype (a float32 is rounded once from the float64 sum).
+        d_m, d_c, d_o, d_f = (torch.empty(shape, dtype=dt) for shape, dt in
+                              zip(((N, 2), (N, 3), (N,), (N, K.NF)), ctx.dtypes))
+        absgrad = ctx.absgrad_out
+        direct = absgrad is not None and absgrad.is_contiguous() and absgrad.dtype in (torch.float32, torch.float64)
+        g_abs = torch.empty((N, 2), dtype=torch.float64) if absgrad is not None and not direct else absgrad
+        K.reduce_intersections(buf, g_start, isect_pos, ctx.order.numpy(), d_m.numpy(), d_c.numpy(), d_o.numpy(),
+                               d_f.numpy(), g_abs.numpy() if g_abs is not None else np.empty((0, 2)))
+        if absgrad is not None and not direct:
+            absgrad.copy_(g_abs)
+        return d_m, d_c, d_o, d_f, None, None, None, None, None, None
 
 
 def camera_array(camera) -> np.ndarray:

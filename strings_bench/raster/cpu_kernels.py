@@ -1,9 +1,10 @@
 """Numba kernels of the CPU rasterizer: tile binning, forward blending, hand-written backward.
 
 Layout: Gaussians are first sorted front to back; `P` holds their parameters in that order, one row
-each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera depth), then `qmin`
-(see `span_limit`). `BB` holds the
-pixel boxes (x0, x1, y0, y1), inclusive. Binning gives, per 16x16 tile, a slice of `lst` (indices
+each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera depth), then
+qmin = 2 (log(255 o) + slack), NaN where o < 1/255: a pixel can pass alpha >= 1/255 only where
+a dx^2 + 2 b dx dy + c dy^2 <= qmin (`pack` builds P). `BB` holds the pixel boxes (x0, x1, y0, y1),
+inclusive, tightened to that ellipse (`tight_box`). Binning gives, per 16x16 tile, a slice of `lst` (indices
 into P, front to back). Blending runs tile by tile in parallel (prange); inside a tile the loop is
 Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel state (transmittance,
 accumulated features, done flag) kept in small per-tile arrays.
@@ -12,16 +13,18 @@ The backward pass walks each tile's list back to front (as 3DGS does per pixel),
 transmittance by division; at the alpha clamp it follows 3DGS: dL/dalpha is computed with the
 clamped alpha of the forward and passed to opacity and G as if alpha = o G (dalpha/do = G,
 dalpha/dG = o, no zeroing where o G > 0.99). It writes the gradient summed over the tile's pixels into the row of a
-per-intersection buffer; a second parallel pass sums each Gaussian's rows. No two threads write the
+per-intersection buffer; a second parallel pass sums each Gaussian's rows and scatters them to the
+input order. No two threads write the
 same memory, results do not depend on the thread count, and memory scales with the number of
 tile-Gaussian intersections.
 
 All per-pixel arithmetic is float64 (the parameters come in as float32 values).
 
 Work skipping that does not change results: a Gaussian with opacity < 1/255 can never reach
-alpha >= 1/255 and is skipped; in each pixel row of its box only the span of pixels where
-power >= -log(255 o) - 1e-3 is visited (a conservative, widened bound from the quadratic; the exact
-per-pixel tests still decide).
+alpha >= 1/255 and gets an empty box; its box is cut to the ellipse's bounding box; in each pixel
+row of the box only the span of pixels where power >= -log(255 o) - 1e-3 is visited, and a pixel
+with power below that bound gets no exp (conservative, widened bounds from the quadratic; the exact
+per-pixel tests still decide, so the results are those of visiting every pixel of the 3-sigma box).
 """
 
 from __future__ import annotations
@@ -39,14 +42,6 @@ T_MIN = 1e-4
 N_GRAD = 6 + NF + 2  # mean2d x, y, conic a, b, c, opacity, features, |d mean2d| x, y
 N_PARAM = 6 + NF + 1
 SPAN_SLACK = 1e-3
-
-
-def span_limit(opacity: np.ndarray) -> np.ndarray:
-    """qmin = 2 (log(255 o) + slack): a pixel can pass alpha >= 1/255 only where
-    a dx^2 + 2 b dx dy + c dy^2 <= qmin. NaN (never) where o < 1/255."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = 2.0 * (np.log(255.0 * opacity) + SPAN_SLACK)
-    return np.where(opacity >= ALPHA_MIN, q, np.nan)
 
 
 @njit(cache=True, inline="always")
@@ -67,6 +62,59 @@ def row_span(ca, cb, cc, qmin, mx, dy, xs, xe):
     return int(math.ceil(lo)), int(math.floor(hi))
 
 
+@njit(cache=True, inline="always")
+def tight_box(mx, my, ca, cb, cc, qmin, x0, x1, y0, y1):
+    """A Gaussian's pixel box (x0, x1, y0, y1) clipped to the bounding box of the ellipse where it can
+    reach alpha >= 1/255 (q <= qmin), widened by one pixel each side; empty
+    (x0 > x1) where the opacity is below 1/255. The 3-sigma box of the largest axis can be many times
+    larger (low opacity, elongated), so fewer tiles and rows are visited; every pixel outside the
+    ellipse fails the exact alpha test anyway, so the blend's results do not change."""
+    if not qmin >= 0.0:  # NaN: opacity below 1/255, never blended
+        return 1, 0, 1, 0
+    det = ca * cc - cb * cb
+    if det > 0.0:
+        # half-extents of {a dx^2 + 2 b dx dy + c dy^2 <= qmin}: sqrt(qmin cov_xx), sqrt(qmin cov_yy)
+        ex = math.sqrt(qmin * cc / det)
+        ey = math.sqrt(qmin * ca / det)
+        if ex < 1e7 and ey < 1e7:
+            # pixel centres px + 0.5 within [m - e, m + e]
+            x0 = max(x0, int(math.ceil(mx - ex - 1.5)))
+            x1 = min(x1, int(math.floor(mx + ex + 0.5)))
+            y0 = max(y0, int(math.ceil(my - ey - 1.5)))
+            y1 = min(y1, int(math.floor(my + ey + 0.5)))
+    return x0, x1, y0, y1
+
+
+@njit(parallel=True, cache=True)
+def pack(order, means2d, conics, opacities, feats, bbox):
+    """P (V, N_PARAM) float64 and BB (V, 4) int64 of the Gaussians `order` (front to back): the
+    layout of the module docstring, with each box tightened by `tight_box`. The float32 inputs
+    convert exactly."""
+    V = order.shape[0]
+    P = np.empty((V, N_PARAM), np.float64)
+    BB = np.empty((V, 4), np.int64)
+    for v in prange(V):
+        i = order[v]
+        P[v, 0] = means2d[i, 0]
+        P[v, 1] = means2d[i, 1]
+        P[v, 2] = conics[i, 0]
+        P[v, 3] = conics[i, 1]
+        P[v, 4] = conics[i, 2]
+        o = np.float64(opacities[i])
+        P[v, 5] = o
+        for c in range(NF):
+            P[v, 6 + c] = feats[i, c]
+        qmin = 2.0 * (math.log(255.0 * o) + SPAN_SLACK) if o >= ALPHA_MIN else np.nan
+        P[v, 6 + NF] = qmin
+        x0, x1, y0, y1 = tight_box(P[v, 0], P[v, 1], P[v, 2], P[v, 3], P[v, 4], qmin,
+                                   bbox[i, 0], bbox[i, 1], bbox[i, 2], bbox[i, 3])
+        BB[v, 0] = x0
+        BB[v, 1] = x1
+        BB[v, 2] = y0
+        BB[v, 3] = y1
+    return P, BB
+
+
 @njit(cache=True)
 def bin_tiles(BB, tiles_x, tiles_y):
     """Counting sort of (tile, depth) keys; BB rows are already front to back.
@@ -80,6 +128,9 @@ def bin_tiles(BB, tiles_x, tiles_y):
     tile_start = np.zeros(n_tiles + 1, np.int64)
     g_start[0] = 0
     for i in range(V):
+        if BB[i, 0] > BB[i, 1] or BB[i, 2] > BB[i, 3]:  # empty box (tight_boxes)
+            g_start[i + 1] = g_start[i]
+            continue
         tx0, tx1 = BB[i, 0] // TILE, BB[i, 1] // TILE
         ty0, ty1 = BB[i, 2] // TILE, BB[i, 3] // TILE
         g_start[i + 1] = g_start[i] + (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
@@ -94,6 +145,8 @@ def bin_tiles(BB, tiles_x, tiles_y):
     fill = tile_start[:n_tiles].copy()
     for i in range(V):
         j = g_start[i]
+        if j == g_start[i + 1]:
+            continue
         tx0, tx1 = BB[i, 0] // TILE, BB[i, 1] // TILE
         ty0, ty1 = BB[i, 2] // TILE, BB[i, 3] // TILE
         for ty in range(ty0, ty1 + 1):
@@ -138,6 +191,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             cc = P[i, 4]
             op = P[i, 5]
             qmin = P[i, 6 + NF]
+            power_min = -0.5 * qmin  # below it alpha < 1/255 for sure: skip the exp
             for py in range(ys, ye + 1):
                 dy = my - (py + 0.5)
                 row = (py - py0) * TILE - px0
@@ -148,7 +202,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                         continue
                     dx = mx - (px + 0.5)
                     power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                    if power > 0.0:
+                    if power > 0.0 or power < power_min:
                         continue
                     alpha = op * math.exp(power)
                     if alpha > ALPHA_MAX:
@@ -236,6 +290,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             abs_x = 0.0
             abs_y = 0.0
             qmin = P[i, 6 + NF]
+            power_min = -0.5 * qmin  # below it alpha < 1/255 for sure: skip the exp
             for py in range(ys, ye + 1):
                 dy = my - (py + 0.5)
                 row = (py - py0) * TILE - px0
@@ -246,7 +301,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                         continue
                     dx = mx - (px + 0.5)
                     power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                    if power > 0.0:
+                    if power > 0.0 or power < power_min:
                         continue
                     G = math.exp(power)
                     alpha = min(op * G, ALPHA_MAX)
@@ -295,15 +350,40 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
 
 
 @njit(parallel=True, cache=True)
-def reduce_intersections(buf, g_start, isect_pos, out):
-    """out[i] = sum of buf rows of Gaussian i's intersections (float64), in intersection order: each
-    Gaussian's sum is one thread's, so the result does not depend on the thread count."""
+def reduce_intersections(buf, g_start, isect_pos, order, g_means2d, g_conics, g_opacities, g_feats, g_abs):
+    """Each Gaussian's gradient: the sum (float64, in intersection order) of its rows of buf, written
+    to row order[v] of the outputs (N rows; the rest are zero), each value rounded once at the store.
+    Each Gaussian's sum is one thread's, so the result does not depend on the thread count. g_abs
+    (N, 2) receives the |dL/dmean2d| sums; pass a (0, 2) array to skip them."""
     V = g_start.shape[0] - 1
+    N = g_means2d.shape[0]
     n = buf.shape[1]
-    for i in prange(V):
-        for j in range(n):
-            out[i, j] = 0.0
-        for s in range(g_start[i], g_start[i + 1]):
+    with_abs = g_abs.shape[0] > 0
+    for i in prange(N):
+        g_means2d[i, 0] = 0.0
+        g_means2d[i, 1] = 0.0
+        for j in range(3):
+            g_conics[i, j] = 0.0
+        g_opacities[i] = 0.0
+        for j in range(NF):
+            g_feats[i, j] = 0.0
+        if with_abs:
+            g_abs[i, 0] = 0.0
+            g_abs[i, 1] = 0.0
+    for v in prange(V):
+        acc = np.zeros(N_GRAD, np.float64)
+        for s in range(g_start[v], g_start[v + 1]):
             k = isect_pos[s]
             for j in range(n):
-                out[i, j] += buf[k, j]
+                acc[j] += buf[k, j]
+        i = order[v]
+        g_means2d[i, 0] = acc[0]
+        g_means2d[i, 1] = acc[1]
+        for j in range(3):
+            g_conics[i, j] = acc[2 + j]
+        g_opacities[i] = acc[5]
+        for j in range(NF):
+            g_feats[i, j] = acc[6 + j]
+        if with_abs:
+            g_abs[i, 0] = acc[6 + NF]
+            g_abs[i, 1] = acc[7 + NF]
