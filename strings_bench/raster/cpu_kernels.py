@@ -45,16 +45,17 @@ SPAN_SLACK = 1e-3
 
 
 @njit(cache=True, inline="always")
-def row_span(ca, cb, cc, qmin, mx, dy, xs, xe):
-    """Pixel columns [lo, hi] of one row that may pass the alpha threshold, clipped to [xs, xe]."""
+def row_span(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe):
+    """Pixel columns [lo, hi] of one row that may pass the alpha threshold, clipped to [xs, xe]
+    (inv_ca = 1 / ca: the bound keeps a pixel of slack, so its rounding does not matter)."""
     bq = cb * dy
     disc = bq * bq - ca * (cc * dy * dy - qmin)
     if not disc >= 0.0:  # also catches NaN (opacity below 1/255)
         return 1, 0
     sq = math.sqrt(disc)
     # dx = mx - (px + 0.5) in [(-bq - sq) / ca, (-bq + sq) / ca], one pixel of slack each side
-    lo = mx - 0.5 - (-bq + sq) / ca - 1.0
-    hi = mx - 0.5 - (-bq - sq) / ca + 1.0
+    lo = mx - 0.5 - (-bq + sq) * inv_ca - 1.0
+    hi = mx - 0.5 - (-bq - sq) * inv_ca + 1.0
     lo = max(lo, float(xs))
     hi = min(hi, float(xe))
     if lo > hi:
@@ -192,10 +193,11 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             op = P[i, 5]
             qmin = P[i, 6 + NF]
             power_min = -0.5 * qmin  # below it alpha < 1/255 for sure: skip the exp
+            inv_ca = 1.0 / ca
             for py in range(ys, ye + 1):
                 dy = my - (py + 0.5)
                 row = (py - py0) * TILE - px0
-                lo, hi = row_span(ca, cb, cc, qmin, mx, dy, xs, xe)
+                lo, hi = row_span(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
                 for px in range(lo, hi + 1):
                     p = row + px
                     if done[p]:
@@ -291,10 +293,11 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             abs_y = 0.0
             qmin = P[i, 6 + NF]
             power_min = -0.5 * qmin  # below it alpha < 1/255 for sure: skip the exp
+            inv_ca = 1.0 / ca
             for py in range(ys, ye + 1):
                 dy = my - (py + 0.5)
                 row = (py - py0) * TILE - px0
-                lo, hi = row_span(ca, cb, cc, qmin, mx, dy, xs, xe)
+                lo, hi = row_span(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
                 for px in range(lo, hi + 1):
                     p = row + px
                     if k >= lastk[p]:
