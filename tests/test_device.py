@@ -48,7 +48,10 @@ _STRINGS = {**_DEFAULT, "t1": 4, "mask_dilation_fraction": 0.0, "n_max": 3}
 SETTINGS = {
     "3dgs": _DEFAULT,
     "absgs": {**_DEFAULT, "grow_grad2d_abs": 1e-7},
-    "edc-absgs": {**_DEFAULT, "grow_grad2d_abs": 1e-7, "recovery_delay": 2, "recovery_min_steps": 1},
+    # 1e-4, not 1e-7: the absolute gradient is real here (it stayed zero on a meta default device until
+    # the rasterizer made its buffer on the parameters' device), and at 1e-7 every Gaussian splits each
+    # round until the recovery pruning would remove them all.
+    "edc-absgs": {**_DEFAULT, "grow_grad2d_abs": 1e-4, "recovery_delay": 2, "recovery_min_steps": 1},
     "mip-splatting": {**_DEFAULT, "filter_every": 2},
     "mcmc": dict(steps_scale=1.0, sh_degree=1, refine_start_iter=1, refine_every=3, min_opacity=0.2, seed=3),
     "strings": _STRINGS,
@@ -93,6 +96,26 @@ def test_meta_default_device_catches_a_deviceless_tensor():
     p = torch.zeros(3, device="cpu")
     with default_device_meta(), pytest.raises((RuntimeError, NotImplementedError)):
         float((p + torch.ones(3)).sum())
+
+
+def test_cpu_rasterizer_gradients_and_absgrad_stay_on_the_parameters_device():
+    """A buffer made without a device (absgrad was one) would be meta here: `cpu += meta` is silently a
+    no-op, so AbsGS' statistic stayed zero; every output and gradient must be real CPU values."""
+    from strings_bench.raster import rasterize
+    from strings_bench.scene.camera import Camera
+
+    g = torch.Generator().manual_seed(0)
+    n = 40
+    leaves = [(torch.randn(n, 3, generator=g) * 0.4 + torch.tensor([0.0, 0.0, 3.0])), torch.randn(n, 4, generator=g),
+              torch.full((n, 3), -2.5), torch.zeros(n), torch.randn(n, 4, 3, generator=g) * 0.3]
+    leaves = [x.requires_grad_() for x in leaves]
+    cam = Camera(fx=30.0, fy=30.0, cx=16.0, cy=12.0, width=32, height=24, R=np.eye(3), t=np.zeros(3))
+    with default_device_meta():
+        out = rasterize(*leaves, cam, torch.zeros(3, device="cpu"), compute_absgrad=True)
+        out.color.sum().backward()
+    assert out.absgrad.device.type == "cpu" and float(out.absgrad.sum()) > 0
+    assert all(x.grad.device.type == "cpu" and torch.isfinite(x.grad).all() for x in leaves)
+    assert float(leaves[0].grad.abs().sum()) > 0
 
 
 @pytest.mark.parametrize("name", sorted(SETTINGS))

@@ -462,3 +462,41 @@ def test_cpu_threads_sets_and_restores_torch_threads():
         with cpu_threads(1):
             raise RuntimeError("the body failed")
     assert torch.get_num_threads() == before and CPU_TORCH_THREADS == 1
+
+
+_MALLOC_PROBE = """
+import ctypes, sys
+import numpy as np
+if sys.argv[1] == "keep":
+    from strings_bench.engine.trainer import keep_freed_memory
+    assert keep_freed_memory() and keep_freed_memory()  # once per process; the second call is a no-op
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = MallInfo2
+a = np.empty(64 << 20, np.uint8)
+a[::4096] = 1
+mapped = libc.mallinfo2().hblkhd  # bytes in blocks mmap'ed on their own (handed back when freed)
+del a
+print(mapped >> 20, libc.mallinfo2().fordblks >> 20)  # MiB mmap'ed while alive; MiB free in the heap after
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_keep_freed_memory_serves_large_blocks_from_the_heap():
+    """With the default malloc a 64 MB block is mmap'ed on its own and handed back to the kernel when
+    freed (its pages are faulted in again next time); after keep_freed_memory (the Trainer's CPU
+    setting) it comes from the heap and stays there for the next step."""
+    import os
+    import subprocess
+
+    got = {}
+    for mode in ("default", "keep"):
+        env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+        done = subprocess.run([sys.executable, "-c", _MALLOC_PROBE, mode], env=env, capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 0, done.stderr
+        got[mode] = [int(x) for x in done.stdout.split()[-2:]]
+    assert got["default"][0] >= 64 and got["default"][1] < 64, got  # mmap'ed, then returned
+    assert got["keep"][0] < 64 and got["keep"][1] >= 64, got  # from the heap, kept after the free

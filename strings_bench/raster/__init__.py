@@ -243,7 +243,7 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
         colors = sh_to_color(sh, means, _cam_center(camera, means), deg)
         means2d, conics, opacities, radii, bbox = proj.means2d, proj.conics, proj.opacities, proj.radii, proj.bbox
         feats = torch.cat([colors, proj.depths[:, None]], dim=1)
-    absgrad = torch.zeros((n, 2), dtype=means.dtype) if compute_absgrad else None
+    absgrad = torch.zeros((n, 2), dtype=means.dtype, device=means.device) if compute_absgrad else None
     feat_img, alpha = RasterizeTiles.apply(means2d, conics, opacities, feats, radii, bbox, feats[:, 3].detach(),
                                            camera.width, camera.height, absgrad)
     color = feat_img[..., :3] + (1.0 - alpha)[..., None] * background

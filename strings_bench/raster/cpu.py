@@ -39,7 +39,8 @@ class RasterizeTiles(torch.autograd.Function):
         with torch.no_grad():
             vis = torch.nonzero(radii > 0).flatten()
             order = vis[torch.argsort(depths.detach()[vis], stable=True)]
-        P, BB = K.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)), bbox.numpy())
+        P, BB = K.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)),
+                       bbox.contiguous().numpy())
         tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
         out_f = np.empty((H, W, K.NF), np.float32)
         out_T = np.empty((H, W), np.float64)
@@ -62,9 +63,9 @@ class RasterizeTiles(torch.autograd.Function):
         W, H = ctx.size
         N = ctx.N
         if grad_f is None:
-            grad_f = torch.zeros((H, W, K.NF))
+            grad_f = torch.zeros((H, W, K.NF), device="cpu")
         if grad_alpha is None:
-            grad_alpha = torch.zeros((H, W))
+            grad_alpha = torch.zeros((H, W), device="cpu")
         gF = _np(grad_f, np.float32)
         gA = _np(grad_alpha, np.float32)
         M = lst.shape[0]
@@ -72,11 +73,12 @@ class RasterizeTiles(torch.autograd.Function):
         with numba.parallel_chunksize(CHUNK):
             K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
         # Each gradient in its input's dtype (a float32 is rounded once from the float64 sum).
-        d_m, d_c, d_o, d_f = (torch.empty(shape, dtype=dt) for shape, dt in
+        # (device given: a caller's default device, e.g. meta, must not reach these host buffers)
+        d_m, d_c, d_o, d_f = (torch.empty(shape, dtype=dt, device="cpu") for shape, dt in
                               zip(((N, 2), (N, 3), (N,), (N, K.NF)), ctx.dtypes))
         absgrad = ctx.absgrad_out
         direct = absgrad is not None and absgrad.is_contiguous() and absgrad.dtype in (torch.float32, torch.float64)
-        g_abs = torch.empty((N, 2), dtype=torch.float64) if absgrad is not None and not direct else absgrad
+        g_abs = torch.empty((N, 2), dtype=torch.float64, device="cpu") if absgrad is not None and not direct else absgrad
         K.reduce_intersections(buf, g_start, isect_pos, ctx.order.numpy(), d_m.numpy(), d_c.numpy(), d_o.numpy(),
                                d_f.numpy(), g_abs.numpy() if g_abs is not None else np.empty((0, 2)))
         if absgrad is not None and not direct:
