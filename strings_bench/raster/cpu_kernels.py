@@ -4,19 +4,18 @@ Layout: Gaussians are first sorted front to back; `P` holds their parameters in 
 each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera depth), then
 qmin = 2 (log(255 o) + slack), NaN where o < 1/255: a pixel can pass alpha >= 1/255 only where
 a dx^2 + 2 b dx dy + c dy^2 <= qmin (`pack` builds P). `BB` holds the pixel boxes (x0, x1, y0, y1),
-inclusive, tightened to that ellipse (`tight_box`). Binning gives, per 16x16 tile, a slice of `lst` (indices
-into P, front to back). Blending runs tile by tile in parallel (prange); inside a tile the loop is
-Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel state (transmittance,
-accumulated features, done flag) kept in small per-tile arrays.
+inclusive, tightened to that ellipse (`tight_box`). Binning gives, per 16x16 tile, a slice of `lst`
+(indices into P, front to back). Blending runs tile by tile in parallel (prange); inside a tile the
+loop is Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel state
+(transmittance, accumulated features, done flag) kept in small per-tile arrays.
 
 The backward pass walks each tile's list back to front (as 3DGS does per pixel), re-deriving the
 transmittance by division; at the alpha clamp it follows 3DGS: dL/dalpha is computed with the
 clamped alpha of the forward and passed to opacity and G as if alpha = o G (dalpha/do = G,
-dalpha/dG = o, no zeroing where o G > 0.99). It writes the gradient summed over the tile's pixels into the row of a
-per-intersection buffer; a second parallel pass sums each Gaussian's rows and scatters them to the
-input order. No two threads write the
-same memory, results do not depend on the thread count, and memory scales with the number of
-tile-Gaussian intersections.
+dalpha/dG = o, no zeroing where o G > 0.99). It writes the gradient summed over the tile's pixels
+into the row of a per-intersection buffer; a second parallel pass sums each Gaussian's rows and
+scatters them to the input order. No two threads write the same memory, results do not depend on
+the thread count, and memory scales with the number of tile-Gaussian intersections.
 
 All per-pixel arithmetic is float64 (the parameters come in as float32 values).
 
@@ -66,8 +65,8 @@ def row_span(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe):
 @njit(cache=True, inline="always")
 def tight_box(mx, my, ca, cb, cc, qmin, x0, x1, y0, y1):
     """A Gaussian's pixel box (x0, x1, y0, y1) clipped to the bounding box of the ellipse where it can
-    reach alpha >= 1/255 (q <= qmin), widened by one pixel each side; empty
-    (x0 > x1) where the opacity is below 1/255. The 3-sigma box of the largest axis can be many times
+    reach alpha >= 1/255 (q <= qmin), widened by one pixel each side; empty (x0 > x1) where the
+    opacity is below 1/255. The 3-sigma box of the largest axis can be many times
     larger (low opacity, elongated), so fewer tiles and rows are visited; every pixel outside the
     ellipse fails the exact alpha test anyway, so the blend's results do not change."""
     if not qmin >= 0.0:  # NaN: opacity below 1/255, never blended
