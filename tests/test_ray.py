@@ -165,7 +165,19 @@ def test_a_job_that_fails_by_itself_is_not_retried_and_is_reported_per_cell(ray_
     assert ray.is_initialized()  # the executor used this session and left it running
 
 
-def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, scenes, tmp_path):
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raises KeyboardInterrupt during the test, as in a terminal, even where the suite was started
+    with SIGINT ignored (a background job of a non-interactive shell): Python keeps an inherited
+    SIG_IGN, and the Ctrl-C test would then wait forever."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, scenes, tmp_path, sigint_raises):
     out, pause = tmp_path / "run", tmp_path / "pause"
     pause.mkdir()
     plan = _plan(out, scenes, methods=["3dgs"])
