@@ -470,6 +470,9 @@ import numpy as np
 if sys.argv[1] == "keep":
     from strings_bench.engine.trainer import keep_freed_memory
     assert keep_freed_memory() and keep_freed_memory()  # once per process; the second call is a no-op
+elif sys.argv[1] == "switched-off":  # STRINGS_BENCH_KEEP_FREED_MEMORY=0 in the environment
+    from strings_bench.engine.trainer import keep_freed_memory
+    assert keep_freed_memory() is False
 class MallInfo2(ctypes.Structure):
     _fields_ = [(name, ctypes.c_size_t) for name in
                 ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
@@ -487,16 +490,19 @@ print(mapped >> 20, libc.mallinfo2().fordblks >> 20)  # MiB mmap'ed while alive;
 def test_keep_freed_memory_serves_large_blocks_from_the_heap():
     """With the default malloc a 64 MB block is mmap'ed on its own and handed back to the kernel when
     freed (its pages are faulted in again next time); after keep_freed_memory (the Trainer's CPU
-    setting) it comes from the heap and stays there for the next step."""
+    setting) it comes from the heap and stays there for the next step; STRINGS_BENCH_KEEP_FREED_MEMORY=0
+    leaves malloc as it was."""
     import os
     import subprocess
 
     got = {}
-    for mode in ("default", "keep"):
+    for mode in ("default", "keep", "switched-off"):
         env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+        env["STRINGS_BENCH_KEEP_FREED_MEMORY"] = "0" if mode == "switched-off" else "1"
         done = subprocess.run([sys.executable, "-c", _MALLOC_PROBE, mode], env=env, capture_output=True, text=True,
                               timeout=120)
         assert done.returncode == 0, done.stderr
         got[mode] = [int(x) for x in done.stdout.split()[-2:]]
     assert got["default"][0] >= 64 and got["default"][1] < 64, got  # mmap'ed, then returned
     assert got["keep"][0] < 64 and got["keep"][1] >= 64, got  # from the heap, kept after the free
+    assert got["switched-off"][0] >= 64 and got["switched-off"][1] < 64, got  # as the default

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import os
 import random
 import re
 import resource
@@ -65,9 +66,13 @@ _freed_memory_kept: bool | None = None  # not tried yet
 
 def keep_freed_memory() -> bool:
     """Have glibc's malloc serve blocks up to CPU_MMAP_THRESHOLD from the heap and never trim it, once
-    per process. False where the C library is not glibc (nothing is changed there)."""
+    per process. False where the C library is not glibc, or where STRINGS_BENCH_KEEP_FREED_MEMORY=0
+    (nothing is changed then)."""
     global _freed_memory_kept
     if _freed_memory_kept is None:
+        if os.environ.get("STRINGS_BENCH_KEEP_FREED_MEMORY", "1") == "0":
+            _freed_memory_kept = False
+            return False
         try:
             libc = ctypes.CDLL("libc.so.6")
             _freed_memory_kept = bool(libc.mallopt(_M_MMAP_THRESHOLD, CPU_MMAP_THRESHOLD)
