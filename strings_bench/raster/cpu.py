@@ -76,13 +76,10 @@ class RasterizeTiles(torch.autograd.Function):
         # (device given: a caller's default device, e.g. meta, must not reach these host buffers)
         d_m, d_c, d_o, d_f = (torch.empty(shape, dtype=dt, device="cpu") for shape, dt in
                               zip(((N, 2), (N, 3), (N,), (N, K.NF)), ctx.dtypes))
-        absgrad = ctx.absgrad_out
-        direct = absgrad is not None and absgrad.is_contiguous() and absgrad.dtype in (torch.float32, torch.float64)
-        g_abs = torch.empty((N, 2), dtype=torch.float64, device="cpu") if absgrad is not None and not direct else absgrad
+        # absgrad_out is _rasterize_cpu's fresh (N, 2) zeros on the CPU: the kernel fills it in place
+        g_abs = ctx.absgrad_out.numpy() if ctx.absgrad_out is not None else np.empty((0, 2))
         K.reduce_intersections(buf, g_start, isect_pos, ctx.order.numpy(), d_m.numpy(), d_c.numpy(), d_o.numpy(),
-                               d_f.numpy(), g_abs.numpy() if g_abs is not None else np.empty((0, 2)))
-        if absgrad is not None and not direct:
-            absgrad.copy_(g_abs)
+                               d_f.numpy(), g_abs)
         return d_m, d_c, d_o, d_f, None, None, None, None, None, None
 
 

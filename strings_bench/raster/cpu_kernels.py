@@ -66,9 +66,9 @@ def row_span(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe):
 def tight_box(mx, my, ca, cb, cc, qmin, x0, x1, y0, y1):
     """A Gaussian's pixel box (x0, x1, y0, y1) clipped to the bounding box of the ellipse where it can
     reach alpha >= 1/255 (q <= qmin), widened by one pixel each side; empty (x0 > x1) where the
-    opacity is below 1/255. The 3-sigma box of the largest axis can be many times
-    larger (low opacity, elongated), so fewer tiles and rows are visited; every pixel outside the
-    ellipse fails the exact alpha test anyway, so the blend's results do not change."""
+    opacity is below 1/255. The 3-sigma box of the largest axis can be many times larger (low
+    opacity, elongated), so fewer tiles and rows are visited; every pixel outside the ellipse fails
+    the exact alpha test anyway, so the blend's results do not change."""
     if not qmin >= 0.0:  # NaN: opacity below 1/255, never blended
         return 1, 0, 1, 0
     det = ca * cc - cb * cb
@@ -128,7 +128,7 @@ def bin_tiles(BB, tiles_x, tiles_y):
     tile_start = np.zeros(n_tiles + 1, np.int64)
     g_start[0] = 0
     for i in range(V):
-        if BB[i, 0] > BB[i, 1] or BB[i, 2] > BB[i, 3]:  # empty box (tight_boxes)
+        if BB[i, 0] > BB[i, 1] or BB[i, 2] > BB[i, 3]:  # empty box (tight_box: opacity below 1/255)
             g_start[i + 1] = g_start[i]
             continue
         tx0, tx1 = BB[i, 0] // TILE, BB[i, 1] // TILE
