@@ -132,6 +132,7 @@ def test_memory_cap_refuses_clearly():
 
 
 # ---- the method: phases, learning rates, fallback ---------------------------------------------------
+import dataclasses  # noqa: E402
 import logging  # noqa: E402
 import math  # noqa: E402
 
@@ -304,7 +305,10 @@ def test_phase1_positions_frozen_and_text_views_only(tiny_text_scene, monkeypatc
     # Only text points, densified (all counts equal here -> N_max each).
     seg = trainer.segmentation
     assert 0 < seg.num_text < scene.model.num_points
-    assert len(trainer.model) == seg.num_text * 3
+    stats = trainer.densify_stats
+    assert stats["text_gaussians_after_densify"] == seg.num_text * 3
+    # Children that land in no mask went, as in the release (prune_outside_masks).
+    assert len(trainer.model) == seg.num_text * 3 - stats["text_gaussians_pruned_outside_masks"]
 
 
 def test_phases_with_densification(tiny_text_scene, monkeypatch):
@@ -426,7 +430,8 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
     # By hand: 1/c in [1/7, 1/2]; c = 2 -> 6; 3 -> 1 + 5 (1/3 - 1/7) / (5/14) = 3.67 -> 4; 5 -> 1.8 -> 2;
     # 6 -> 1.33 -> 1; 7 -> 1.
     assert want == [6, 4, 2, 1, 1, 6, 4, 2]
-    trainer = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}), scene)
+    # Eq. 1 alone: the release's pruning of children that land in no mask is tested below.
+    trainer = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX, "prune_outside_masks": False}), scene)
     assert trainer.segmentation.is_text.tolist() == [True] * n_text + [False] * len(EQ1_NON_TEXT_TRACKS)
     first = {}
     set_model = trainer.set_model
@@ -445,6 +450,147 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
     counts = torch.bincount(dist.argmin(1), minlength=len(rgb)).tolist()
     assert counts == want + [0] * len(EQ1_NON_TEXT_TRACKS)  # phase 1 holds only the text Gaussians
     assert trainer.densify_stats["text_gaussians_after_densify"] == sum(want) == len(sh0)
+
+
+# ---- phase 1 as the authors' release does it (issue 39; docs/strings.md, "Phase 1 against the release") ----
+def _children_per_point(model, rgb):
+    """How many Gaussians carry each SfM point's colour (children copy their parent's colour)."""
+    sh0 = model.params["sh0"].detach().double()[:, 0, :]
+    point_sh0 = torch.from_numpy((rgb / 255.0 - 0.5) / 0.28209479177387814)
+    dist = (sh0[:, None, :] - point_sh0[None]).abs().amax(-1)
+    assert (dist.min(1).values < 1e-5).all()
+    return torch.bincount(dist.argmin(1), minlength=len(rgb)).tolist()
+
+
+def test_eq1_release_counts_mask_hits_over_all_points(eq1_scene):
+    scene, xyz, rgb = eq1_scene
+    train_views = set(scene.train_idx)
+    # The release's c_i: mask hits over the voting (training) views of the track; every text point's own
+    # pixel is masked in every view, so that is |track minus the test views 2 and 6|. Its Eq. 1 runs over
+    # all SfM points: the non-text ones have no hit, 1/0 is taken as 0, so min 1/c = 0.
+    hits = [len(set(t) & train_views) for t in EQ1_TEXT_TRACKS]
+    assert hits == [1, 3, 4, 5, 5, 1, 3, 4]
+    inv = [1.0 / c for c in hits] + [0.0] * len(EQ1_NON_TEXT_TRACKS)
+    lo, hi = min(inv), max(inv)
+    want = [math.floor(1 + (EQ1_N_MAX - 1) * (x - lo) / (hi - lo) + 0.5) for x in inv[:len(hits)]]
+    assert want == [6, 3, 2, 2, 2, 6, 3, 2]  # differs from the paper's reading, [6, 4, 2, 1, 1, 6, 4, 2]
+    method = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX, "prune_outside_masks": False,
+                                     "eq1_counts": "mask_hits", "eq1_range": "all"}), scene)
+    assert _children_per_point(method.model, rgb) == want + [0] * len(EQ1_NON_TEXT_TRACKS)
+
+
+def _hits_by_loop(scene, method, model):
+    """Mask hits of each Gaussian at its own position over its SfM point's track, by the paper's loop
+    (segment_text_points_loop) with the tracks written out in Python."""
+    from strings_bench.methods.strings.segmentation import segment_text_points_loop
+
+    sfm = scene.model
+    points = model.extras["sfm_point"].tolist()
+    tracks = [sfm.track_view[sfm.track_ptr[p]:sfm.track_ptr[p + 1]].tolist() for p in points]
+    ptr = np.cumsum([0] + [len(t) for t in tracks])
+    views = np.array([v for t in tracks for v in t], dtype=np.int64)
+    xyz = model.params["means"].detach().double().numpy()
+    cameras = {j: scene.camera(j) for j in method.masks}
+    return segment_text_points_loop(xyz, ptr, views, cameras, method.masks).hits
+
+
+def test_children_in_no_mask_are_pruned_as_the_release_does(eq1_scene):
+    scene, xyz, rgb = eq1_scene
+    kept = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}), scene)
+    every = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX, "prune_outside_masks": False}), scene)
+    # The masks hold one pixel per text point: most children, drawn around their parent, miss it.
+    hits_every = _hits_by_loop(scene, every, every.model)
+    assert (hits_every == 0).sum() > 0 and (hits_every > 0).sum() > 0
+    hits_kept = _hits_by_loop(scene, kept, kept.model)
+    assert (hits_kept >= 1).all()
+    assert len(kept.model) == int((hits_every >= 1).sum())  # the same children (one seed), less the missing
+    assert kept.densify_stats["text_gaussians_pruned_outside_masks"] == int((hits_every == 0).sum())
+    assert kept.model.extras["is_text"].all()
+
+
+def test_initial_scales_from_all_points_or_text_points(tiny_text_scene):
+    scene = tiny_text_scene
+    sfm_xyz = scene.model.xyz.astype(np.float64)
+
+    def knn_scale(points, of):  # sqrt(mean squared distance to the 3 nearest others), brute force
+        d2 = ((points[of][:, None, :] - points[None, :, :]) ** 2).sum(-1)
+        d2.sort(axis=1)
+        return np.sqrt(np.maximum(d2[:, 1:4].mean(1), 1e-7))
+
+    plain = {**FAST, "text_densify": False, "prune_outside_masks": False}
+    text = np.nonzero(_setup(StringsMethod(**plain), scene).segmentation.is_text)[0]
+    want_all = knn_scale(sfm_xyz, text)
+    want_text = knn_scale(sfm_xyz[text], np.arange(len(text)))
+    assert (np.abs(want_all - want_text) > 1e-3).sum() >= 3  # non-text points are the neighbours of some
+    for source, want in (("all", want_all), ("text", want_text)):
+        method = _setup(StringsMethod(**plain, init_scales_from=source), scene)
+        got = method.model.scales.detach().double().numpy()
+        np.testing.assert_allclose(got, np.repeat(want[:, None], 3, 1), rtol=1e-5)
+        assert method.model.extras["sfm_point"].tolist() == text.tolist()
+
+
+def test_inherited_tracks_match_a_loop():
+    from strings_bench.methods.strings.segmentation import inherited_tracks
+
+    rng = np.random.default_rng(1)
+    tracks = [list(rng.choice(20, size=int(rng.integers(0, 6)), replace=False)) for _ in range(12)]
+    ptr = np.cumsum([0] + [len(t) for t in tracks])
+    views = np.array([v for t in tracks for v in t], dtype=np.int64)
+    rows = rng.integers(0, 12, 40)
+    got_ptr, got_views = inherited_tracks(ptr, views, rows)
+    assert [got_views[got_ptr[k]:got_ptr[k + 1]].tolist() for k in range(len(rows))] == [tracks[r] for r in rows]
+    with pytest.raises(StringsBenchError, match="out of range"):
+        inherited_tracks(ptr, views, [12])
+
+
+def test_phase2_relocalises_the_text_flag(eq1_scene):
+    scene, xyz, rgb = eq1_scene
+    method = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX}), scene)
+    with torch.no_grad():  # move every other phase-1 Gaussian well away from its pixel
+        method.model.params["means"][::2, 1] += 0.3
+    want = _hits_by_loop(scene, method, method.model) >= 1
+    assert want.any() and not want.all()
+    n1 = len(method.model)
+    method._start_phase2()
+    flags = method.model.extras["is_text"]
+    assert flags[:n1].tolist() == want.tolist()
+    assert not flags[n1:].any() and len(flags) == n1 + len(EQ1_NON_TEXT_TRACKS)
+    inherit = _setup(StringsMethod(**{**FAST, "n_max": EQ1_N_MAX, "phase2_text": "inherit"}), scene)
+    with torch.no_grad():
+        inherit.model.params["means"][::2, 1] += 0.3
+    inherit._start_phase2()
+    assert inherit.model.extras["is_text"][:n1].all()
+
+
+def test_phase2_starts_from_phase1_before_the_refinement_at_t1(tiny_text_scene):
+    """The release saves phase 1 at T1 before that iteration's densification and opacity reset; phase 2
+    starts from the save. With a reset due at T1 (reset_every 3 nominal -> every 3 steps, T1 = 6), the
+    phase-2 model keeps phase 1's opacities, and "after_refine" hands over the reset ones."""
+    handed = {}
+    for handoff in ("before_refine", "after_refine"):
+        method = _setup(StringsMethod(**FAST, reset_every=3, handoff=handoff), tiny_text_scene)
+        for step in range(1, method.t1 + 1):
+            method.train_step(step)
+            if step == method.t1:
+                before = method.model.opacities.detach().clone()
+            method.refine(step)
+        method.on_step_start(method.t1 + 1)
+        assert method.phase == 2
+        handed[handoff] = (before, method.model.opacities.detach()[:len(before)])
+    before, got = handed["before_refine"]
+    assert torch.equal(got, before) and before.max() > 0.011
+    before, got = handed["after_refine"]
+    assert got.max() <= 0.01 + 1e-6 < before.max()
+
+
+def test_clamp_render_before_the_loss(tiny_text_scene):
+    mask = np.ones((2, 2), bool)
+    gt = torch.full((2, 2, 3), 0.9)
+    render = torch.full((2, 2, 3), 1.3, requires_grad=True)
+    for clamp, want in ((False, 0.4), (True, 0.1)):
+        trainer = _trainer_with_masks(tiny_text_scene, {0: mask})
+        trainer.method_settings = dataclasses.replace(trainer.st, clamp_render=clamp)
+        assert float(trainer.loss(_Out(render), gt, 0, step=1).detach()) == pytest.approx(want, abs=1e-6)
 
 
 # ---- the phase-1 loss: masked L1, mean over the whole image ---------------------------------------

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.errors import StringsBenchError, TrainingError
 from strings_bench.engine.splatting import GaussianSplatting
 
 if TYPE_CHECKING:
@@ -63,6 +63,22 @@ class StringsSettings:
     # trained with as they are, as the release does; others are dilated. "yes"/"no" force either.
     mask_predilated: str = "auto"  # are the dataset's masks/ already dilated: "auto", "yes" or "no"
     segmentation_downscale: float | None = None  # None: the training downscale
+    # ---- phase 1 as the release does it where the paper is silent (docs/strings.md, "Phase 1 against the release")
+    # Initial scales of the text Gaussians: 3-NN over "all" SfM points, then the text subset (the release's
+    # create_from_pcd; the paper takes G_text from 3DGS' initialisation of P), or over the "text" points alone.
+    init_scales_from: str = "all"  # 3-NN initial scales over "all" SfM points (release) or "text" points only
+    eq1_counts: str = "track"  # c_i of Eq. 1: "track" (paper: |V_i|) or "mask_hits" (release: get_vis_counts)
+    eq1_range: str = "text"  # min/max of 1/c in Eq. 1 over the "text" points (paper) or "all" SfM points (release)
+    # The release re-localises every Gaussian after Eq. 1 at its own position, with its parent's track, and
+    # removes those that land in fewer than tau masks (prune_non_text): children sampled off the text go.
+    prune_outside_masks: bool = True  # after Eq. 1, remove Gaussians whose own position is in < tau masks (release)
+    # The release saves phase 1 at T1 before that iteration's densification and opacity reset, and phase 2
+    # starts from the save; "after_refine" hands over the model after them.
+    handoff: str = "before_refine"  # phase 2 starts from phase 1 "before_refine" at T1 (release) or "after_refine"
+    # The release recomputes the text flag at the start of phase 2 from the current positions and the
+    # inherited tracks (localize_gaussians); "inherit" keeps phase 1's flags (every phase-1 Gaussian is text).
+    phase2_text: str = "relocalise"  # phase 2's text flag: "relocalise" (release) or "inherit"
+    clamp_render: bool = False  # clamp the render to [0, 1] before the loss (the release's renderer; 3DGS' paper does not)
 
     def __post_init__(self):
         if self.phase2_schedules not in ("global", "restart"):
@@ -74,6 +90,11 @@ class StringsSettings:
             raise StringsBenchError(f"t1 must be >= 0, got {self.t1}")
         if self.phase1_position_lr < 0:
             raise StringsBenchError(f"phase1_position_lr must be >= 0, got {self.phase1_position_lr}")
+        for name, allowed in (("init_scales_from", ("all", "text")), ("eq1_counts", ("track", "mask_hits")),
+                              ("eq1_range", ("text", "all")), ("handoff", ("before_refine", "after_refine")),
+                              ("phase2_text", ("relocalise", "inherit"))):
+            if getattr(self, name) not in allowed:
+                raise StringsBenchError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {getattr(self, name)!r}")
 
     def mask_settings(self):
         from strings_bench.eval.text_masks import MaskSettings
@@ -138,6 +159,7 @@ class Strings(GaussianSplatting):
         seg_masks = self.masks if seg_ds == ds else text_masks(scene, scene.train_idx, seg_ds, mask_settings,
                                                                progress=progress)
         self.segmentation = segment_text_points(scene, seg_masks, seg_ds, st.tau)
+        self._seg_masks, self._seg_downscale = seg_masks, seg_ds  # re-localisation after Eq. 1 and at phase 2
         self.masks_segmentation_seconds = time.perf_counter() - t0
         self.t1 = self.at(st.t1)
         self.n_max = resolve_n_max(st, scene)
@@ -162,37 +184,80 @@ class Strings(GaussianSplatting):
 
     def initial_model(self, scene: "Scene"):
         from strings_bench.engine.gaussians import GaussianModel
+        from strings_bench.engine.strategies import ops
         from strings_bench.methods.strings.densify import densification_factors, densify_text_model
 
         if self.fallback:
             model = super().initial_model(scene)
-            model.extras["is_text"] = torch.zeros(len(model), dtype=torch.bool, device=model.device)
+            model.extras["is_text"] = torch.zeros(len(model), dtype=torch.bool, device=self.device)
             return model
+        st = self.st
         is_text = self.segmentation.is_text
         sfm = scene.model
-        model = GaussianModel.from_points(
-            sfm.xyz[is_text], sfm.rgb[is_text], sh_degree=self.config.sh_degree, init_opacity=self.config.init_opacity,
-            device=self.device, extras={"is_text": torch.ones(int(is_text.sum()), dtype=torch.bool, device=self.device)})
+        point_ids = torch.arange(sfm.num_points, dtype=torch.int64, device=self.device)
+        # "sfm_point": the SfM point a Gaussian descends from; children inherit it (ops copy extras), and
+        # its track is where a Gaussian is re-localised, as the release's point_track_ids.
+        if st.init_scales_from == "all":
+            model = GaussianModel.from_points(
+                sfm.xyz, sfm.rgb, sh_degree=self.config.sh_degree, init_opacity=self.config.init_opacity,
+                device=self.device, extras={"sfm_point": point_ids}).subset(torch.from_numpy(is_text).to(self.device))
+        else:
+            model = GaussianModel.from_points(
+                sfm.xyz[is_text], sfm.rgb[is_text], sh_degree=self.config.sh_degree,
+                init_opacity=self.config.init_opacity, device=self.device,
+                extras={"sfm_point": point_ids[torch.from_numpy(is_text).to(self.device)]})
+        model.extras["is_text"] = torch.ones(len(model), dtype=torch.bool, device=self.device)
         n0 = len(model)
-        if self.st.text_densify:
-            factors = densification_factors(sfm.visibility_counts()[is_text], self.n_max, self.st.equal_counts)
+        stats = {"text_points": n0}
+        if st.text_densify:
+            counts = sfm.visibility_counts() if st.eq1_counts == "track" else self.segmentation.hits
+            if st.eq1_range == "all":  # the release: Eq. 1 over every SfM point, non-text ones get N = 1
+                factors = densification_factors(counts, self.n_max, st.equal_counts)[is_text]
+            else:
+                factors = densification_factors(counts[is_text], self.n_max, st.equal_counts)
             # the children are sampled on the model's device, so the generator must live there too
             gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
-            densify_text_model(model, factors, gen, max_gaussians=self.st.max_text_gaussians)
-        self.densify_stats = {"text_points": n0, "text_gaussians_after_densify": len(model), "n_max": self.n_max}
+            densify_text_model(model, factors, gen, max_gaussians=st.max_text_gaussians)
+        stats["text_gaussians_after_densify"] = len(model)
+        if st.prune_outside_masks:
+            outside = self.mask_hits(model) < st.tau
+            if bool(outside.all()):
+                raise TrainingError(f"every text Gaussian of scene {scene.name} lands outside the text masks after Eq. 1",
+                                    hint="set prune_outside_masks=false, or check the masks and the SfM model")
+            ops.remove(model, None, outside)
+            stats["text_gaussians_pruned_outside_masks"] = int(outside.sum())
+        self.densify_stats = {**stats, "n_max": self.n_max}
         return model
+
+    def mask_hits(self, model) -> torch.Tensor:
+        """(N,) int64: per Gaussian, how many images of its SfM point's track have the Gaussian's own
+        position inside their text mask (the release's localize_gaussians, on the voting views' masks)."""
+        from strings_bench.methods.strings.segmentation import count_mask_hits, inherited_tracks
+
+        sfm = self.scene.model
+        points = model.extras["sfm_point"].cpu().numpy()
+        ptr, views = inherited_tracks(sfm.track_ptr, sfm.track_view, points)
+        cameras = {j: self.scene.camera(j, self._seg_downscale) for j in self._seg_masks}
+        xyz = model.params["means"].detach().cpu().numpy()
+        hits = count_mask_hits(xyz, ptr, views, cameras, self._seg_masks)
+        return torch.from_numpy(hits).to(model.device)
 
     def _start_phase2(self) -> None:
         from strings_bench.engine.gaussians import GaussianModel
 
         self.phase = 2
+        if self.st.phase2_text == "relocalise":
+            text = self.model.extras["is_text"]
+            text &= self.mask_hits(self.model) >= self.st.tau
+            self.densify_stats["text_gaussians_at_phase2"] = int(text.sum())
         sfm = self.scene.model
         non_text = ~self.segmentation.is_text
         if not non_text.any():
             return
         extra = GaussianModel.from_points(
             sfm.xyz[non_text], sfm.rgb[non_text], sh_degree=self.config.sh_degree, init_opacity=self.config.init_opacity,
-            device=self.device, extras={"is_text": torch.zeros(int(non_text.sum()), dtype=torch.bool, device=self.device)})
+            device=self.device, extras={"is_text": torch.zeros(int(non_text.sum()), dtype=torch.bool, device=self.device),
+                                        "sfm_point": torch.from_numpy(np.nonzero(non_text)[0]).to(self.device)})
         # A fresh optimizer and strategy state for the joined model, as a new training setup would.
         self.set_model(GaussianModel.concat([self.model, extra]))
 
@@ -206,11 +271,21 @@ class Strings(GaussianSplatting):
         return super().train_views()
 
     def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
-        if self.in_phase1(step):
-            from strings_bench.engine.losses import masked_l1
+        from strings_bench.engine.losses import gs_loss, masked_l1
 
-            return masked_l1(out.color, gt, self._mask_tensor(view_idx))  # mean over the whole image, no SSIM
-        return super().loss(out, gt, view_idx, step)
+        pred = out.color.clamp(0, 1) if self.st.clamp_render else out.color
+        if self.in_phase1(step):
+            return masked_l1(pred, gt, self._mask_tensor(view_idx))  # mean over the whole image, no SSIM
+        return gs_loss(pred, gt, self.config.lambda_dssim)
+
+    def refine(self, step: int) -> None:
+        # The release saves phase 1 at T1 before that iteration's densification and opacity reset
+        # (train.py: the save, then densify_and_prune and reset_opacity), and phase 2 starts from the save.
+        if self.st.handoff == "before_refine" and self.phase == 1 and step == self.t1 and not self.fallback:
+            self._step_info = None
+            self.optimizer.zero_grad()
+            return
+        super().refine(step)
 
     def _mask_tensor(self, view_idx: int) -> torch.Tensor:
         if view_idx not in self._mask_tensors:

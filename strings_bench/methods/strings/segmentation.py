@@ -85,6 +85,22 @@ def count_mask_hits(xyz: np.ndarray, track_ptr: np.ndarray, track_view: np.ndarr
     return np.bincount(np.concatenate(hit_points), minlength=m).astype(np.int64)
 
 
+def inherited_tracks(track_ptr: np.ndarray, track_view: np.ndarray, point_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(track_ptr, track_view) of a list of rows that each carry the track of SfM point `point_ids[k]`
+    (Gaussians re-localised with their parent point's track, as the release's point_track_ids)."""
+    track_ptr = np.asarray(track_ptr, dtype=np.int64)
+    point_ids = np.asarray(point_ids, dtype=np.int64).reshape(-1)
+    if len(point_ids) and (point_ids.min() < 0 or point_ids.max() >= len(track_ptr) - 1):
+        raise StringsBenchError(f"point ids out of range 0..{len(track_ptr) - 2}")
+    lengths = track_ptr[point_ids + 1] - track_ptr[point_ids]
+    ptr = np.zeros(len(point_ids) + 1, dtype=np.int64)
+    np.cumsum(lengths, out=ptr[1:])
+    # element e of row k is track_view[track_ptr[point_ids[k]] + (e - ptr[k])]
+    row = np.repeat(np.arange(len(point_ids)), lengths)
+    src = track_ptr[point_ids][row] + (np.arange(ptr[-1]) - ptr[row])
+    return ptr, np.asarray(track_view, dtype=np.int64)[src]
+
+
 def segment_text_points_arrays(xyz, track_ptr, track_view, cameras, masks, tau: int = 1) -> TextSegmentation:
     if tau < 0:
         raise StringsBenchError(f"text-point threshold tau must be >= 0, got {tau}", hint="the paper uses tau = 1")
