@@ -194,6 +194,8 @@ def test_registered_names_and_presets():
     assert get_method("strings-pos-lr").build().settings["phase1_position_lr"] == 1.0
     rel = get_method("strings").build("release").settings
     assert rel["gamma"] == 12000 and rel["mask_dilation_px"] == 225 and rel["phase2_schedules"] == "restart"
+    assert rel["eq1_counts"] == "mask_hits" and rel["eq1_range"] == "all" and rel["clamp_render"] is True
+    assert rel["lr_opacity_logits"] == 0.025
     with pytest.raises(Exception, match="unknown setting"):
         StringsMethod(steps_scale=0.002, no_such_setting=1)
     with pytest.raises(Exception, match="no setting.*no_such_setting"):

@@ -194,8 +194,11 @@ def _n_max(dataset: str, value: int, scenes=None) -> dict:
 # CLI default, 15 (methods/strings/densify.py DEFAULT_N_MAX).
 _STRINGS_PRESETS = {
     # The release: gamma 12000 on its phase-2 counter (= the paper's 15000 at T1 = 3000), its script's
-    # 225 px mask dilation (masks shipped dilated, as its datasets' are, are used as they are).
+    # 225 px mask dilation (masks shipped dilated, as its datasets' are, are used as they are), Eq. 1 on
+    # mask hits over all SfM points, the render clamped before the loss, opacity LR 0.025 (docs/strings.md,
+    # "Phase 1 against the release").
     "release": {"gamma": 12000, "gamma_counter": "phase2", "mask_dilation_px": 225.0, "phase2_schedules": "restart",
+                "eq1_counts": "mask_hits", "eq1_range": "all", "clamp_render": True, "lr_opacity_logits": 0.025,
                 "@description": "the authors' release where it differs from the paper"},
     "n-max-strings360": _n_max("strings360", 25),
     "n-max-truck": _n_max("tandt", 20, ["truck"]),
