@@ -46,27 +46,49 @@ def expose_means2d(m2d_gs: torch.Tensor, compute_absgrad: bool) -> tuple[torch.T
     """gsplat's (1, N, 2) projected centres as an (N, 2) leaf whose .grad a hook on `m2d_gs` fills
     during backward, and (with compute_absgrad) an (N, 2) buffer the hook fills from `m2d_gs.absgrad`.
 
-    The hook reaches `m2d_gs` through a weak reference: a closure holding `m2d_gs` itself, stored in
-    `m2d_gs`'s own hooks, is a reference cycle through autograd that Python's collector cannot see,
-    and it kept every step's graph (and its GPU memory) alive. tests/test_raster.py checks that a
-    step's tensors are freed when the step ends.
+    References, so that nothing leaks and nothing is lost:
+    - The hook reaches `m2d_gs`, the leaf and the buffer through weak references: a closure holding
+      `m2d_gs` itself, stored in `m2d_gs`'s own hooks, is a reference cycle through autograd that
+      Python's collector cannot see, and it kept every step's graph (and its GPU memory) alive.
+      tests/test_raster.py checks that a step's tensors are freed when the step ends.
+    - The leaf and the buffer hold `m2d_gs` (attribute `_gsplat_means2d`): gsplat's backward sets
+      `.absgrad` on the Python object that its `ctx.saved_tensors` returns, which is `m2d_gs` only
+      while `m2d_gs` is alive. Without this, `m2d_gs` died with gsplat's `meta` when the backend
+      returned, and absgrad stayed zero (found by tests/test_gsplat_reference.py; no cycle: the
+      hook holds neither strongly).
     """
     n, dt, dev = m2d_gs.shape[1], m2d_gs.dtype, m2d_gs.device
     means2d = m2d_gs.detach()[0].clone().requires_grad_(m2d_gs.requires_grad)
     absgrad = torch.zeros((n, 2), dtype=dt, device=dev) if compute_absgrad else None
     if m2d_gs.requires_grad:
-        source = weakref.ref(m2d_gs)
+        means2d._gsplat_means2d = m2d_gs
+        if absgrad is not None:
+            absgrad._gsplat_means2d = m2d_gs
+        source, leaf_ref = weakref.ref(m2d_gs), weakref.ref(means2d)
+        absgrad_ref = weakref.ref(absgrad) if absgrad is not None else None
 
         def _hook(grad):
-            g = grad[0].detach()
-            means2d.grad = g.clone() if means2d.grad is None else means2d.grad + g
-            src = source()
-            if absgrad is not None and src is not None and getattr(src, "absgrad", None) is not None:
-                absgrad.copy_(src.absgrad[0])
+            leaf = leaf_ref()
+            if leaf is not None:
+                g = grad[0].detach()
+                leaf.grad = g.clone() if leaf.grad is None else leaf.grad + g
+            src, buf = source(), (absgrad_ref() if absgrad_ref is not None else None)
+            if buf is not None and src is not None and getattr(src, "absgrad", None) is not None:
+                buf.copy_(src.absgrad[0])
             return grad
 
         m2d_gs.register_hook(_hook)
     return means2d, absgrad
+
+
+def require_cuda(means: torch.Tensor) -> None:
+    """gsplat's kernels run on CUDA tensors only. (tests/_gsplat_cpu.py replaces this check, together
+    with gsplat's CUDA stages, to run this backend on the CPU in CI.)"""
+    from strings_bench.raster.types import RasterInputError
+
+    if means.device.type != "cuda":
+        raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
+                               hint="move the tensors to a CUDA device, or use backend='cpu'")
 
 
 def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background, mip_filter,
@@ -78,9 +100,7 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, b
     except Exception as exc:
         raise RasterInputError(f"rasterize: backend 'gsplat' requested but gsplat does not import ({exc})",
                                hint="pip install 'strings-bench[cuda]' on a CUDA machine, or use backend='cpu'")
-    if means.device.type != "cuda":
-        raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
-                               hint="move the tensors to a CUDA device, or use backend='cpu'")
+    require_cuda(means)
     dev, dt = means.device, means.dtype
     viewmat = torch.as_tensor(camera.viewmat, dtype=dt, device=dev)[None]
     Ks = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]
