@@ -66,7 +66,7 @@ def _cuda_radii(means, covars, viewmats, Ks, width, height, eps2d, near, far, ra
         keep &= ~((rx <= radius_clip) & (ry <= radius_clip))
         u, v = means2d.unbind(-1)
         keep &= ~((u + rx <= 0) | (u - rx >= width) | (v + ry <= 0) | (v - ry >= height))
-        radii = torch.stack([rx, ry], -1) * keep[..., None]
+        radii = torch.where(keep[..., None], torch.stack([rx, ry], -1), torch.zeros_like(a)[..., None])
     return radii.to(torch.int32), keep
 
 
@@ -77,11 +77,23 @@ def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, he
 
     assert not packed and covars is None and camera_model == "pinhole", "the backend's settings only"
     covars, _ = _quat_scale_to_covar_preci(quats, scales, compute_covar=True, compute_preci=False)
+    # The kernel returns before touching a Gaussian culled by depth (and its backward skips it); the
+    # reference would still project it, and z = 0 gives inf and then NaN gradients through
+    # torch.where. Such rows get a stand-in point 1 unit in front of the camera instead.
+    assert viewmats.shape[0] == 1, "one camera: the backend's call"
+    with torch.no_grad():
+        R, t = viewmats[0, :3, :3], viewmats[0, :3, 3]
+        z = means @ R[2] + t[2]
+        in_depth = (z >= near_plane) & (z <= far_plane)
+        ahead = R.T @ (torch.tensor([0.0, 0.0, 1.0], dtype=means.dtype) - t)
+    means_in = torch.where(in_depth[:, None], means, ahead.expand_as(means))
     _, means2d, depths, conics, compensations = _fully_fused_projection(
-        means, covars, viewmats, Ks, width, height, eps2d=eps2d, near_plane=near_plane, far_plane=far_plane,
+        means_in, covars, viewmats, Ks, width, height, eps2d=eps2d, near_plane=near_plane, far_plane=far_plane,
         calc_compensations=calc_compensations)
-    radii, keep = _cuda_radii(means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane,
+    radii, keep = _cuda_radii(means_in, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane,
                               radius_clip, opacities, compensations)
+    keep &= in_depth
+    radii = radii * keep[..., None]
     # the kernel writes outputs of kept Gaussians only (the buffers start at zero)
     means2d = torch.where(keep[..., None], means2d, torch.zeros_like(means2d))
     depths = torch.where(keep, depths, torch.zeros_like(depths))
