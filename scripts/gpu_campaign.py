@@ -14,8 +14,10 @@ Stages (issue 25's order of value; `list` prints them):
 Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/measurements/gpu/): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
 versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
-whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again). Runs write under
-OUT_DIR/runs/<stage> and resume there, so a stage cut short continues at the next sitting.
+whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
+short, the steps already banked ok are skipped at the next sitting (gsplat's compilation and scene
+builds excepted: a sitting starts on a fresh machine). Runs train under RUNS/<stage> (--runs, default
+OUT_DIR/runs) and resume there while the machine is the same.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
 the GPU column "cpu (dry run)"; tests/test_gpu_campaign.py runs it in CI.
@@ -62,9 +64,27 @@ def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "-", text).strip("-").lower() or "none"
 
 
+# Steps that a later sitting does again even when an earlier one banked them: each sitting starts on a
+# fresh machine, where gsplat compiles and scenes build anew.
+ALWAYS = ("versions", "compile")
+
+
+def banked_steps(out: Path, stage: str, dry_run: bool) -> dict[str, str]:
+    """{step: file} of the steps of `stage` that a CSV in `out` records as ok (same dry-run flag)."""
+    done = {}
+    for path in sorted(out.glob(f"*_{stage}_*.csv")):
+        with open(path, newline="") as fh:
+            for row in csv.DictReader(fh):
+                if row.get("status") == "ok" and row.get("dry_run") == str(dry_run).lower() and "step" in row:
+                    done[row["step"]] = path.name
+    return done
+
+
 class Sitting:
-    def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float):
+    def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None):
         self.out, self.stage, self.dry_run = out, stage, dry_run
+        self.runs = runs or out / "runs"
+        self.done = banked_steps(out, stage, dry_run)
         self.t0, self.budget_s = time.monotonic(), budget_s
         self.v = versions(dry_run)
         self.date = dt.date.today().isoformat()
@@ -78,7 +98,12 @@ class Sitting:
         return self.budget_s - (time.monotonic() - self.t0)
 
     def step(self, name: str, argv: list[str], limit_s: float, env: dict | None = None) -> str:
-        """Run one step (its own process group), at most `limit_s` and never past the stage's budget."""
+        """Run one step (its own process group), at most `limit_s` and never past the stage's budget.
+        A step an earlier sitting banked as ok is not run again (except ALWAYS and scene builds)."""
+        if name in self.done and name not in ALWAYS and not name.startswith("build_"):
+            self.record(name, "ok", 0.0, f"banked in {self.done[name]}")
+            print(f"== {self.stage}/{name}: banked in {self.done[name]}; skipped", flush=True)
+            return "ok"
         limit = max(0.1, min(limit_s, self.left()))
         log = self.out / "logs" / f"{self.stage}_{name}.log"
         t = time.monotonic()
@@ -151,7 +176,7 @@ class Sitting:
         return where.read_text().strip() if status == "ok" and where.exists() else None
 
     def run(self, name: str, methods: str, scene: str, checkpoints: str, limit_s: float, extra=()) -> None:
-        run_dir = self.out / "runs" / self.stage
+        run_dir = self.runs / self.stage
         schedule = ["--schedule", "tiny"] if self.dry_run else ["--schedule", "paper"]
         argv = [self.py, "-m", "strings_bench", "run", "--device", self.device, "--methods", methods,
                 "--datasets", scene, *schedule, "--checkpoints", checkpoints, "--out", str(run_dir),
@@ -258,6 +283,9 @@ def main(argv=None) -> int:
     ap.add_argument("--dry-run", action="store_true", help="on the CPU at a tiny size (CI)")
     ap.add_argument("--force", action="store_true", help="run a banked stage again")
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
+    ap.add_argument("--runs", type=Path, default=None,
+                    help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
+                         "docs/measurements/gpu)")
     args = ap.parse_args(argv)
     if args.stage == "list":
         print("\n".join(STAGES))
@@ -275,7 +303,7 @@ def main(argv=None) -> int:
             print("gpu_campaign: torch sees no CUDA device (use --dry-run to check the script on the CPU)",
                   file=sys.stderr)
             return 2
-    s = Sitting(out, args.stage, args.dry_run, args.budget)
+    s = Sitting(out, args.stage, args.dry_run, args.budget, args.runs)
     STAGES[args.stage](s)
     bad = [r for r in s.rows if r["status"] != "ok"]
     print(f"{args.stage}: {len(s.rows) - len(bad)}/{len(s.rows)} steps ok in {time.monotonic() - s.t0:.0f} s; "

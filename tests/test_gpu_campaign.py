@@ -93,3 +93,21 @@ def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
     (steps_csv,) = (tmp_path / "empty").glob("*_cal30k_*.csv")
     (row,) = rows(steps_csv)
     assert row["step"] == "choose_setting" and row["status"] == "failed" and "cal7k" in row["detail"]
+
+
+def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
+    out = tmp_path / "gpu"
+    out.mkdir()
+    mod = _module()
+    earlier = [{"date": "2026-12-01", "stage": "verify", "step": step, "status": status, "seconds": "1",
+                "detail": "", "dry_run": "true"} for step, status in
+               (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark", "ok"), ("paper_run", "partial"))]
+    mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
+    done = campaign("--dry-run", "--budget", "10", out, "verify", timeout=120)
+    assert done.returncode == 1  # the run is still cut by the budget
+    (today,) = [p for p in out.glob("*_verify_*.csv") if not p.name.startswith("2026-12-01")]
+    steps = {r["step"]: r for r in rows(today)}
+    assert steps["compile"]["detail"] != "" and "banked" not in steps["compile"]["detail"]  # a fresh machine compiles
+    for name in ("pytest_gpu", "benchmark"):
+        assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith("banked in 2026-12-01"), steps[name]
+    assert "partial" in {r["status"] for r in steps.values()}
