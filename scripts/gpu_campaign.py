@@ -17,7 +17,7 @@ versions and GPU name; a run's results.csv is copied beside it with the same col
 whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
 short, the steps already banked ok are skipped at the next sitting (gsplat's compilation and scene
 builds excepted: a sitting starts on a fresh machine). Runs train under RUNS/<stage> (--runs, default
-OUT_DIR/runs) and resume there while the machine is the same.
+OUT_DIR/runs) and resume there while the machine is the same; each step's log is RUNS/logs/<stage>_<step>.log.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
 the GPU column "cpu (dry run)"; tests/test_gpu_campaign.py runs it in CI.
@@ -105,7 +105,7 @@ class Sitting:
             print(f"== {self.stage}/{name}: banked in {self.done[name]}; skipped", flush=True)
             return "ok"
         limit = max(0.1, min(limit_s, self.left()))
-        log = self.out / "logs" / f"{self.stage}_{name}.log"
+        log = self.runs / "logs" / f"{self.stage}_{name}.log"
         t = time.monotonic()
         print(f"== {self.stage}/{name} (at most {limit:.0f} s): {' '.join(argv)}", flush=True)
         with open(log, "w") as fh:
@@ -171,7 +171,7 @@ class Sitting:
                 f"s = replace(default_settings({scene!r}), **json.loads(sys.argv[1]))\n"
                 f"p = build_scene({scene!r}, s, progress=False)\n"
                 "open(sys.argv[2], 'w').write(str(p))\n")
-        where = self.out / "logs" / f"{self.stage}_scene_{scene}.path"
+        where = self.runs / "logs" / f"{self.stage}_scene_{scene}.path"
         status = self.step(f"build_{scene}", [self.py, "-c", code, json.dumps(settings), str(where)], 300)
         return where.read_text().strip() if status == "ok" and where.exists() else None
 

@@ -1,7 +1,8 @@
 """gsplat backend (CUDA): the same interface on top of gsplat.rasterization (gsplat >= 1.4).
 
-Written against gsplat's documented API and NOT run in this project's CPU-only CI (no GPU here);
-tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
+Not run on a GPU by this version yet. CI runs this code on the CPU with gsplat's CUDA stages routed to
+gsplat's PyTorch reference functions (tests/test_gsplat_reference.py, docs/gpu.md "The CUDA path on
+the CPU"); tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
 
 Mapping: scales = exp(log_scales); opacities = sigmoid(logits); colours are evaluated by our own SH
 code (sh.py) and passed as plain RGB (sh_degree=None) so both backends share one colour rule;
@@ -10,9 +11,10 @@ composited here (color + (1 - alpha) bg). mip_filter -> rasterize_mode="antialia
 (gsplat's compensation sqrt(det Sigma / det(Sigma + eps2d I)) is the Mip-Splatting 2D filter);
 otherwise eps2d=0.3 (3DGS dilation). packed=False.
 
-Differences from the CPU backend (see docs/raster.md): gsplat lets a Gaussian touch every pixel of
-the tiles its radius overlaps (the CPU backend only pixels in its radius box), keeps Gaussians exactly
-on the near plane, and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):
+Differences from the CPU backend (see docs/raster.md; measured in docs/gpu.md): gsplat lets a Gaussian
+touch every pixel of the tiles its opacity-aware radius overlaps, i.e. wherever its alpha >= 1/255 (the
+CPU backend only pixels in its 3-sigma box), keeps Gaussians exactly on the near plane (culls z < near),
+and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):
 - the forward clamps alpha at 0.999 in the releases v1.3.0 - v1.5.3 (`min(0.999f, opac * vis)`), at
   0.99 (`MAX_ALPHA`) on its main branch since commit c5ff586b (2026-02-04, not in a release tag);
 - the backward computes dL/dalpha with the clamped alpha, as 3DGS, but adds the conic, means2d
