@@ -92,7 +92,7 @@ class Sitting:
         self.rows: list[dict] = []
         self.py = sys.executable
         self.device = "cpu" if dry_run else "cuda"
-        (out / "logs").mkdir(parents=True, exist_ok=True)
+        (self.runs / "logs").mkdir(parents=True, exist_ok=True)
 
     def left(self) -> float:
         return self.budget_s - (time.monotonic() - self.t0)

@@ -82,6 +82,15 @@ def test_without_cuda_the_real_campaign_refuses(tmp_path):
     assert campaign(tmp_path, "list", timeout=60).stdout.split() == list(_module().STAGES)
 
 
+def test_dry_run_of_a_calibration_point_banks_its_run(tmp_path):
+    out = tmp_path / "gpu"
+    done = campaign("--dry-run", out, "cal7k-rs2", timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert [r["step"] for r in rows(next(out.glob("*_cal7k-rs2_cpu-dry-run.csv")))] == ["versions", "build_storeroom", "run"]
+    (run,) = rows(next(out.glob("*_cal7k-rs2_run_cpu-dry-run.csv")))
+    assert run["method"] == "3dgs" and run["iteration"] == "35" and run["label"] == "7K"
+
+
 def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
     mod = _module()
     for rs, cer in (("1.5", "0.95"), ("2", "0.70")):
