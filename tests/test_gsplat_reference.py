@@ -87,6 +87,16 @@ def _zero_quats():
     return params
 
 
+def _stacked():
+    """Six wide splats of opacity 0.95 (no clamp) stacked in depth over a small image: T = 0.05^k, so
+    every pixel stops before the fourth (T would reach 6e-6 <= 1e-4) on both paths."""
+    params = random_scene(n=6, seed=16)
+    params[0] = torch.tensor([[0.02 * i, -0.01 * i, 2.0 + 0.3 * i] for i in range(6)])
+    params[2] = torch.log(torch.full((6, 3), 3.0))
+    params[3] = torch.full((6,), math.log(0.95 / 0.05))
+    return params, make_camera(W=12, H=10), {}
+
+
 AGREE = {
     **{f"sh{d}": lambda d=d: (low(random_scene(seed=10 + d, deg=d)), make_camera(), {}) for d in range(4)},
     "sh1_restricted_to_0": lambda: (low(random_scene(seed=4, deg=1)), make_camera(), dict(sh_degree=0)),
@@ -103,12 +113,20 @@ AGREE = {
     "one_covering": lambda: ([torch.tensor([[0.0, 0.0, 2.0]]), *random_scene(n=1, seed=15)[1:2],
                               torch.log(torch.tensor([[3.0, 2.0, 4.0]])), torch.tensor([4.0]),
                               *random_scene(n=1, seed=15)[4:]], make_camera(), {}),
+    "stacked_to_the_transmittance_stop": lambda: _stacked(),
     "behind_camera": lambda: (_with(low(random_scene(n=4, seed=13)), 0, torch.tensor(
         [[0.0, 0.0, -2.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.02], [0.0, 0.0, 3.0]])), make_camera(), {}),
     "invisible_logit_-30": lambda: (_with(random_scene(n=30, seed=12), 3, torch.full((30,), -30.0)), make_camera(), {}),
     "empty": lambda: ([torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 16, 3),
                        torch.tensor([0.2, 0.4, 0.6])], make_camera(), {}),
 }
+
+
+# Left out, with why: quats' gradient of isotropic Gaussians is truly 0 (rounding noise only). The
+# background's weight at alpha = 0.99975 is 1 - alpha in float32 on both backends (the CPU one too,
+# though its T is float64 inside): cancellation, measured 8.6e-5 relative against gsplat's float64
+# path (2.5e-5 for gsplat's float32). The background is not trained in the suite.
+SKIP = {"tiny_scales": ("grad_quats",), "stacked_to_the_transmittance_stop": ("grad_quats", "grad_background")}
 
 
 @pytest.mark.parametrize("case", list(AGREE))
@@ -121,7 +139,7 @@ def test_gsplat_path_matches_cpu_where_conventions_agree(case):
     g32, g32_leaves = render(params, cam, "gsplat", **kw)
     g64, g64_leaves = render(params, cam, "gsplat", torch.float64, **kw)
     assert_no_cuda_backend()
-    skip = {"grad_quats"} if case in ("tiny_scales",) else set()  # true value 0: rounding noise only
+    skip = set(SKIP.get(case, ()))
     for label, errs in (("gsplat f32 vs cpu", errors(g32, g32_leaves, cpu, cpu_leaves)),
                         ("gsplat f64 vs cpu", errors(g64, g64_leaves, cpu, cpu_leaves)),
                         ("gsplat f32 vs f64", errors(g32, g32_leaves, g64, g64_leaves))):
