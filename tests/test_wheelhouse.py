@@ -136,3 +136,24 @@ def test_wheelhouse_names_what_cannot_be_found(tmp_path, index):
     proc = run_script(tmp_path / "wheels", index, pyproject)
     assert proc.returncode == 1
     assert "NOT FOUND: nowhere>=1" in proc.stdout
+
+
+def test_wheelhouse_skips_what_the_node_has_and_splits_into_parts(tmp_path, index):
+    """--skip leaves out a distribution the node has and what only it needs (gamma, alpha's dependency);
+    --no-weights the LPIPS carriers; --split puts the files into parts of at most the given size."""
+    with zipfile.ZipFile(make_wheel(index, "epsilon", "1.0"), "a") as zf:
+        zf.writestr("epsilon/data.bin", os.urandom(300_000))  # ~0.3 MiB (stored): a part of its own
+    pyproject = write_pyproject(tmp_path, ["alpha>=1", "epsilon"], ["beta"])
+    out = tmp_path / "wheels"
+    proc = subprocess.run(
+        [sys.executable, str(SCRIPT), str(out), "--python", "3.12", "--pyproject", str(pyproject),
+         "--pip-arg=--no-index", f"--pip-arg=--find-links={index}", "--pip-arg=--no-build-isolation",
+         "--skip", "Alpha", "--no-weights", "--split", "0.2"], capture_output=True, text=True, timeout=300,
+        env=NO_PIP_CONFIG)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    files = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()}
+    names = {f.split("/")[-1] for f in files}
+    assert names == {"epsilon-1.0-py3-none-any.whl", "beta-1.0.tar.gz"}, names
+    assert all(f.startswith("part") for f in files)
+    assert len({f.split("/")[0] for f in files}) == 2  # epsilon (> 0.2 MiB) alone, beta in the second part
+    assert "skip   alpha  (on the node)" in proc.stdout

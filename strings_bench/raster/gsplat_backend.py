@@ -1,7 +1,8 @@
 """gsplat backend (CUDA): the same interface on top of gsplat.rasterization (gsplat >= 1.4).
 
-Written against gsplat's documented API and NOT run in this project's CPU-only CI (no GPU here);
-tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
+Not run on a GPU by this version yet. CI runs this code on the CPU with gsplat's CUDA stages routed to
+gsplat's PyTorch reference functions (tests/test_gsplat_reference.py, docs/gpu.md "The CUDA path on
+the CPU"); tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
 
 Mapping: scales = exp(log_scales); opacities = sigmoid(logits); colours are evaluated by our own SH
 code (sh.py) and passed as plain RGB (sh_degree=None) so both backends share one colour rule;
@@ -10,9 +11,10 @@ composited here (color + (1 - alpha) bg). mip_filter -> rasterize_mode="antialia
 (gsplat's compensation sqrt(det Sigma / det(Sigma + eps2d I)) is the Mip-Splatting 2D filter);
 otherwise eps2d=0.3 (3DGS dilation). packed=False.
 
-Differences from the CPU backend (see docs/raster.md): gsplat lets a Gaussian touch every pixel of
-the tiles its radius overlaps (the CPU backend only pixels in its radius box), keeps Gaussians exactly
-on the near plane, and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):
+Differences from the CPU backend (see docs/raster.md; measured in docs/gpu.md): gsplat lets a Gaussian
+touch every pixel of the tiles its opacity-aware radius overlaps, i.e. wherever its alpha >= 1/255 (the
+CPU backend only pixels in its 3-sigma box), keeps Gaussians exactly on the near plane (culls z < near),
+and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):
 - the forward clamps alpha at 0.999 in the releases v1.3.0 - v1.5.3 (`min(0.999f, opac * vis)`), at
   0.99 (`MAX_ALPHA`) on its main branch since commit c5ff586b (2026-02-04, not in a release tag);
 - the backward computes dL/dalpha with the clamped alpha, as 3DGS, but adds the conic, means2d
@@ -46,27 +48,49 @@ def expose_means2d(m2d_gs: torch.Tensor, compute_absgrad: bool) -> tuple[torch.T
     """gsplat's (1, N, 2) projected centres as an (N, 2) leaf whose .grad a hook on `m2d_gs` fills
     during backward, and (with compute_absgrad) an (N, 2) buffer the hook fills from `m2d_gs.absgrad`.
 
-    The hook reaches `m2d_gs` through a weak reference: a closure holding `m2d_gs` itself, stored in
-    `m2d_gs`'s own hooks, is a reference cycle through autograd that Python's collector cannot see,
-    and it kept every step's graph (and its GPU memory) alive. tests/test_raster.py checks that a
-    step's tensors are freed when the step ends.
+    References, so that nothing leaks and nothing is lost:
+    - The hook reaches `m2d_gs`, the leaf and the buffer through weak references: a closure holding
+      `m2d_gs` itself, stored in `m2d_gs`'s own hooks, is a reference cycle through autograd that
+      Python's collector cannot see, and it kept every step's graph (and its GPU memory) alive.
+      tests/test_raster.py checks that a step's tensors are freed when the step ends.
+    - The leaf and the buffer hold `m2d_gs` (attribute `_gsplat_means2d`): gsplat's backward sets
+      `.absgrad` on the Python object that its `ctx.saved_tensors` returns, which is `m2d_gs` only
+      while `m2d_gs` is alive. Without this, `m2d_gs` died with gsplat's `meta` when the backend
+      returned, and absgrad stayed zero (found by tests/test_gsplat_reference.py; no cycle: the
+      hook holds neither strongly).
     """
     n, dt, dev = m2d_gs.shape[1], m2d_gs.dtype, m2d_gs.device
     means2d = m2d_gs.detach()[0].clone().requires_grad_(m2d_gs.requires_grad)
     absgrad = torch.zeros((n, 2), dtype=dt, device=dev) if compute_absgrad else None
     if m2d_gs.requires_grad:
-        source = weakref.ref(m2d_gs)
+        means2d._gsplat_means2d = m2d_gs
+        if absgrad is not None:
+            absgrad._gsplat_means2d = m2d_gs
+        source, leaf_ref = weakref.ref(m2d_gs), weakref.ref(means2d)
+        absgrad_ref = weakref.ref(absgrad) if absgrad is not None else None
 
         def _hook(grad):
-            g = grad[0].detach()
-            means2d.grad = g.clone() if means2d.grad is None else means2d.grad + g
-            src = source()
-            if absgrad is not None and src is not None and getattr(src, "absgrad", None) is not None:
-                absgrad.copy_(src.absgrad[0])
+            leaf = leaf_ref()
+            if leaf is not None:
+                g = grad[0].detach()
+                leaf.grad = g.clone() if leaf.grad is None else leaf.grad + g
+            src, buf = source(), (absgrad_ref() if absgrad_ref is not None else None)
+            if buf is not None and src is not None and getattr(src, "absgrad", None) is not None:
+                buf.copy_(src.absgrad[0])
             return grad
 
         m2d_gs.register_hook(_hook)
     return means2d, absgrad
+
+
+def require_cuda(means: torch.Tensor) -> None:
+    """gsplat's kernels run on CUDA tensors only. (tests/_gsplat_cpu.py replaces this check, together
+    with gsplat's CUDA stages, to run this backend on the CPU in CI.)"""
+    from strings_bench.raster.types import RasterInputError
+
+    if means.device.type != "cuda":
+        raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
+                               hint="move the tensors to a CUDA device, or use backend='cpu'")
 
 
 def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background, mip_filter,
@@ -78,9 +102,7 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, b
     except Exception as exc:
         raise RasterInputError(f"rasterize: backend 'gsplat' requested but gsplat does not import ({exc})",
                                hint="pip install 'strings-bench[cuda]' on a CUDA machine, or use backend='cpu'")
-    if means.device.type != "cuda":
-        raise RasterInputError(f"rasterize: backend 'gsplat' needs CUDA tensors, got {means.device}",
-                               hint="move the tensors to a CUDA device, or use backend='cpu'")
+    require_cuda(means)
     dev, dt = means.device, means.dtype
     viewmat = torch.as_tensor(camera.viewmat, dtype=dt, device=dev)[None]
     Ks = torch.as_tensor(camera.K, dtype=dt, device=dev)[None]

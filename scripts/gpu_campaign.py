@@ -1,0 +1,315 @@
+"""The GPU campaign in sittings of at most ~8 minutes (docs/gpu.md, "Running a sitting").
+
+    bash scripts/gpu_campaign.sh [--dry-run] [--force] [--budget S] OUT_DIR STAGE
+
+Stages (issue 25's order of value; `list` prints them):
+  verify         versions, gsplat's first-use compilation (timed), pytest -m gpu, benchmarks/gpu.py
+                 (3dgs, strings), and strings + 3dgs on synthetic/books at 1280x960 to 7K (paper schedule,
+                 checkpoints 3K and 7K) with the peak GPU memory of each cell;
+  cal7k-rs1.5    3DGS on synthetic360/storeroom built at 1280x960 with 100 views, room_scale 1.5, the
+  cal7k-rs2      card's photometric settings, to 7K (room_scale 2 for the second point);
+  cal30k         3DGS to 30K on the banked 7K point closest to the paper's 3DGS OCR-CER (0.736);
+  strings-frozen STRinGS to 7K and 30K on that setting.
+
+Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/measurements/gpu/): one row
+per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
+versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
+whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
+short, the steps already banked ok are skipped at the next sitting (gsplat's compilation and scene
+builds excepted: a sitting starts on a fresh machine). Runs train under RUNS/<stage> (--runs, default
+OUT_DIR/runs) and resume there while the machine is the same; each step's log is RUNS/logs/<stage>_<step>.log.
+
+--dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
+the GPU column "cpu (dry run)"; tests/test_gpu_campaign.py runs it in CI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime as dt
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER_3DGS_CER_7K = 0.736  # the paper's 3DGS row (issue 25)
+STEP_COLUMNS = ["date", "stage", "step", "status", "seconds", "detail", "gpu", "torch", "cuda", "gsplat", "python",
+                "dry_run"]
+
+
+def versions(dry_run: bool) -> dict:
+    import platform
+
+    import torch
+
+    try:
+        from importlib.metadata import version
+        gs = version("gsplat")
+    except Exception:  # noqa: BLE001 - not installed
+        gs = "none"
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none"
+    if dry_run:
+        gpu = "cpu (dry run)"
+    return {"gpu": gpu, "torch": torch.__version__, "cuda": str(torch.version.cuda), "gsplat": gs,
+            "python": platform.python_version(), "dry_run": str(dry_run).lower()}
+
+
+def slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "-", text).strip("-").lower() or "none"
+
+
+# Steps that a later sitting does again even when an earlier one banked them: each sitting starts on a
+# fresh machine, where gsplat compiles and scenes build anew.
+ALWAYS = ("versions", "compile")
+
+
+def banked_steps(out: Path, stage: str, dry_run: bool) -> dict[str, str]:
+    """{step: file} of the steps of `stage` that a CSV in `out` records as ok (same dry-run flag)."""
+    done = {}
+    for path in sorted(out.glob(f"*_{stage}_*.csv")):
+        with open(path, newline="") as fh:
+            for row in csv.DictReader(fh):
+                if row.get("status") == "ok" and row.get("dry_run") == str(dry_run).lower() and "step" in row:
+                    done[row["step"]] = path.name
+    return done
+
+
+class Sitting:
+    def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None):
+        self.out, self.stage, self.dry_run = out, stage, dry_run
+        self.runs = runs or out / "runs"
+        self.done = banked_steps(out, stage, dry_run)
+        self.t0, self.budget_s = time.monotonic(), budget_s
+        self.v = versions(dry_run)
+        self.date = dt.date.today().isoformat()
+        self.csv = out / f"{self.date}_{stage}_{slug(self.v['gpu'])}.csv"
+        self.rows: list[dict] = []
+        self.py = sys.executable
+        self.device = "cpu" if dry_run else "cuda"
+        (self.runs / "logs").mkdir(parents=True, exist_ok=True)
+
+    def left(self) -> float:
+        return self.budget_s - (time.monotonic() - self.t0)
+
+    def step(self, name: str, argv: list[str], limit_s: float, env: dict | None = None) -> str:
+        """Run one step (its own process group), at most `limit_s` and never past the stage's budget.
+        A step an earlier sitting banked as ok is not run again (except ALWAYS and scene builds)."""
+        if name in self.done and name not in ALWAYS and not name.startswith("build_"):
+            self.record(name, "ok", 0.0, f"banked in {self.done[name]}")
+            print(f"== {self.stage}/{name}: banked in {self.done[name]}; skipped", flush=True)
+            return "ok"
+        limit = max(0.1, min(limit_s, self.left()))
+        log = self.runs / "logs" / f"{self.stage}_{name}.log"
+        t = time.monotonic()
+        print(f"== {self.stage}/{name} (at most {limit:.0f} s): {' '.join(argv)}", flush=True)
+        with open(log, "w") as fh:
+            proc = subprocess.Popen(argv, cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True,
+                                    env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
+            try:
+                rc = proc.wait(timeout=limit)
+                status = "ok" if rc == 0 else f"failed rc={rc}"
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGTERM)
+                try:
+                    proc.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                status = "partial"
+        seconds = time.monotonic() - t
+        tail = log.read_text(errors="replace").strip().splitlines()[-1:] or [""]
+        self.record(name, status, seconds, tail[0][:200])
+        print(f"== {self.stage}/{name}: {status} in {seconds:.0f} s (log {log})", flush=True)
+        return status
+
+    def record(self, name: str, status: str, seconds: float, detail: str = "") -> None:
+        self.rows.append({"date": self.date, "stage": self.stage, "step": name, "status": status,
+                          "seconds": f"{seconds:.1f}", "detail": detail, **self.v})
+        self.write(self.csv, STEP_COLUMNS, self.rows)
+
+    def bank_results(self, run_dir: Path, name: str) -> None:
+        """Copy a run's results.csv next to the steps CSV, versions added (partial rows as they are)."""
+        src = run_dir / "results.csv"
+        if not src.exists():
+            return
+        with open(src, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        if not rows:
+            return
+        cols = list(rows[0]) + [c for c in ("gpu", "torch", "cuda", "gsplat", "python", "dry_run") if c not in rows[0]]
+        for r in rows:
+            r.update({k: self.v[k] for k in ("gpu", "torch", "cuda", "gsplat", "python", "dry_run")})
+        self.write(self.out / f"{self.date}_{self.stage}_{name}_{slug(self.v['gpu'])}.csv", cols, rows)
+
+    @staticmethod
+    def write(path: Path, cols: list[str], rows: list[dict]) -> None:
+        tmp = path.with_suffix(".csv.tmp")
+        with open(tmp, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+        os.replace(tmp, path)  # atomic: a sitting cut anywhere leaves a whole file
+
+    # ---- shared pieces ----------------------------------------------------------------------------
+    def size(self) -> tuple[int, int]:
+        return (64, 48) if self.dry_run else (1280, 960)
+
+    def build(self, scene: str, **settings) -> str | None:
+        """Build (or find in the cache) a synthetic scene as a step; returns its path."""
+        w, h = self.size()
+        settings = {"width": w, "height": h, **settings}
+        if self.dry_run and "n_views" in settings:
+            settings["n_views"] = 8
+        code = ("import json, sys\nfrom strings_bench.datasets.synthetic import build_scene, default_settings\n"
+                "from dataclasses import replace\n"
+                f"s = replace(default_settings({scene!r}), **json.loads(sys.argv[1]))\n"
+                f"p = build_scene({scene!r}, s, progress=False)\n"
+                "open(sys.argv[2], 'w').write(str(p))\n")
+        where = self.runs / "logs" / f"{self.stage}_scene_{scene}.path"
+        status = self.step(f"build_{scene}", [self.py, "-c", code, json.dumps(settings), str(where)], 300)
+        return where.read_text().strip() if status == "ok" and where.exists() else None
+
+    def run(self, name: str, methods: str, scene: str, checkpoints: str, limit_s: float, extra=()) -> None:
+        run_dir = self.runs / self.stage
+        schedule = ["--schedule", "tiny"] if self.dry_run else ["--schedule", "paper"]
+        argv = [self.py, "-m", "strings_bench", "run", "--device", self.device, "--methods", methods,
+                "--datasets", scene, *schedule, "--checkpoints", checkpoints, "--out", str(run_dir),
+                "--no-progress", "--save-every", "2", *extra]
+        if self.dry_run:
+            argv.append("--no-lpips")
+        self.step(name, argv, limit_s)
+        self.bank_results(run_dir, name)
+
+
+# ---- stages ----------------------------------------------------------------------------------------
+
+def stage_verify(s: Sitting) -> None:
+    s.record("versions", "ok", 0.0, json.dumps(s.v))
+    if s.dry_run:
+        compile_code = "import gsplat, strings_bench.raster.gsplat_backend; print('import only (dry run)')"
+    else:
+        compile_code = (
+            "import time, torch\nt0 = time.perf_counter()\nimport gsplat\n"
+            "d = 'cuda'\nmeans = torch.tensor([[0.0, 0.0, 3.0]], device=d)\n"
+            "K = torch.tensor([[[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]], device=d)\n"
+            "gsplat.rasterization(means, torch.tensor([[1.0, 0, 0, 0]], device=d), torch.full((1, 3), 0.1, device=d),"
+            " torch.ones(1, device=d), torch.ones(1, 3, device=d), torch.eye(4, device=d)[None], K, 64, 48)\n"
+            "torch.cuda.synchronize()\nprint(f'gsplat first use (compilation included): {time.perf_counter() - t0:.0f} s')\n")
+    env = {} if s.dry_run else {"TORCH_CUDA_ARCH_LIST": os.environ.get("TORCH_CUDA_ARCH_LIST", "9.0"),
+                                "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
+    if s.step("compile", [s.py, "-c", compile_code], 180, env) != "ok":
+        return  # nothing else can run without gsplat
+    s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_gpu.py",
+                          "tests/test_raster.py"], 150)
+    # dry run: one method, one evaluation (OCR of the renders is most of a CPU check's time)
+    bench = [s.py, "benchmarks/gpu.py"]
+    bench += (["--methods", "3dgs", "--device", "cpu", "--sizes", "64x48", "--steps", "2", "--no-lpips"] if s.dry_run
+              else ["--methods", "3dgs,strings", "--sizes", "320x240,1280x960", "--steps", "200", "--cpu-steps", "3"])
+    s.step("benchmark", bench, 120)
+    scene = s.build("books")
+    if scene:
+        s.run("paper_run", "strings,3dgs", scene, "7000" if s.dry_run else "3000,7000", s.left())
+
+
+def _cal7k(room_scale: float):
+    def stage(s: Sitting) -> None:
+        s.record("versions", "ok", 0.0, json.dumps(s.v))
+        scene = s.build("storeroom", n_views=100, room_scale=room_scale)
+        if scene:
+            s.run("run", "3dgs", scene, "7000", s.left())
+    return stage
+
+
+def _banked_7k(out: Path) -> list[tuple[float, float]]:
+    """(|CER - 0.736|, room_scale) of each banked 7K calibration point with an OCR-CER."""
+    points = []
+    for path in out.glob("*_cal7k-rs*_run_*.csv"):
+        rs = float(re.search(r"cal7k-rs([0-9.]+?)_run", path.name).group(1))
+        with open(path, newline="") as fh:
+            for row in csv.DictReader(fh):
+                cer = row.get("ocr_cer") or row.get("cer")
+                if cer not in (None, "", "nan"):
+                    points.append((abs(float(cer) - PAPER_3DGS_CER_7K), rs))
+    return sorted(points)
+
+
+def _frozen(s: Sitting) -> float | None:
+    points = _banked_7k(s.out)
+    if not points:
+        s.record("choose_setting", "failed", 0.0, "no banked 7K calibration point with an OCR-CER: run cal7k-* first")
+        return None
+    s.record("choose_setting", "ok", 0.0, f"room_scale {points[0][1]} (|CER - {PAPER_3DGS_CER_7K}| = {points[0][0]:.3f})")
+    return points[0][1]
+
+
+def stage_cal30k(s: Sitting) -> None:
+    rs = _frozen(s)
+    scene = s.build("storeroom", n_views=100, room_scale=rs) if rs else None
+    if scene:
+        s.run("run", "3dgs", scene, "7000,30000", s.left())
+
+
+def stage_strings_frozen(s: Sitting) -> None:
+    rs = _frozen(s)
+    scene = s.build("storeroom", n_views=100, room_scale=rs) if rs else None
+    if scene:
+        s.run("run", "strings", scene, "7000,30000", s.left())
+
+
+STAGES = {"verify": stage_verify, "cal7k-rs1.5": _cal7k(1.5), "cal7k-rs2": _cal7k(2.0), "cal30k": stage_cal30k,
+          "strings-frozen": stage_strings_frozen}
+
+
+def banked(out: Path, stage: str, dry_run: bool) -> Path | None:
+    for path in sorted(out.glob(f"*_{stage}_*.csv")):
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        if rows and "status" in rows[0] and rows[0].get("dry_run") == str(dry_run).lower() \
+                and all(r["status"] == "ok" for r in rows):
+            return path
+    return None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out", metavar="OUT_DIR")
+    ap.add_argument("stage", choices=[*STAGES, "list"])
+    ap.add_argument("--dry-run", action="store_true", help="on the CPU at a tiny size (CI)")
+    ap.add_argument("--force", action="store_true", help="run a banked stage again")
+    ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
+    ap.add_argument("--runs", type=Path, default=None,
+                    help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
+                         "docs/measurements/gpu)")
+    args = ap.parse_args(argv)
+    if args.stage == "list":
+        print("\n".join(STAGES))
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    done = banked(out, args.stage, args.dry_run)
+    if done and not args.force:
+        print(f"{args.stage}: banked in {done}; skipped (--force to run it again)")
+        return 0
+    if not args.dry_run:
+        import torch
+
+        if not torch.cuda.is_available():
+            print("gpu_campaign: torch sees no CUDA device (use --dry-run to check the script on the CPU)",
+                  file=sys.stderr)
+            return 2
+    s = Sitting(out, args.stage, args.dry_run, args.budget, args.runs)
+    STAGES[args.stage](s)
+    bad = [r for r in s.rows if r["status"] != "ok"]
+    print(f"{args.stage}: {len(s.rows) - len(bad)}/{len(s.rows)} steps ok in {time.monotonic() - s.t0:.0f} s; "
+          f"{s.csv}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,122 @@
+"""scripts/gpu_campaign.sh before a GPU ever runs it: the whole `verify` stage in --dry-run (every step
+on the CPU at 64x48: the same commands, tiny sizes), banking, skipping what is banked, the stage's time
+budget (a step cut short is `partial` and the stage is not banked), and the choice of the 30K setting.
+
+The dry run takes ~70 s on a loaded 2-core machine (most of it OCR of the renders, as in a real run)."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPT = ROOT / "scripts" / "gpu_campaign.sh"
+
+
+def campaign(*args, timeout=600):
+    env = {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, timeout=timeout,
+                          env=env)
+
+
+def rows(path: Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("gpu_campaign", ROOT / "scripts" / "gpu_campaign.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_dry_run_of_verify_banks_every_step_then_skips(tmp_path):
+    out = tmp_path / "gpu"
+    done = campaign("--dry-run", out, "verify")
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    (steps_csv,) = out.glob("*_verify_cpu-dry-run.csv")
+    steps = rows(steps_csv)
+    assert [r["step"] for r in steps] == ["versions", "compile", "pytest_gpu", "benchmark", "build_books", "paper_run"]
+    assert all(r["status"] == "ok" for r in steps), steps
+    import torch
+
+    assert {(r["gpu"], r["torch"], r["dry_run"]) for r in steps} == {("cpu (dry run)", torch.__version__, "true")}
+    assert steps[0]["gsplat"] not in ("", "none")
+    assert "skipped" in steps[2]["detail"]  # pytest -m gpu ran and skipped ("no CUDA")
+    (results_csv,) = out.glob("*_verify_paper_run_cpu-dry-run.csv")
+    results = rows(results_csv)
+    assert sorted(r["method"] for r in results) == ["3dgs", "strings"]
+    assert all(float(r["peak_memory_mb"]) > 0 and r["gpu"] == "cpu (dry run)" for r in results)
+    assert all(r["iteration"] == "35" for r in results)  # 7K on the tiny schedule (x0.005)
+    before = steps_csv.read_bytes()
+    again = campaign("--dry-run", out, "verify", timeout=60)
+    assert again.returncode == 0 and "banked" in again.stdout and "skipped" in again.stdout
+    assert steps_csv.read_bytes() == before
+
+
+def test_a_stage_cut_by_its_budget_is_partial_and_not_banked(tmp_path):
+    out = tmp_path / "gpu"
+    done = campaign("--dry-run", "--budget", "0.3", out, "verify", timeout=120)
+    assert done.returncode == 1
+    (steps_csv,) = out.glob("*_verify_*.csv")
+    statuses = {r["step"]: r["status"] for r in rows(steps_csv)}
+    # the first step that needs time is cut; without gsplat nothing else can run, so the stage stops
+    assert statuses == {"versions": "ok", "compile": "partial"}, statuses
+    assert _module().banked(out, "verify", dry_run=True) is None
+
+
+def test_without_cuda_the_real_campaign_refuses(tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("CUDA present")
+    done = campaign(tmp_path, "verify", timeout=60)
+    assert done.returncode == 2 and "no CUDA" in done.stderr
+    assert campaign(tmp_path, "list", timeout=60).stdout.split() == list(_module().STAGES)
+
+
+def test_dry_run_of_a_calibration_point_banks_its_run(tmp_path):
+    out = tmp_path / "gpu"
+    done = campaign("--dry-run", out, "cal7k-rs2", timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert [r["step"] for r in rows(next(out.glob("*_cal7k-rs2_cpu-dry-run.csv")))] == ["versions", "build_storeroom", "run"]
+    (run,) = rows(next(out.glob("*_cal7k-rs2_run_cpu-dry-run.csv")))
+    assert run["method"] == "3dgs" and run["iteration"] == "35" and run["label"] == "7K"
+
+
+def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
+    mod = _module()
+    for rs, cer in (("1.5", "0.95"), ("2", "0.70")):
+        path = tmp_path / f"2026-12-01_cal7k-rs{rs}_run_nvidia-h100.csv"
+        path.write_text(f"method,iteration,cer\n3dgs,7000,{cer}\n")
+    assert mod._banked_7k(tmp_path)[0] == (pytest.approx(0.036), 2.0)
+    done = campaign("--dry-run", tmp_path / "empty", "cal30k", timeout=60)  # nothing banked: a clear failure
+    assert done.returncode == 1
+    (steps_csv,) = (tmp_path / "empty").glob("*_cal30k_*.csv")
+    (row,) = rows(steps_csv)
+    assert row["step"] == "choose_setting" and row["status"] == "failed" and "cal7k" in row["detail"]
+
+
+def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
+    out = tmp_path / "gpu"
+    out.mkdir()
+    mod = _module()
+    earlier = [{"date": "2026-12-01", "stage": "verify", "step": step, "status": status, "seconds": "1",
+                "detail": "", "dry_run": "true"} for step, status in
+               (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark", "ok"), ("paper_run", "partial"))]
+    mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
+    done = campaign("--dry-run", "--budget", "10", out, "verify", timeout=120)
+    assert done.returncode == 1  # the run is still cut by the budget
+    (today,) = [p for p in out.glob("*_verify_*.csv") if not p.name.startswith("2026-12-01")]
+    steps = {r["step"]: r for r in rows(today)}
+    assert steps["compile"]["detail"] != "" and "banked" not in steps["compile"]["detail"]  # a fresh machine compiles
+    for name in ("pytest_gpu", "benchmark"):
+        assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith("banked in 2026-12-01"), steps[name]
+    assert "partial" in {r["status"] for r in steps.values()}
