@@ -1,0 +1,372 @@
+"""Float32 blend kernels of the CPU rasterizer (the default; `cpu_kernels` keeps the float64 reference).
+
+Same rules, layout and binning as `cpu_kernels` (its docstring): P rows are (mean2d x, y, conic a, b,
+c, opacity, NF features, qmin), here in float32; BB the tight pixel boxes; per 16x16 tile a slice of
+`lst` front to back. What differs is the arithmetic and the loop shape, so that LLVM puts the pixel
+loop on the vector units:
+
+- the per-pixel state of a tile (transmittance, accumulated features, the done mask, the last
+  contributor; in the backward also the colour behind and the previous splat) is float32 / int32,
+  one array per quantity (structure of arrays);
+- for each Gaussian and each row of its box inside the tile, the inner loop runs over all 16 pixels
+  of the tile row (a constant trip count that LLVM vectorises completely) with no branch: every test
+  of the float64 kernels (box columns, power > 0, alpha < 1/255, the transmittance stop, a pixel
+  already done or, in the backward, behind its last contributor) is a per-pixel mask that selects
+  between the updated and the old value. Rows where the Gaussian cannot reach 1/255 are skipped
+  (`cpu_kernels.row_span`), and a tile stops when all of its pixels are done, as before;
+- `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction, inlined, branch-free.
+
+Per-Gaussian sums over a row (the backward's gradients, the forward's count of pixels done) are
+vector reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads,
+so a run is bit-identical for the same inputs and machine at any thread count. Each tile is one
+thread's, and the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections` (float64, in
+intersection order).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
+                                              TILE, row_span, tight_box)
+
+F32 = np.float32
+ZERO = F32(0.0)
+ONE = F32(1.0)
+HALF = F32(0.5)
+AMAX = F32(ALPHA_MAX)
+AMIN = F32(ALPHA_MIN)
+TMIN = F32(T_MIN)
+# exp: e^x = 2^k e^r, k = round(x / ln 2), r = x - k ln 2 in [-ln2/2, ln2/2] (ln 2 in two parts, Cody-Waite)
+EXP_LO = F32(-10.0)  # o e^-10 <= 4.5e-5 < 1/255: anything below gives a skipped alpha anyway
+LOG2E = F32(1.44269504088896341)
+LN2_HI = F32(0.693359375)
+LN2_LO = F32(-2.12194440e-4)
+# Cephes expf (S. L. Moshier): e^r = 1 + r + r^2 (E5 + r (E4 + ...)), relative error ~1 ulp on the range
+E0 = F32(1.9875691500e-4)
+E1 = F32(1.3981999507e-3)
+E2 = F32(8.3334519073e-3)
+E3 = F32(4.1665795894e-2)
+E4 = F32(1.6666665459e-1)
+E5 = F32(5.0000001201e-1)
+P8 = F32(2.0 ** -8)
+P4 = F32(2.0 ** -4)
+P2 = F32(2.0 ** -2)
+P1 = F32(2.0 ** -1)
+F8 = F32(8.0)
+F4 = F32(4.0)
+F2 = F32(2.0)
+F1 = F32(1.0)
+# reassoc: vector reductions; contract: fused multiply-adds. No nnan/ninf: NaN checks keep their meaning.
+FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@njit(cache=True, inline="always", fastmath=FASTMATH)
+def exp_neg32(x):
+    """e^x in float32 for x <= 0, without a branch or a call (vectorises). x is clamped at -10
+    (e^-10 = 4.5e-5: the caller's alpha = o e^x is below 1/255 there anyway). Relative error
+    about 2e-7 (checked against float64 in the tests)."""
+    x = max(x, EXP_LO)
+    fk = np.floor(x * LOG2E + HALF)  # k in [-15, 0]
+    r = x - fk * LN2_HI
+    r = r - fk * LN2_LO
+    z = r * r
+    e = (((((E0 * r + E1) * r + E2) * r + E3) * r + E4) * r + E5) * z + r + ONE
+    # 2^k from the bits of -k (0..15) by selects
+    t = -fk
+    s = ONE
+    b = t >= F8
+    s = s * (P8 if b else ONE)
+    t = t - (F8 if b else ZERO)
+    b = t >= F4
+    s = s * (P4 if b else ONE)
+    t = t - (F4 if b else ZERO)
+    b = t >= F2
+    s = s * (P2 if b else ONE)
+    t = t - (F2 if b else ZERO)
+    b = t >= F1
+    s = s * (P1 if b else ONE)
+    return e * s
+
+
+@njit(parallel=True, cache=True)
+def pack(order, means2d, conics, opacities, feats, bbox):
+    """P (V, N_PARAM) float32 and BB (V, 4) int64 of the Gaussians `order` (front to back), as
+    `cpu_kernels.pack` (same tight boxes, computed in float64 from the same float32 values)."""
+    V = order.shape[0]
+    P = np.empty((V, N_PARAM), np.float32)
+    BB = np.empty((V, 4), np.int64)
+    for v in prange(V):
+        i = order[v]
+        mx = np.float64(means2d[i, 0])
+        my = np.float64(means2d[i, 1])
+        ca = np.float64(conics[i, 0])
+        cb = np.float64(conics[i, 1])
+        cc = np.float64(conics[i, 2])
+        o = np.float64(opacities[i])
+        P[v, 0] = mx
+        P[v, 1] = my
+        P[v, 2] = ca
+        P[v, 3] = cb
+        P[v, 4] = cc
+        P[v, 5] = o
+        for c in range(NF):
+            P[v, 6 + c] = feats[i, c]
+        qmin = 2.0 * (math.log(255.0 * o) + SPAN_SLACK) if o >= ALPHA_MIN else np.nan
+        P[v, 6 + NF] = qmin
+        x0, x1, y0, y1 = tight_box(mx, my, ca, cb, cc, qmin, bbox[i, 0], bbox[i, 1], bbox[i, 2], bbox[i, 3])
+        BB[v, 0] = x0
+        BB[v, 1] = x1
+        BB[v, 2] = y0
+        BB[v, 3] = y1
+    return P, BB
+
+
+@njit(parallel=True, cache=True, fastmath=FASTMATH)
+def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
+    """out_f (H, W, NF) float32, out_T (H, W) float32 final transmittance, out_last (H, W) int32: one
+    past the lst position of the last Gaussian blended into the pixel (0 = none)."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        T = np.ones(TILE * TILE, np.float32)
+        a0 = np.zeros(TILE * TILE, np.float32)
+        a1 = np.zeros(TILE * TILE, np.float32)
+        a2 = np.zeros(TILE * TILE, np.float32)
+        a3 = np.zeros(TILE * TILE, np.float32)
+        done = np.zeros(TILE * TILE, np.float32)  # 1 = stopped (or outside the image)
+        last = np.zeros(TILE * TILE, np.int32)
+        cxs = np.empty(TILE, np.float32)  # pixel-centre x of each column
+        for j in range(TILE):
+            cxs[j] = F32(px0 + j) + HALF
+            if j >= pw:
+                for r in range(TILE):
+                    done[r * TILE + j] = ONE
+        n_done = ZERO
+        n_pix = F32(pw * ph)
+        for k in range(tile_start[t], tile_start[t + 1]):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            f0 = P[i, 6]
+            f1 = P[i, 7]
+            f2 = P[i, 8]
+            f3 = P[i, 9]
+            qmin = np.float64(P[i, 6 + NF])
+            inv_ca = 1.0 / np.float64(ca)
+            x_lo = F32(xs)  # box columns: pixel-centre x in [xs + 0.5, xe + 0.5]
+            x_hi = F32(xe) + ONE
+            k1 = np.int32(k + 1)
+            for py in range(ys, ye + 1):
+                dy = my - (F32(py) + HALF)
+                lo, hi = row_span(np.float64(ca), np.float64(cb), np.float64(cc), qmin, inv_ca, np.float64(mx),
+                                  np.float64(dy), xs, xe)
+                if lo > hi:
+                    continue
+                row = (py - py0) * TILE
+                cdy = cc * dy * dy
+                bdy = cb * dy
+                nd = ZERO
+                for j in range(TILE):
+                    p = row + j
+                    dx = mx - cxs[j]
+                    power = -HALF * (ca * dx * dx + cdy) - bdy * dx
+                    alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
+                    Tp = T[p]
+                    test_T = Tp * (ONE - alpha)
+                    ok = (done[p] == ZERO) & (cxs[j] > x_lo) & (cxs[j] < x_hi) & (power <= ZERO) & (alpha >= AMIN)
+                    stop = ok & (test_T < TMIN)
+                    blend = ok & (test_T >= TMIN)
+                    w = alpha * Tp if blend else ZERO
+                    a0[p] += w * f0
+                    a1[p] += w * f1
+                    a2[p] += w * f2
+                    a3[p] += w * f3
+                    T[p] = test_T if blend else Tp
+                    last[p] = k1 if blend else last[p]
+                    done[p] = ONE if stop else done[p]
+                    nd += ONE if stop else ZERO
+                n_done += nd
+            if n_done == n_pix:
+                break
+        for py in range(ph):
+            for px in range(pw):
+                p = py * TILE + px
+                out_f[py0 + py, px0 + px, 0] = a0[p]
+                out_f[py0 + py, px0 + px, 1] = a1[p]
+                out_f[py0 + py, px0 + px, 2] = a2[p]
+                out_f[py0 + py, px0 + px, 3] = a3[p]
+                out_T[py0 + py, px0 + px] = T[p]
+                out_last[py0 + py, px0 + px] = last[p]
+
+
+@njit(parallel=True, cache=True, fastmath=FASTMATH)
+def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, grad_alpha, buf):
+    """grad_f (H, W, NF), grad_alpha (H, W): dL/d(outputs). T_final float32 and last_k int32 from
+    `forward`. buf (M, N_GRAD) float32: per-intersection gradient w.r.t. the Gaussian's row of P
+    (summed over the tile's pixels) and the sums of |dL/dmean2d|. Each pixel's recursion is
+    `cpu_kernels.backward`'s (3DGS, back to front, transmittance recovered by division, the 0.99
+    clamp passed through), in float32 with masks."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        n = TILE * TILE
+        T = np.ones(n, np.float32)
+        Tfin = np.ones(n, np.float32)
+        lastk = np.zeros(n, np.int32)
+        g0 = np.zeros(n, np.float32)
+        g1 = np.zeros(n, np.float32)
+        g2 = np.zeros(n, np.float32)
+        g3 = np.zeros(n, np.float32)
+        ga = np.zeros(n, np.float32)
+        s0 = np.zeros(n, np.float32)  # features blended behind the current splat
+        s1 = np.zeros(n, np.float32)
+        s2 = np.zeros(n, np.float32)
+        s3 = np.zeros(n, np.float32)
+        l0 = np.zeros(n, np.float32)  # features and alpha of the splat behind
+        l1 = np.zeros(n, np.float32)
+        l2 = np.zeros(n, np.float32)
+        l3 = np.zeros(n, np.float32)
+        la_ = np.zeros(n, np.float32)
+        cxs = np.empty(TILE, np.float32)
+        for j in range(TILE):
+            cxs[j] = F32(px0 + j) + HALF
+        kmax = tile_start[t]
+        for py in range(ph):
+            for px in range(pw):
+                p = py * TILE + px
+                T[p] = T_final[py0 + py, px0 + px]
+                Tfin[p] = T[p]
+                lastk[p] = last_k[py0 + py, px0 + px]
+                kmax = max(kmax, np.int64(lastk[p]))
+                ga[p] = grad_alpha[py0 + py, px0 + px]
+                g0[p] = grad_f[py0 + py, px0 + px, 0]
+                g1[p] = grad_f[py0 + py, px0 + px, 1]
+                g2[p] = grad_f[py0 + py, px0 + px, 2]
+                g3[p] = grad_f[py0 + py, px0 + px, 3]
+        for k in range(kmax, tile_start[t + 1]):
+            for j in range(N_GRAD):
+                buf[k, j] = 0.0
+        for k in range(kmax - 1, tile_start[t] - 1, -1):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            f0 = P[i, 6]
+            f1 = P[i, 7]
+            f2 = P[i, 8]
+            f3 = P[i, 9]
+            qmin = np.float64(P[i, 6 + NF])
+            inv_ca = 1.0 / np.float64(ca)
+            x_lo = F32(xs)
+            x_hi = F32(xe) + ONE
+            k32 = np.int32(k)
+            gf0 = ZERO
+            gf1 = ZERO
+            gf2 = ZERO
+            gf3 = ZERO
+            g_mx = ZERO
+            g_my = ZERO
+            g_ca = ZERO
+            g_cb = ZERO
+            g_cc = ZERO
+            g_op = ZERO
+            abs_x = ZERO
+            abs_y = ZERO
+            for py in range(ys, ye + 1):
+                dy = my - (F32(py) + HALF)
+                lo, hi = row_span(np.float64(ca), np.float64(cb), np.float64(cc), qmin, inv_ca, np.float64(mx),
+                                  np.float64(dy), xs, xe)
+                if lo > hi:
+                    continue
+                row = (py - py0) * TILE
+                cdy = cc * dy * dy
+                bdy = cb * dy
+                for j in range(TILE):
+                    p = row + j
+                    dx = mx - cxs[j]
+                    power = -HALF * (ca * dx * dx + cdy) - bdy * dx
+                    G = exp_neg32(min(power, ZERO))
+                    alpha = min(op * G, AMAX)
+                    act = (k32 < lastk[p]) & (cxs[j] > x_lo) & (cxs[j] < x_hi) & (power <= ZERO) & (alpha >= AMIN)
+                    one_m = ONE - alpha
+                    Tn = T[p] / one_m
+                    w = alpha * Tn
+                    la = la_[p]
+                    nla = ONE - la
+                    c0 = la * l0[p] + nla * s0[p]
+                    c1 = la * l1[p] + nla * s1[p]
+                    c2 = la * l2[p] + nla * s2[p]
+                    c3 = la * l3[p] + nla * s3[p]
+                    dL_da = ((f0 - c0) * g0[p] + (f1 - c1) * g1[p] + (f2 - c2) * g2[p] + (f3 - c3) * g3[p]) * Tn
+                    dL_da += Tfin[p] / one_m * ga[p]
+                    dL_da = dL_da if act else ZERO
+                    wa = w if act else ZERO
+                    gf0 += wa * g0[p]
+                    gf1 += wa * g1[p]
+                    gf2 += wa * g2[p]
+                    gf3 += wa * g3[p]
+                    T[p] = Tn if act else T[p]
+                    s0[p] = c0 if act else s0[p]
+                    s1[p] = c1 if act else s1[p]
+                    s2[p] = c2 if act else s2[p]
+                    s3[p] = c3 if act else s3[p]
+                    l0[p] = f0 if act else l0[p]
+                    l1[p] = f1 if act else l1[p]
+                    l2[p] = f2 if act else l2[p]
+                    l3[p] = f3 if act else l3[p]
+                    la_[p] = alpha if act else la
+                    # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G
+                    dL_dG = op * dL_da
+                    g_op += G * dL_da
+                    gdx = G * dx
+                    gdy = G * dy
+                    gx = dL_dG * (-gdx * ca - gdy * cb)
+                    gy = dL_dG * (-gdy * cc - gdx * cb)
+                    g_mx += gx
+                    g_my += gy
+                    abs_x += abs(gx)
+                    abs_y += abs(gy)
+                    g_ca += -HALF * gdx * dx * dL_dG
+                    g_cb += -gdx * dy * dL_dG
+                    g_cc += -HALF * gdy * dy * dL_dG
+            buf[k, 0] = g_mx
+            buf[k, 1] = g_my
+            buf[k, 2] = g_ca
+            buf[k, 3] = g_cb
+            buf[k, 4] = g_cc
+            buf[k, 5] = g_op
+            buf[k, 6] = gf0
+            buf[k, 7] = gf1
+            buf[k, 8] = gf2
+            buf[k, 9] = gf3
+            buf[k, 6 + NF] = abs_x
+            buf[k, 7 + NF] = abs_y
