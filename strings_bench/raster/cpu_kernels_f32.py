@@ -125,6 +125,18 @@ def pack(order, means2d, conics, opacities, feats, bbox):
     return P, BB
 
 
+# Per-tile pixel state: one float32 buffer, one row of TILE*TILE per quantity at a constant offset,
+# indexed with unsigned integers. LLVM then sees that the rows never overlap (no runtime alias
+# checks, which it gives up on past a few arrays) and needs no negative-index wraparound.
+NPIX = TILE * TILE
+# forward rows: transmittance, accumulated features (4), done (1 = stopped or outside the image)
+F_T, F_A0, F_A1, F_A2, F_A3, F_DONE, F_ROWS = (np.uint64(r * NPIX) for r in range(7))
+# backward rows: transmittance, final transmittance, dL/dfeatures (4), dL/dalpha, the features
+# blended behind the current splat (4), the features (4) and alpha of the splat behind
+(B_T, B_TFIN, B_G0, B_G1, B_G2, B_G3, B_GA, B_S0, B_S1, B_S2, B_S3, B_L0, B_L1, B_L2, B_L3, B_LA,
+ B_ROWS) = (np.uint64(r * NPIX) for r in range(17))
+
+
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
 def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
     """out_f (H, W, NF) float32, out_T (H, W) float32 final transmittance, out_last (H, W) int32: one
@@ -137,21 +149,15 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
         py0 = ty * TILE
         pw = min(TILE, W - px0)
         ph = min(TILE, H - py0)
-        T = np.ones(TILE * TILE, np.float32)
-        a0 = np.zeros(TILE * TILE, np.float32)
-        a1 = np.zeros(TILE * TILE, np.float32)
-        a2 = np.zeros(TILE * TILE, np.float32)
-        a3 = np.zeros(TILE * TILE, np.float32)
-        done = np.zeros(TILE * TILE, np.float32)  # 1 = stopped (or outside the image)
-        last = np.zeros(TILE * TILE, np.int32)
-        cxs = np.empty(TILE, np.float32)  # pixel-centre x of each column
-        for j in range(TILE):
-            cxs[j] = F32(px0 + j) + HALF
-            if j >= pw:
-                for r in range(TILE):
-                    done[r * TILE + j] = ONE
+        S = np.zeros(F_ROWS, np.float32)
+        last = np.zeros(NPIX, np.int32)
+        for q in range(NPIX):
+            S[F_T + np.uint64(q)] = ONE
+            if q % TILE >= pw:  # columns outside the image: done from the start
+                S[F_DONE + np.uint64(q)] = ONE
         n_done = ZERO
         n_pix = F32(pw * ph)
+        cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
             xs = max(BB[i, 0], px0)
@@ -170,8 +176,6 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             f3 = P[i, 9]
             qmin = np.float64(P[i, 6 + NF])
             inv_ca = 1.0 / np.float64(ca)
-            x_lo = F32(xs)  # box columns: pixel-centre x in [xs + 0.5, xe + 0.5]
-            x_hi = F32(xe) + ONE
             k1 = np.int32(k + 1)
             for py in range(ys, ye + 1):
                 dy = my - (F32(py) + HALF)
@@ -179,40 +183,43 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                                   np.float64(dy), xs, xe)
                 if lo > hi:
                     continue
-                row = (py - py0) * TILE
+                row = np.uint64((py - py0) * TILE)
                 cdy = cc * dy * dy
                 bdy = cb * dy
+                j_lo = F32(lo - px0) - HALF  # the row's span: columns j in [lo - px0, hi - px0]
+                j_hi = F32(hi - px0) + HALF
                 nd = ZERO
                 for j in range(TILE):
-                    p = row + j
-                    dx = mx - cxs[j]
+                    p = row + np.uint64(j)
+                    fj = F32(j)
+                    dx = mx - (cx0 + fj)
                     power = -HALF * (ca * dx * dx + cdy) - bdy * dx
                     alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
-                    Tp = T[p]
+                    Tp = S[F_T + p]
                     test_T = Tp * (ONE - alpha)
-                    ok = (done[p] == ZERO) & (cxs[j] > x_lo) & (cxs[j] < x_hi) & (power <= ZERO) & (alpha >= AMIN)
+                    ok = (S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (power <= ZERO) & (alpha >= AMIN)
                     stop = ok & (test_T < TMIN)
                     blend = ok & (test_T >= TMIN)
                     w = alpha * Tp if blend else ZERO
-                    a0[p] += w * f0
-                    a1[p] += w * f1
-                    a2[p] += w * f2
-                    a3[p] += w * f3
-                    T[p] = test_T if blend else Tp
+                    S[F_A0 + p] += w * f0
+                    S[F_A1 + p] += w * f1
+                    S[F_A2 + p] += w * f2
+                    S[F_A3 + p] += w * f3
+                    S[F_T + p] = test_T if blend else Tp
                     last[p] = k1 if blend else last[p]
-                    done[p] = ONE if stop else done[p]
+                    S[F_DONE + p] = ONE if stop else S[F_DONE + p]
                     nd += ONE if stop else ZERO
                 n_done += nd
             if n_done == n_pix:
                 break
         for py in range(ph):
             for px in range(pw):
-                p = py * TILE + px
-                out_f[py0 + py, px0 + px, 0] = a0[p]
-                out_f[py0 + py, px0 + px, 1] = a1[p]
-                out_f[py0 + py, px0 + px, 2] = a2[p]
-                out_f[py0 + py, px0 + px, 3] = a3[p]
-                out_T[py0 + py, px0 + px] = T[p]
+                p = np.uint64(py * TILE + px)
+                out_f[py0 + py, px0 + px, 0] = S[F_A0 + p]
+                out_f[py0 + py, px0 + px, 1] = S[F_A1 + p]
+                out_f[py0 + py, px0 + px, 2] = S[F_A2 + p]
+                out_f[py0 + py, px0 + px, 3] = S[F_A3 + p]
+                out_T[py0 + py, px0 + px] = S[F_T + p]
                 out_last[py0 + py, px0 + px] = last[p]
 
 
@@ -231,43 +238,25 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         py0 = ty * TILE
         pw = min(TILE, W - px0)
         ph = min(TILE, H - py0)
-        n = TILE * TILE
-        T = np.ones(n, np.float32)
-        Tfin = np.ones(n, np.float32)
-        lastk = np.zeros(n, np.int32)
-        g0 = np.zeros(n, np.float32)
-        g1 = np.zeros(n, np.float32)
-        g2 = np.zeros(n, np.float32)
-        g3 = np.zeros(n, np.float32)
-        ga = np.zeros(n, np.float32)
-        s0 = np.zeros(n, np.float32)  # features blended behind the current splat
-        s1 = np.zeros(n, np.float32)
-        s2 = np.zeros(n, np.float32)
-        s3 = np.zeros(n, np.float32)
-        l0 = np.zeros(n, np.float32)  # features and alpha of the splat behind
-        l1 = np.zeros(n, np.float32)
-        l2 = np.zeros(n, np.float32)
-        l3 = np.zeros(n, np.float32)
-        la_ = np.zeros(n, np.float32)
-        cxs = np.empty(TILE, np.float32)
-        for j in range(TILE):
-            cxs[j] = F32(px0 + j) + HALF
+        S = np.zeros(B_ROWS, np.float32)
+        lastk = np.zeros(NPIX, np.int32)
         kmax = tile_start[t]
         for py in range(ph):
             for px in range(pw):
-                p = py * TILE + px
-                T[p] = T_final[py0 + py, px0 + px]
-                Tfin[p] = T[p]
+                p = np.uint64(py * TILE + px)
+                S[B_T + p] = T_final[py0 + py, px0 + px]
+                S[B_TFIN + p] = T_final[py0 + py, px0 + px]
                 lastk[p] = last_k[py0 + py, px0 + px]
                 kmax = max(kmax, np.int64(lastk[p]))
-                ga[p] = grad_alpha[py0 + py, px0 + px]
-                g0[p] = grad_f[py0 + py, px0 + px, 0]
-                g1[p] = grad_f[py0 + py, px0 + px, 1]
-                g2[p] = grad_f[py0 + py, px0 + px, 2]
-                g3[p] = grad_f[py0 + py, px0 + px, 3]
+                S[B_GA + p] = grad_alpha[py0 + py, px0 + px]
+                S[B_G0 + p] = grad_f[py0 + py, px0 + px, 0]
+                S[B_G1 + p] = grad_f[py0 + py, px0 + px, 1]
+                S[B_G2 + p] = grad_f[py0 + py, px0 + px, 2]
+                S[B_G3 + p] = grad_f[py0 + py, px0 + px, 3]
         for k in range(kmax, tile_start[t + 1]):
             for j in range(N_GRAD):
                 buf[k, j] = 0.0
+        cx0 = F32(px0) + HALF
         for k in range(kmax - 1, tile_start[t] - 1, -1):
             i = lst[k]
             xs = max(BB[i, 0], px0)
@@ -286,8 +275,6 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             f3 = P[i, 9]
             qmin = np.float64(P[i, 6 + NF])
             inv_ca = 1.0 / np.float64(ca)
-            x_lo = F32(xs)
-            x_hi = F32(xe) + ONE
             k32 = np.int32(k)
             gf0 = ZERO
             gf1 = ZERO
@@ -307,43 +294,55 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                                   np.float64(dy), xs, xe)
                 if lo > hi:
                     continue
-                row = (py - py0) * TILE
+                row = np.uint64((py - py0) * TILE)
                 cdy = cc * dy * dy
                 bdy = cb * dy
+                j_lo = F32(lo - px0) - HALF
+                j_hi = F32(hi - px0) + HALF
                 for j in range(TILE):
-                    p = row + j
-                    dx = mx - cxs[j]
+                    p = row + np.uint64(j)
+                    fj = F32(j)
+                    dx = mx - (cx0 + fj)
                     power = -HALF * (ca * dx * dx + cdy) - bdy * dx
                     G = exp_neg32(min(power, ZERO))
                     alpha = min(op * G, AMAX)
-                    act = (k32 < lastk[p]) & (cxs[j] > x_lo) & (cxs[j] < x_hi) & (power <= ZERO) & (alpha >= AMIN)
+                    act = (k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (power <= ZERO) & (alpha >= AMIN)
                     one_m = ONE - alpha
-                    Tn = T[p] / one_m
+                    Tp = S[B_T + p]
+                    Tn = Tp / one_m
                     w = alpha * Tn
-                    la = la_[p]
+                    la = S[B_LA + p]
                     nla = ONE - la
-                    c0 = la * l0[p] + nla * s0[p]
-                    c1 = la * l1[p] + nla * s1[p]
-                    c2 = la * l2[p] + nla * s2[p]
-                    c3 = la * l3[p] + nla * s3[p]
-                    dL_da = ((f0 - c0) * g0[p] + (f1 - c1) * g1[p] + (f2 - c2) * g2[p] + (f3 - c3) * g3[p]) * Tn
-                    dL_da += Tfin[p] / one_m * ga[p]
+                    s0 = S[B_S0 + p]
+                    s1 = S[B_S1 + p]
+                    s2 = S[B_S2 + p]
+                    s3 = S[B_S3 + p]
+                    c0 = la * S[B_L0 + p] + nla * s0
+                    c1 = la * S[B_L1 + p] + nla * s1
+                    c2 = la * S[B_L2 + p] + nla * s2
+                    c3 = la * S[B_L3 + p] + nla * s3
+                    g0 = S[B_G0 + p]
+                    g1 = S[B_G1 + p]
+                    g2 = S[B_G2 + p]
+                    g3 = S[B_G3 + p]
+                    dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
+                    dL_da += S[B_TFIN + p] / one_m * S[B_GA + p]
                     dL_da = dL_da if act else ZERO
                     wa = w if act else ZERO
-                    gf0 += wa * g0[p]
-                    gf1 += wa * g1[p]
-                    gf2 += wa * g2[p]
-                    gf3 += wa * g3[p]
-                    T[p] = Tn if act else T[p]
-                    s0[p] = c0 if act else s0[p]
-                    s1[p] = c1 if act else s1[p]
-                    s2[p] = c2 if act else s2[p]
-                    s3[p] = c3 if act else s3[p]
-                    l0[p] = f0 if act else l0[p]
-                    l1[p] = f1 if act else l1[p]
-                    l2[p] = f2 if act else l2[p]
-                    l3[p] = f3 if act else l3[p]
-                    la_[p] = alpha if act else la
+                    gf0 += wa * g0
+                    gf1 += wa * g1
+                    gf2 += wa * g2
+                    gf3 += wa * g3
+                    S[B_T + p] = Tn if act else Tp
+                    S[B_S0 + p] = c0 if act else s0
+                    S[B_S1 + p] = c1 if act else s1
+                    S[B_S2 + p] = c2 if act else s2
+                    S[B_S3 + p] = c3 if act else s3
+                    S[B_L0 + p] = f0 if act else S[B_L0 + p]
+                    S[B_L1 + p] = f1 if act else S[B_L1 + p]
+                    S[B_L2 + p] = f2 if act else S[B_L2 + p]
+                    S[B_L3 + p] = f3 if act else S[B_L3 + p]
+                    S[B_LA + p] = alpha if act else la
                     # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G
                     dL_dG = op * dL_da
                     g_op += G * dL_da
