@@ -69,7 +69,7 @@ class TrainConfig:
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
-    backend: str = "auto"  # rasterizer backend: auto, cpu, gsplat
+    backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
 
     def __post_init__(self):
         if self.steps_scale <= 0:

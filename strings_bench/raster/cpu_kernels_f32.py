@@ -307,9 +307,9 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     G = exp_neg32(min(power, ZERO))
                     alpha = min(op * G, AMAX)
                     act = (k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (power <= ZERO) & (alpha >= AMIN)
-                    one_m = ONE - alpha
+                    inv_one_m = ONE / (ONE - alpha)
                     Tp = S[B_T + p]
-                    Tn = Tp / one_m
+                    Tn = Tp * inv_one_m
                     w = alpha * Tn
                     la = S[B_LA + p]
                     nla = ONE - la
@@ -326,7 +326,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     g2 = S[B_G2 + p]
                     g3 = S[B_G3 + p]
                     dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
-                    dL_da += S[B_TFIN + p] / one_m * S[B_GA + p]
+                    dL_da += S[B_TFIN + p] * inv_one_m * S[B_GA + p]
                     dL_da = dL_da if act else ZERO
                     wa = w if act else ZERO
                     gf0 += wa * g0
