@@ -28,7 +28,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir as llvm_ir
 from numba import njit, prange
+from numba.core import types
+from numba.extending import intrinsic
 
 from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
                                               TILE, row_span, tight_box)
@@ -52,44 +55,57 @@ E2 = F32(8.3334519073e-3)
 E3 = F32(4.1665795894e-2)
 E4 = F32(1.6666665459e-1)
 E5 = F32(5.0000001201e-1)
-P8 = F32(2.0 ** -8)
-P4 = F32(2.0 ** -4)
-P2 = F32(2.0 ** -2)
-P1 = F32(2.0 ** -1)
-F8 = F32(8.0)
-F4 = F32(4.0)
-F2 = F32(2.0)
-F1 = F32(1.0)
 # reassoc: vector reductions; contract: fused multiply-adds. No nnan/ninf: NaN checks keep their meaning.
 FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@intrinsic
+def pow2_f32(typingctx, k):
+    """2^k as float32 for an integral float32 k in [-126, 127]: the exponent field built from k's
+    integer value and the bits taken as a float (LLVM fptosi, add, shl, bitcast: vectorises)."""
+    if k != types.float32:
+        return None
+
+    def codegen(context, builder, signature, args):
+        i32 = llvm_ir.IntType(32)
+        ki = builder.fptosi(args[0], i32)
+        bits = builder.shl(builder.add(ki, llvm_ir.Constant(i32, 127)), llvm_ir.Constant(i32, 23))
+        return builder.bitcast(bits, llvm_ir.FloatType())
+
+    return types.float32(types.float32), codegen
 
 
 @njit(cache=True, inline="always", fastmath=FASTMATH)
 def exp_neg32(x):
     """e^x in float32 for x <= 0, without a branch or a call (vectorises). x is clamped at -10
     (e^-10 = 4.5e-5: the caller's alpha = o e^x is below 1/255 there anyway). Relative error
-    about 2e-7 (checked against float64 in the tests)."""
+    about 1e-7 (checked against float64 in the tests)."""
     x = max(x, EXP_LO)
     fk = np.floor(x * LOG2E + HALF)  # k in [-15, 0]
     r = x - fk * LN2_HI
     r = r - fk * LN2_LO
     z = r * r
     e = (((((E0 * r + E1) * r + E2) * r + E3) * r + E4) * r + E5) * z + r + ONE
-    # 2^k from the bits of -k (0..15) by selects
-    t = -fk
-    s = ONE
-    b = t >= F8
-    s = s * (P8 if b else ONE)
-    t = t - (F8 if b else ZERO)
-    b = t >= F4
-    s = s * (P4 if b else ONE)
-    t = t - (F4 if b else ZERO)
-    b = t >= F2
-    s = s * (P2 if b else ONE)
-    t = t - (F2 if b else ZERO)
-    b = t >= F1
-    s = s * (P1 if b else ONE)
-    return e * s
+    return e * pow2_f32(fk)
+
+
+@njit(cache=True, inline="always", fastmath=FASTMATH)
+def row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe):
+    """`cpu_kernels.row_span` in float32: pixel columns [lo, hi] of one row that may pass the alpha
+    threshold, clipped to [xs, xe]. The span keeps a pixel of slack each side, far above float32's
+    rounding at image coordinates, and the per-pixel tests decide."""
+    bq = cb * dy
+    disc = bq * bq - ca * (cc * dy * dy - qmin)
+    if not disc >= ZERO:  # also catches NaN (opacity below 1/255)
+        return 1, 0
+    sq = np.sqrt(disc)
+    lo = mx - HALF - (-bq + sq) * inv_ca - ONE
+    hi = mx - HALF - (-bq - sq) * inv_ca + ONE
+    lo = max(lo, F32(xs))
+    hi = min(hi, F32(xe))
+    if lo > hi:
+        return 1, 0
+    return int(np.ceil(lo)), int(np.floor(hi))
 
 
 @njit(parallel=True, cache=True)
@@ -131,10 +147,12 @@ def pack(order, means2d, conics, opacities, feats, bbox):
 NPIX = TILE * TILE
 # forward rows: transmittance, accumulated features (4), done (1 = stopped or outside the image)
 F_T, F_A0, F_A1, F_A2, F_A3, F_DONE, F_ROWS = (np.uint64(r * NPIX) for r in range(7))
-# backward rows: transmittance, final transmittance, dL/dfeatures (4), dL/dalpha, the features
-# blended behind the current splat (4), the features (4) and alpha of the splat behind
-(B_T, B_TFIN, B_G0, B_G1, B_G2, B_G3, B_GA, B_S0, B_S1, B_S2, B_S3, B_L0, B_L1, B_L2, B_L3, B_LA,
- B_ROWS) = (np.uint64(r * NPIX) for r in range(17))
+# backward rows: transmittance, final transmittance x dL/dalpha, dL/dfeatures (4), the features
+# blended behind the current splat (4)
+B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(r * NPIX) for r in range(11))
+# per-lane gradient sums, one row of TILE per buf column, and the factor each total gets
+A_MX, A_MY, A_CA, A_CB, A_CC, A_OP, A_F0, A_F1, A_F2, A_F3, A_AX, A_AY = (np.uint64(c * TILE) for c in range(N_GRAD))
+ACC_SCALE = np.array([1.0, 1.0, -0.5, -1.0, -0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], np.float32)
 
 
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
@@ -151,11 +169,11 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
         ph = min(TILE, H - py0)
         S = np.zeros(F_ROWS, np.float32)
         last = np.zeros(NPIX, np.int32)
+        ND = np.zeros(TILE, np.float32)  # pixels done, per column
         for q in range(NPIX):
             S[F_T + np.uint64(q)] = ONE
             if q % TILE >= pw:  # columns outside the image: done from the start
                 S[F_DONE + np.uint64(q)] = ONE
-        n_done = ZERO
         n_pix = F32(pw * ph)
         cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
@@ -174,13 +192,12 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             f1 = P[i, 7]
             f2 = P[i, 8]
             f3 = P[i, 9]
-            qmin = np.float64(P[i, 6 + NF])
-            inv_ca = 1.0 / np.float64(ca)
+            qmin = P[i, 6 + NF]
+            inv_ca = ONE / ca
             k1 = np.int32(k + 1)
             for py in range(ys, ye + 1):
                 dy = my - (F32(py) + HALF)
-                lo, hi = row_span(np.float64(ca), np.float64(cb), np.float64(cc), qmin, inv_ca, np.float64(mx),
-                                  np.float64(dy), xs, xe)
+                lo, hi = row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
                 if lo > hi:
                     continue
                 row = np.uint64((py - py0) * TILE)
@@ -188,7 +205,6 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                 bdy = cb * dy
                 j_lo = F32(lo - px0) - HALF  # the row's span: columns j in [lo - px0, hi - px0]
                 j_hi = F32(hi - px0) + HALF
-                nd = ZERO
                 for j in range(TILE):
                     p = row + np.uint64(j)
                     fj = F32(j)
@@ -208,8 +224,10 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                     S[F_T + p] = test_T if blend else Tp
                     last[p] = k1 if blend else last[p]
                     S[F_DONE + p] = ONE if stop else S[F_DONE + p]
-                    nd += ONE if stop else ZERO
-                n_done += nd
+                    ND[np.uint64(j)] += ONE if stop else ZERO  # per-lane count, summed per Gaussian
+            n_done = ZERO
+            for j in range(TILE):
+                n_done += ND[j]
             if n_done == n_pix:
                 break
         for py in range(ph):
@@ -240,15 +258,15 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         ph = min(TILE, H - py0)
         S = np.zeros(B_ROWS, np.float32)
         lastk = np.zeros(NPIX, np.int32)
+        ACC = np.empty(N_GRAD * TILE, np.float32)  # per-lane gradient sums of the current Gaussian
         kmax = tile_start[t]
         for py in range(ph):
             for px in range(pw):
                 p = np.uint64(py * TILE + px)
                 S[B_T + p] = T_final[py0 + py, px0 + px]
-                S[B_TFIN + p] = T_final[py0 + py, px0 + px]
+                S[B_TGA + p] = T_final[py0 + py, px0 + px] * grad_alpha[py0 + py, px0 + px]
                 lastk[p] = last_k[py0 + py, px0 + px]
                 kmax = max(kmax, np.int64(lastk[p]))
-                S[B_GA + p] = grad_alpha[py0 + py, px0 + px]
                 S[B_G0 + p] = grad_f[py0 + py, px0 + px, 0]
                 S[B_G1 + p] = grad_f[py0 + py, px0 + px, 1]
                 S[B_G2 + p] = grad_f[py0 + py, px0 + px, 2]
@@ -273,25 +291,14 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             f1 = P[i, 7]
             f2 = P[i, 8]
             f3 = P[i, 9]
-            qmin = np.float64(P[i, 6 + NF])
-            inv_ca = 1.0 / np.float64(ca)
+            qmin = P[i, 6 + NF]
+            inv_ca = ONE / ca
             k32 = np.int32(k)
-            gf0 = ZERO
-            gf1 = ZERO
-            gf2 = ZERO
-            gf3 = ZERO
-            g_mx = ZERO
-            g_my = ZERO
-            g_ca = ZERO
-            g_cb = ZERO
-            g_cc = ZERO
-            g_op = ZERO
-            abs_x = ZERO
-            abs_y = ZERO
+            for q in range(N_GRAD * TILE):
+                ACC[q] = ZERO
             for py in range(ys, ye + 1):
                 dy = my - (F32(py) + HALF)
-                lo, hi = row_span(np.float64(ca), np.float64(cb), np.float64(cc), qmin, inv_ca, np.float64(mx),
-                                  np.float64(dy), xs, xe)
+                lo, hi = row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
                 if lo > hi:
                     continue
                 row = np.uint64((py - py0) * TILE)
@@ -311,61 +318,48 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     Tp = S[B_T + p]
                     Tn = Tp * inv_one_m
                     w = alpha * Tn
-                    la = S[B_LA + p]
-                    nla = ONE - la
-                    s0 = S[B_S0 + p]
-                    s1 = S[B_S1 + p]
-                    s2 = S[B_S2 + p]
-                    s3 = S[B_S3 + p]
-                    c0 = la * S[B_L0 + p] + nla * s0
-                    c1 = la * S[B_L1 + p] + nla * s1
-                    c2 = la * S[B_L2 + p] + nla * s2
-                    c3 = la * S[B_L3 + p] + nla * s3
+                    # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
+                    # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
+                    c0 = S[B_S0 + p]
+                    c1 = S[B_S1 + p]
+                    c2 = S[B_S2 + p]
+                    c3 = S[B_S3 + p]
                     g0 = S[B_G0 + p]
                     g1 = S[B_G1 + p]
                     g2 = S[B_G2 + p]
                     g3 = S[B_G3 + p]
                     dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
-                    dL_da += S[B_TFIN + p] * inv_one_m * S[B_GA + p]
+                    dL_da += S[B_TGA + p] * inv_one_m
                     dL_da = dL_da if act else ZERO
                     wa = w if act else ZERO
-                    gf0 += wa * g0
-                    gf1 += wa * g1
-                    gf2 += wa * g2
-                    gf3 += wa * g3
                     S[B_T + p] = Tn if act else Tp
-                    S[B_S0 + p] = c0 if act else s0
-                    S[B_S1 + p] = c1 if act else s1
-                    S[B_S2 + p] = c2 if act else s2
-                    S[B_S3 + p] = c3 if act else s3
-                    S[B_L0 + p] = f0 if act else S[B_L0 + p]
-                    S[B_L1 + p] = f1 if act else S[B_L1 + p]
-                    S[B_L2 + p] = f2 if act else S[B_L2 + p]
-                    S[B_L3 + p] = f3 if act else S[B_L3 + p]
-                    S[B_LA + p] = alpha if act else la
-                    # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G
-                    dL_dG = op * dL_da
-                    g_op += G * dL_da
-                    gdx = G * dx
-                    gdy = G * dy
-                    gx = dL_dG * (-gdx * ca - gdy * cb)
-                    gy = dL_dG * (-gdy * cc - gdx * cb)
-                    g_mx += gx
-                    g_my += gy
-                    abs_x += abs(gx)
-                    abs_y += abs(gy)
-                    g_ca += -HALF * gdx * dx * dL_dG
-                    g_cb += -gdx * dy * dL_dG
-                    g_cc += -HALF * gdy * dy * dL_dG
-            buf[k, 0] = g_mx
-            buf[k, 1] = g_my
-            buf[k, 2] = g_ca
-            buf[k, 3] = g_cb
-            buf[k, 4] = g_cc
-            buf[k, 5] = g_op
-            buf[k, 6] = gf0
-            buf[k, 7] = gf1
-            buf[k, 8] = gf2
-            buf[k, 9] = gf3
-            buf[k, 6 + NF] = abs_x
-            buf[k, 7 + NF] = abs_y
+                    one_m = ONE - alpha
+                    S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
+                    S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
+                    S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
+                    S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
+                    # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
+                    # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
+                    qg = op * G * dL_da
+                    gx = -qg * (ca * dx + cb * dy)
+                    gy = -qg * (cc * dy + cb * dx)
+                    # per-lane sums over the rows (one horizontal sum per Gaussian, after the rows)
+                    uj = np.uint64(j)
+                    ACC[A_MX + uj] += gx
+                    ACC[A_MY + uj] += gy
+                    ACC[A_CA + uj] += qg * dx * dx
+                    ACC[A_CB + uj] += qg * dx * dy
+                    ACC[A_CC + uj] += qg * dy * dy
+                    ACC[A_OP + uj] += G * dL_da
+                    ACC[A_F0 + uj] += wa * g0
+                    ACC[A_F1 + uj] += wa * g1
+                    ACC[A_F2 + uj] += wa * g2
+                    ACC[A_F3 + uj] += wa * g3
+                    ACC[A_AX + uj] += abs(gx)
+                    ACC[A_AY + uj] += abs(gy)
+            # buf columns: mean2d x, y, conic a, b, c, opacity, features, |dL/dmean2d| x, y
+            for c in range(N_GRAD):
+                tot = ZERO
+                for j in range(TILE):
+                    tot += ACC[c * TILE + j]
+                buf[k, c] = tot * ACC_SCALE[c]
