@@ -274,3 +274,39 @@ def test_float32_tight_boxes_change_no_bit():
     for a, b in zip(g_t, g_f):
         assert np.array_equal(a, b)
     assert np.abs(g_f[0]).sum() > 0 and (T_f < 1).mean() > 0.2
+
+
+@pytest.mark.parametrize("backend", ["cpu", "cpu-f64"])
+@pytest.mark.parametrize("sh_degree", [None, 1, 0])
+def test_sh_rest_gives_the_concatenations_bits(backend, sh_degree):
+    """rasterize(sh=sh0, sh_rest=shN) (what the model passes: no concatenation) equals rasterize with
+    their concatenation bit for bit, gradients of sh0 and shN included."""
+    params = random_scene(n=60, seed=22)
+    cam = make_camera()
+    outs = []
+    for split in (False, True):
+        leaves = [p.clone().float().requires_grad_() for p in params]
+        sh0 = params[4][:, :1].clone().requires_grad_()
+        shN = params[4][:, 1:].clone().requires_grad_()
+        if split:
+            out = rasterize(*leaves[:4], sh0, cam, leaves[5], sh_degree=sh_degree, backend=backend, sh_rest=shN,
+                            compute_absgrad=True)
+        else:
+            out = rasterize(*leaves[:4], torch.cat([sh0, shN], 1), cam, leaves[5], sh_degree=sh_degree,
+                            backend=backend, compute_absgrad=True)
+        weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
+        outs.append([out.color, out.alpha, out.depth, out.absgrad, sh0.grad, shN.grad]
+                    + [x.grad for x in leaves[:4]] + [leaves[5].grad])
+    for a, b in zip(*outs):
+        assert torch.equal(a, b)
+    assert outs[1][4].abs().sum() > 0 and (sh_degree == 0 or outs[1][5].abs().sum() > 0)
+
+
+def test_sh_rest_shape_errors():
+    from strings_bench.raster import RasterInputError
+
+    params = random_scene(n=5, seed=23)
+    with pytest.raises(RasterInputError, match="sh_rest"):
+        rasterize(*params[:4], params[4], make_camera(), params[5], sh_rest=params[4][:, 1:])
+    with pytest.raises(RasterInputError, match="coefficients"):
+        rasterize(*params[:4], params[4][:, :1], make_camera(), params[5], sh_rest=params[4][:, 1:3])

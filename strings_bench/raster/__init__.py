@@ -56,9 +56,10 @@ _ensure_numba_cache_dir()
 _prefer_workqueue_threads()
 
 
-def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree):
-    for name, x in (("means", means), ("quats", quats), ("log_scales", log_scales),
-                    ("opacity_logits", opacity_logits), ("sh", sh)):
+def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree, sh_rest=None):
+    named = [("means", means), ("quats", quats), ("log_scales", log_scales), ("opacity_logits", opacity_logits),
+             ("sh", sh)] + ([("sh_rest", sh_rest)] if sh_rest is not None else [])
+    for name, x in named:
         if not isinstance(x, torch.Tensor):
             raise RasterInputError(f"rasterize: {name} must be a torch tensor, got {type(x).__name__}",
                                    hint="pass torch tensors (float32)")
@@ -75,6 +76,12 @@ def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_d
             % tuple(tuple(x.shape) for x in (means, quats, log_scales, opacity_logits, sh)),
             hint="expected (N,3), (N,4) wxyz, (N,3), (N,) or (N,1), (N,K,3) with K = (deg+1)^2")
     k = sh.shape[1]
+    if sh_rest is not None:
+        if k != 1 or sh_rest.ndim != 3 or sh_rest.shape[0] != n or sh_rest.shape[2] != 3:
+            raise RasterInputError(
+                f"rasterize: with sh_rest, sh must be (N, 1, 3) and sh_rest (N, K - 1, 3); got {tuple(sh.shape)} "
+                f"and {tuple(sh_rest.shape)}", hint="pass the DC band as sh and the other bands as sh_rest")
+        k = 1 + sh_rest.shape[1]
     deg_avail = {1: 0, 4: 1, 9: 2, 16: 3}.get(k)
     if deg_avail is None:
         raise RasterInputError(f"rasterize: sh has {k} coefficients per channel",
@@ -130,7 +137,8 @@ def pick_backend(backend: str, device: torch.device) -> str:
 
 
 def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, sh_degree=None,
-              backend="auto", mip_filter=False, compute_absgrad=False, near=0.01, far=1e10) -> RasterOutput:
+              backend="auto", mip_filter=False, compute_absgrad=False, near=0.01, far=1e10,
+              sh_rest=None) -> RasterOutput:
     """Render N 3D Gaussians into `camera`, differentiably (3DGS splatting; rules in docs/raster.md).
 
     Every input is a raw (pre-activation) parameter, as 3DGS stores it; all floating tensors must be
@@ -164,6 +172,10 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
             statistic sum_pixels |dL_pixel / d means2d| per component (pixel units).
         near, far: float, camera-space depth z (world units) outside of which a Gaussian is
             culled (z <= near or z >= far). Need 0 < near < far.
+        sh_rest: None, or (N, K - 1, 3) float: the SH bands above the DC one, with `sh` then only
+            the DC band (N, 1, 3) — the model's sh0 / shN as they are stored. Same result as
+            passing their concatenation as `sh`; the CPU backends then read both in place (no
+            (N, K, 3) copy each step, no split of its gradient).
 
     Dtypes: float32 is the usual input; the CPU backends project in float64, blend in float32
     ("cpu") or float64 ("cpu-f64") and return the input dtype. `radii` is int32.
@@ -210,12 +222,14 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
         (torch.Size([3, 2]), torch.Size([3, 3]))
     """
     background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
-    deg = _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree)
+    deg = _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree, sh_rest)
     if not near > 0 or not far > near:
         raise RasterInputError(f"rasterize: need 0 < near < far, got near={near}, far={far}",
                                hint="the default near plane is 0.01")
     chosen = pick_backend(backend, means.device)
     opacity_logits = opacity_logits.reshape(-1)
+    if sh_rest is not None and (chosen == "gsplat" or sh_rest.shape[1] == 0):
+        sh, sh_rest = torch.cat([sh, sh_rest], dim=1), None
     if chosen == "gsplat":
         from strings_bench.raster.gsplat_backend import rasterize_gsplat
 
@@ -224,7 +238,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
                                 mip_filter=mip_filter, compute_absgrad=compute_absgrad, near=near, far=far)
     return _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, background,
                           mip_filter=mip_filter, compute_absgrad=compute_absgrad, near=near, far=far,
-                          backend=chosen)
+                          backend=chosen, sh_rest=sh_rest)
 
 
 def _cam_center(camera, like: torch.Tensor) -> torch.Tensor:
@@ -232,7 +246,7 @@ def _cam_center(camera, like: torch.Tensor) -> torch.Tensor:
 
 
 def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, background, mip_filter,
-                   compute_absgrad, near, far, preprocess="numba", backend="cpu") -> RasterOutput:
+                   compute_absgrad, near, far, preprocess="numba", backend="cpu", sh_rest=None) -> RasterOutput:
     """preprocess="numba" (default, fast) or "torch" (projection.py + sh.py through autograd; the
     tests use it as an independent check of the hand-written preprocessing backward). backend:
     "cpu" (float32 blend kernels) or "cpu-f64" (float64)."""
@@ -244,8 +258,10 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
     n = means.shape[0]
     if preprocess == "numba":
         means2d, conics, opacities, feats, radii, bbox = Preprocess.apply(
-            means, quats, log_scales, opacity_logits, sh, deg, camera, mip_filter, near, far)
+            means, quats, log_scales, opacity_logits, sh, deg, camera, mip_filter, near, far, sh_rest)
     else:
+        if sh_rest is not None:
+            sh = torch.cat([sh, sh_rest], dim=1)
         from strings_bench.raster.projection import project
 
         proj = project(means, quats, log_scales, opacity_logits, camera, mip_filter=mip_filter, near=near, far=far)

@@ -107,7 +107,10 @@ class Preprocess(torch.autograd.Function):
     conics (N,3), opacities (N,), feats (N,4) = RGB and camera depth, radii (N,) int32, bbox (N,4)."""
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far):
+    def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far, sh_rest=None):
+        """sh (N, K, 3), or with `sh_rest`: sh (N, 1, 3) the DC band and sh_rest (N, K - 1, 3) the
+        others (the model's sh0 and shN, read where they are: no concatenation, no split of the
+        gradient)."""
         from strings_bench.raster.cpu_preprocess import preprocess_forward
         from strings_bench.raster.projection import DILATION, MIP_FILTER
 
@@ -115,19 +118,25 @@ class Preprocess(torch.autograd.Function):
         cam = camera_array(camera)
         eps = MIP_FILTER if mip else DILATION
         arrs = [_np_in(x) for x in (means, quats, log_scales, opacity_logits, sh)]
+        split = sh_rest is not None
+        rest = _np_in(sh_rest) if split else arrs[4]
         means2d = np.empty((N, 2), np.float32)
         conics = np.empty((N, 3), np.float32)
         opac = np.empty(N, np.float32)
         feats = np.empty((N, K.NF), np.float32)
         radii = np.empty(N, np.int32)
         bbox = np.empty((N, 4), np.int32)
-        preprocess_forward(*arrs, int(deg), cam, int(camera.width), int(camera.height), float(near), float(far),
-                           eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
+        preprocess_forward(*arrs, rest, 0 if split else 1, int(deg), cam, int(camera.width), int(camera.height),
+                           float(near), float(far), eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
         # The kernels read the parameters' own memory: saved for backward (torch's version check
         # refuses a backward after an in-place change), converted again there.
-        ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh)
+        if split:
+            ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh, sh_rest)
+        else:
+            ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh)
         ctx.setup = (int(deg), cam, eps, bool(mip), radii)
-        ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)]
+        ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)] + (
+            [sh_rest.dtype] if split else [])
         dt = means.dtype
         radii_t, bbox_t = torch.from_numpy(radii), torch.from_numpy(bbox)
         ctx.mark_non_differentiable(radii_t, bbox_t)
@@ -138,7 +147,10 @@ class Preprocess(torch.autograd.Function):
     def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
         from strings_bench.raster.cpu_preprocess import preprocess_backward
 
-        means, quats, log_scales, logits, sh = (_np_in(x) for x in ctx.saved_tensors)
+        saved = [_np_in(x) for x in ctx.saved_tensors]
+        split = len(saved) == 6
+        means, quats, log_scales, logits, sh = saved[:5]
+        rest = saved[5] if split else sh
         deg, cam, eps, mip, radii = ctx.setup
         N = means.shape[0]
         grads_in = [(_np_in(g) if g is not None else np.zeros(shape))
@@ -146,6 +158,8 @@ class Preprocess(torch.autograd.Function):
         # Gradients are written in the inputs' dtype (float32: rounded once at the store, as the
         # float64 result's conversion did).
         outs = [np.empty_like(x) for x in (means, quats, log_scales, logits, sh)]
-        preprocess_backward(means, quats, log_scales, logits, sh, deg, cam, eps, mip, radii, *grads_in, *outs)
-        res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs, ctx.dtypes)]
-        return (*res, None, None, None, None, None)
+        d_rest = np.empty_like(rest) if split else outs[4]
+        preprocess_backward(means, quats, log_scales, logits, sh, rest, 0 if split else 1, deg, cam, eps, mip, radii,
+                            *grads_in, *outs, d_rest)
+        res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs + ([d_rest] if split else []), ctx.dtypes)]
+        return (*res[:5], None, None, None, None, None, res[5] if split else None)
