@@ -310,3 +310,22 @@ def test_sh_rest_shape_errors():
         rasterize(*params[:4], params[4], make_camera(), params[5], sh_rest=params[4][:, 1:])
     with pytest.raises(RasterInputError, match="coefficients"):
         rasterize(*params[:4], params[4][:, :1], make_camera(), params[5], sh_rest=params[4][:, 1:3])
+
+
+def test_trainer_finite_check_sums():
+    """engine.optim_kernels.sums_finite (the trainer's per-step check, on the numba threads): False for a
+    NaN or an infinity anywhere, or a total beyond float32's range; True otherwise; float64 and
+    non-contiguous tensors through torch."""
+    from strings_bench.engine.optim_kernels import sums_finite
+
+    x = torch.randn(300_001)
+    assert sums_finite([x, torch.zeros(0), torch.randn(7, 3)])
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        y = x.clone()
+        y[123_457] = bad
+        assert not sums_finite([torch.ones(4), y])
+    assert not sums_finite([torch.full((1000,), 3e36)])  # finite elements, total 3e39 > 3.4e38
+    assert sums_finite([torch.full((1000,), 3e34)])
+    assert not sums_finite([torch.tensor([1.0, float("nan")], dtype=torch.float64)])
+    assert not sums_finite([torch.ones(6, 4).t().contiguous().t().clone().fill_(float("nan"))])
+    assert sums_finite([torch.ones(6, 4).t()])
