@@ -252,9 +252,11 @@ def test_float32_blend_is_bit_identical_at_any_thread_count():
             assert torch.equal(a, b)
 
 
-def test_float32_tight_boxes_change_no_bit():
-    """As test_raster's test for the float64 kernels: the float32 blend of tight boxes equals the blend
-    of the 3-sigma boxes bit for bit."""
+def test_float32_tight_boxes_change_no_pixel():
+    """As test_raster's test for the float64 kernels: the float32 blend of tight boxes against the
+    blend of the 3-sigma boxes. Every pixel's recursion is the same, so the image and transmittance
+    are identical bit for bit; the per-Gaussian gradient sums are vector reductions whose grouping of
+    pixels into lanes follows the box, so they may differ in the last bits (here <= 1e-6 relative)."""
     import strings_bench.raster.cpu_kernels_f32 as K32
     from strings_bench.raster.cpu import Preprocess
 
@@ -272,7 +274,7 @@ def test_float32_tight_boxes_change_no_bit():
     assert m_t < 0.75 * m_f, (m_t, m_f)
     assert np.array_equal(f_t, f_f) and np.array_equal(T_t, T_f)
     for a, b in zip(g_t, g_f):
-        assert np.array_equal(a, b)
+        assert rel(torch.from_numpy(a), torch.from_numpy(b)) <= 1e-6
     assert np.abs(g_f[0]).sum() > 0 and (T_f < 1).mean() > 0.2
 
 

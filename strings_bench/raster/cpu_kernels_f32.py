@@ -5,22 +5,27 @@ c, opacity, NF features, qmin), here in float32; BB the tight pixel boxes; per 1
 `lst` front to back. What differs is the arithmetic and the loop shape, so that LLVM puts the pixel
 loop on the vector units:
 
-- the per-pixel state of a tile (transmittance, accumulated features, the done mask, the last
-  contributor; in the backward also the colour behind and the previous splat) is float32 / int32,
-  one array per quantity (structure of arrays);
-- for each Gaussian and each row of its box inside the tile, the inner loop runs over all 16 pixels
-  of the tile row (a constant trip count that LLVM vectorises completely) with no branch: every test
-  of the float64 kernels (box columns, power > 0, alpha < 1/255, the transmittance stop, a pixel
-  already done or, in the backward, behind its last contributor) is a per-pixel mask that selects
-  between the updated and the old value. Rows where the Gaussian cannot reach 1/255 are skipped
-  (`cpu_kernels.row_span`), and a tile stops when all of its pixels are done, as before;
-- `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction, inlined, branch-free.
+- the per-pixel state of a tile (transmittance, accumulated features, the done mask; in the backward
+  the transmittance, T_final x dL/dalpha, dL/dfeatures and the features blended behind) is float32,
+  one row of 256 per quantity in one buffer at constant offsets, indexed with unsigned integers: LLVM
+  then needs no alias checks between the rows and no negative-index wraparound;
+- for each Gaussian and each row of its box inside the tile whose span can reach 1/255
+  (`row_span32`), the inner loop runs over all 16 pixels of the tile row (a constant trip count: one
+  AVX-512 vector) with no branch: every test of the float64 kernels (the row's span, power > 0,
+  alpha < 1/255, the transmittance stop, a pixel already done or, in the backward, behind its last
+  contributor) is a per-pixel mask that selects between the updated and the old value. A tile stops
+  when all of its pixels are done, as before;
+- `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
+  (`pow2_f32`), inlined, branch-free;
+- the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
+  3DGS evaluates lazily from the previous splat) and sums each Gaussian's gradients in per-lane
+  accumulators, reduced once per Gaussian and tile.
 
-Per-Gaussian sums over a row (the backward's gradients, the forward's count of pixels done) are
-vector reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads,
-so a run is bit-identical for the same inputs and machine at any thread count. Each tile is one
-thread's, and the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections` (float64, in
-intersection order).
+Sums over lanes (the backward's gradients, the forward's count of pixels done) are vector
+reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads, so a run
+is bit-identical for the same inputs and machine at any thread count. Each tile is one thread's, and
+the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections` (float64, in intersection
+order).
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
-                                              TILE, row_span, tight_box)
+                                              TILE, tight_box)
 
 F32 = np.float32
 ZERO = F32(0.0)
@@ -145,14 +150,16 @@ def pack(order, means2d, conics, opacities, feats, bbox):
 # indexed with unsigned integers. LLVM then sees that the rows never overlap (no runtime alias
 # checks, which it gives up on past a few arrays) and needs no negative-index wraparound.
 NPIX = TILE * TILE
+# Pixel (row, col) of a tile is stored at pix_index(row, col): the tile as two halves of 8 columns,
+# each 16 rows x 8 contiguous. A Gaussian whose box lies in one half (most) then runs over 8-pixel
+# row pieces, two rows per 16-lane vector, instead of whole 16-pixel rows.
+HW = 8  # columns per half
+HSZ = TILE * HW  # pixels per half
 # forward rows: transmittance, accumulated features (4), done (1 = stopped or outside the image)
 F_T, F_A0, F_A1, F_A2, F_A3, F_DONE, F_ROWS = (np.uint64(r * NPIX) for r in range(7))
 # backward rows: transmittance, final transmittance x dL/dalpha, dL/dfeatures (4), the features
 # blended behind the current splat (4)
 B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(r * NPIX) for r in range(11))
-# per-lane gradient sums, one row of TILE per buf column, and the factor each total gets
-A_MX, A_MY, A_CA, A_CB, A_CC, A_OP, A_F0, A_F1, A_F2, A_F3, A_AX, A_AY = (np.uint64(c * TILE) for c in range(N_GRAD))
-ACC_SCALE = np.array([1.0, 1.0, -0.5, -1.0, -0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], np.float32)
 
 
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
@@ -169,12 +176,12 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
         ph = min(TILE, H - py0)
         S = np.zeros(F_ROWS, np.float32)
         last = np.zeros(NPIX, np.int32)
-        ND = np.zeros(TILE, np.float32)  # pixels done, per column
         for q in range(NPIX):
             S[F_T + np.uint64(q)] = ONE
-            if q % TILE >= pw:  # columns outside the image: done from the start
+            if (q // HSZ) * HW + q % HW >= pw:  # columns outside the image: done from the start
                 S[F_DONE + np.uint64(q)] = ONE
         n_pix = F32(pw * ph)
+        n_done = ZERO
         cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
@@ -192,28 +199,42 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             f1 = P[i, 7]
             f2 = P[i, 8]
             f3 = P[i, 9]
-            qmin = P[i, 6 + NF]
-            inv_ca = ONE / ca
             k1 = np.int32(k + 1)
-            for py in range(ys, ye + 1):
-                dy = my - (F32(py) + HALF)
-                lo, hi = row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
-                if lo > hi:
-                    continue
-                row = np.uint64((py - py0) * TILE)
-                cdy = cc * dy * dy
-                bdy = cb * dy
-                j_lo = F32(lo - px0) - HALF  # the row's span: columns j in [lo - px0, hi - px0]
-                j_hi = F32(hi - px0) + HALF
-                for j in range(TILE):
-                    p = row + np.uint64(j)
-                    fj = F32(j)
-                    dx = mx - (cx0 + fj)
-                    power = -HALF * (ca * dx * dx + cdy) - bdy * dx
+            if xs > xe or ys > ye:
+                continue
+            # the box's rows in the tile as flat loops over (row, column) of each half it touches, 8
+            # lanes a row, an even number of rows (two rows a 16-lane vector; a row outside the box is
+            # added and masked when needed); the mask keeps the box's columns and rows
+            r0 = ys - py0
+            r1 = ye - py0
+            if (r1 - r0) % 2 == 0:  # odd row count
+                if r1 < TILE - 1:
+                    r1 += 1
+                else:
+                    r0 -= 1
+            j_lo = F32(xs - px0) - HALF
+            j_hi = F32(xe - px0) + HALF
+            i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
+            i_hi = F32(ye - py0 - r0) + HALF
+            cy0 = F32(py0 + r0) + HALF
+            nd = ZERO
+            for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
+                base = np.uint64(h * HSZ + r0 * HW)
+                cxh = cx0 + F32(h * HW)
+                fjh = F32(h * HW)
+                for q in range((r1 - r0 + 1) * HW):
+                    p = base + np.uint64(q)
+                    fc = F32(q & (HW - 1))
+                    fr = F32(q >> 3)
+                    fj = fjh + fc
+                    dx = mx - (cxh + fc)
+                    dy = my - (cy0 + fr)
+                    power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
                     alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
                     Tp = S[F_T + p]
                     test_T = Tp * (ONE - alpha)
-                    ok = (S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (power <= ZERO) & (alpha >= AMIN)
+                    ok = ((S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                          & (power <= ZERO) & (alpha >= AMIN))
                     stop = ok & (test_T < TMIN)
                     blend = ok & (test_T >= TMIN)
                     w = alpha * Tp if blend else ZERO
@@ -224,15 +245,13 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                     S[F_T + p] = test_T if blend else Tp
                     last[p] = k1 if blend else last[p]
                     S[F_DONE + p] = ONE if stop else S[F_DONE + p]
-                    ND[np.uint64(j)] += ONE if stop else ZERO  # per-lane count, summed per Gaussian
-            n_done = ZERO
-            for j in range(TILE):
-                n_done += ND[j]
+                    nd += ONE if stop else ZERO
+            n_done += nd
             if n_done == n_pix:
                 break
         for py in range(ph):
             for px in range(pw):
-                p = np.uint64(py * TILE + px)
+                p = np.uint64((px // HW) * HSZ + py * HW + px % HW)
                 out_f[py0 + py, px0 + px, 0] = S[F_A0 + p]
                 out_f[py0 + py, px0 + px, 1] = S[F_A1 + p]
                 out_f[py0 + py, px0 + px, 2] = S[F_A2 + p]
@@ -258,11 +277,10 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         ph = min(TILE, H - py0)
         S = np.zeros(B_ROWS, np.float32)
         lastk = np.zeros(NPIX, np.int32)
-        ACC = np.empty(N_GRAD * TILE, np.float32)  # per-lane gradient sums of the current Gaussian
         kmax = tile_start[t]
         for py in range(ph):
             for px in range(pw):
-                p = np.uint64(py * TILE + px)
+                p = np.uint64((px // HW) * HSZ + py * HW + px % HW)
                 S[B_T + p] = T_final[py0 + py, px0 + px]
                 S[B_TGA + p] = T_final[py0 + py, px0 + px] * grad_alpha[py0 + py, px0 + px]
                 lastk[p] = last_k[py0 + py, px0 + px]
@@ -291,75 +309,99 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             f1 = P[i, 7]
             f2 = P[i, 8]
             f3 = P[i, 9]
-            qmin = P[i, 6 + NF]
-            inv_ca = ONE / ca
             k32 = np.int32(k)
-            for q in range(N_GRAD * TILE):
-                ACC[q] = ZERO
-            for py in range(ys, ye + 1):
-                dy = my - (F32(py) + HALF)
-                lo, hi = row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe)
-                if lo > hi:
-                    continue
-                row = np.uint64((py - py0) * TILE)
-                cdy = cc * dy * dy
-                bdy = cb * dy
-                j_lo = F32(lo - px0) - HALF
-                j_hi = F32(hi - px0) + HALF
-                for j in range(TILE):
-                    p = row + np.uint64(j)
-                    fj = F32(j)
-                    dx = mx - (cx0 + fj)
-                    power = -HALF * (ca * dx * dx + cdy) - bdy * dx
-                    G = exp_neg32(min(power, ZERO))
-                    alpha = min(op * G, AMAX)
-                    act = (k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (power <= ZERO) & (alpha >= AMIN)
-                    inv_one_m = ONE / (ONE - alpha)
-                    Tp = S[B_T + p]
-                    Tn = Tp * inv_one_m
-                    w = alpha * Tn
-                    # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
-                    # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
-                    c0 = S[B_S0 + p]
-                    c1 = S[B_S1 + p]
-                    c2 = S[B_S2 + p]
-                    c3 = S[B_S3 + p]
-                    g0 = S[B_G0 + p]
-                    g1 = S[B_G1 + p]
-                    g2 = S[B_G2 + p]
-                    g3 = S[B_G3 + p]
-                    dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
-                    dL_da += S[B_TGA + p] * inv_one_m
-                    dL_da = dL_da if act else ZERO
-                    wa = w if act else ZERO
-                    S[B_T + p] = Tn if act else Tp
-                    one_m = ONE - alpha
-                    S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
-                    S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
-                    S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
-                    S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
-                    # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
-                    # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
-                    qg = op * G * dL_da
-                    gx = -qg * (ca * dx + cb * dy)
-                    gy = -qg * (cc * dy + cb * dx)
-                    # per-lane sums over the rows (one horizontal sum per Gaussian, after the rows)
-                    uj = np.uint64(j)
-                    ACC[A_MX + uj] += gx
-                    ACC[A_MY + uj] += gy
-                    ACC[A_CA + uj] += qg * dx * dx
-                    ACC[A_CB + uj] += qg * dx * dy
-                    ACC[A_CC + uj] += qg * dy * dy
-                    ACC[A_OP + uj] += G * dL_da
-                    ACC[A_F0 + uj] += wa * g0
-                    ACC[A_F1 + uj] += wa * g1
-                    ACC[A_F2 + uj] += wa * g2
-                    ACC[A_F3 + uj] += wa * g3
-                    ACC[A_AX + uj] += abs(gx)
-                    ACC[A_AY + uj] += abs(gy)
-            # buf columns: mean2d x, y, conic a, b, c, opacity, features, |dL/dmean2d| x, y
-            for c in range(N_GRAD):
-                tot = ZERO
-                for j in range(TILE):
-                    tot += ACC[c * TILE + j]
-                buf[k, c] = tot * ACC_SCALE[c]
+            g_mx = ZERO
+            g_my = ZERO
+            g_ca = ZERO
+            g_cb = ZERO
+            g_cc = ZERO
+            g_op = ZERO
+            gf0 = ZERO
+            gf1 = ZERO
+            gf2 = ZERO
+            gf3 = ZERO
+            abs_x = ZERO
+            abs_y = ZERO
+            if xs <= xe and ys <= ye:
+                r0 = ys - py0
+                r1 = ye - py0
+                if (r1 - r0) % 2 == 0:
+                    if r1 < TILE - 1:
+                        r1 += 1
+                    else:
+                        r0 -= 1
+                j_lo = F32(xs - px0) - HALF
+                j_hi = F32(xe - px0) + HALF
+                i_lo = F32(ys - py0 - r0) - HALF
+                i_hi = F32(ye - py0 - r0) + HALF
+                cy0 = F32(py0 + r0) + HALF
+                # as the forward: each half the box touches as one flat loop, two rows a vector; the
+                # sums stay in vector registers over the loop
+                for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
+                    base = np.uint64(h * HSZ + r0 * HW)
+                    cxh = cx0 + F32(h * HW)
+                    fjh = F32(h * HW)
+                    for q in range((r1 - r0 + 1) * HW):
+                        p = base + np.uint64(q)
+                        fc = F32(q & (HW - 1))
+                        fr = F32(q >> 3)
+                        fj = fjh + fc
+                        dx = mx - (cxh + fc)
+                        dy = my - (cy0 + fr)
+                        power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        G = exp_neg32(min(power, ZERO))
+                        alpha = min(op * G, AMAX)
+                        act = ((k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                               & (power <= ZERO) & (alpha >= AMIN))
+                        one_m = ONE - alpha
+                        inv_one_m = ONE / one_m
+                        Tp = S[B_T + p]
+                        Tn = Tp * inv_one_m
+                        # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
+                        # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
+                        c0 = S[B_S0 + p]
+                        c1 = S[B_S1 + p]
+                        c2 = S[B_S2 + p]
+                        c3 = S[B_S3 + p]
+                        g0 = S[B_G0 + p]
+                        g1 = S[B_G1 + p]
+                        g2 = S[B_G2 + p]
+                        g3 = S[B_G3 + p]
+                        dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
+                        dL_da += S[B_TGA + p] * inv_one_m
+                        dL_da = dL_da if act else ZERO
+                        wa = alpha * Tn if act else ZERO
+                        S[B_T + p] = Tn if act else Tp
+                        S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
+                        S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
+                        S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
+                        S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
+                        # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
+                        # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
+                        qg = op * G * dL_da
+                        gx = -qg * (ca * dx + cb * dy)
+                        gy = -qg * (cc * dy + cb * dx)
+                        g_mx += gx
+                        g_my += gy
+                        g_ca += qg * dx * dx
+                        g_cb += qg * dx * dy
+                        g_cc += qg * dy * dy
+                        g_op += G * dL_da
+                        gf0 += wa * g0
+                        gf1 += wa * g1
+                        gf2 += wa * g2
+                        gf3 += wa * g3
+                        abs_x += abs(gx)
+                        abs_y += abs(gy)
+            buf[k, 0] = g_mx
+            buf[k, 1] = g_my
+            buf[k, 2] = -HALF * g_ca
+            buf[k, 3] = -g_cb
+            buf[k, 4] = -HALF * g_cc
+            buf[k, 5] = g_op
+            buf[k, 6] = gf0
+            buf[k, 7] = gf1
+            buf[k, 8] = gf2
+            buf[k, 9] = gf3
+            buf[k, 6 + NF] = abs_x
+            buf[k, 7 + NF] = abs_y
