@@ -447,6 +447,7 @@ def main(argv=None) -> int:
                     help="the CPU rasterizer: float32 blends (default) or the float64 reference kernels")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    import strings_bench.raster  # noqa: F401  (selects numba's workqueue threads before any kernel runs)
     from strings_bench.core.io import cache_root
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory
 
@@ -465,6 +466,8 @@ def main(argv=None) -> int:
     results = []
     with cpu_threads(threads):
         bw, flops, vflops = copy_bandwidth(), peak_flops(), vector_peak()
+        if threads is not None:  # numba's parallel launches above can reset the shared OpenMP thread count
+            torch.set_num_threads(threads)
         info = {"numba_threads": numba.get_num_threads(), "torch_threads": torch.get_num_threads(),
                 "copy_GBps": bw / 1e9, "peak_GFLOPs": flops / 1e9, "vector_peak_GFLOPs": vflops / 1e9,
                 "backend": args.backend}
