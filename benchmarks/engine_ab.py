@@ -45,10 +45,9 @@ def worker(state: str, first: int, steps: int) -> int:
     import engine_profile as E
 
     try:
-        from strings_bench.engine.trainer import cpu_threads
-        threads = cpu_threads()
+        from strings_bench.engine.trainer import cpu_threads as threads
     except ImportError:  # older commits: torch's own setting
-        threads = nullcontext()
+        threads = nullcontext
     try:  # the Trainer's CPU memory setting, where the arm's version has one
         from strings_bench.engine.trainer import keep_freed_memory
         keep_freed_memory()
@@ -65,12 +64,12 @@ def worker(state: str, first: int, steps: int) -> int:
         method = E.restore(scene, "early", Path(state))
     if os.environ.get("ENGINE_AB_BACKEND"):
         method.config.backend = os.environ["ENGINE_AB_BACKEND"]
-    with threads:  # one untimed step: loading each compiled kernel from the cache is not a step's time
+    with threads():  # one untimed step: loading each compiled kernel from the cache is not a step's time
         method.train_step(first)
         method.refine(first)
     first += 1
     n0 = method.num_gaussians()
-    with threads:
+    with threads():
         t0, c0 = time.perf_counter(), time.process_time()
         for step in range(first, first + steps):
             method.train_step(step)
