@@ -9,17 +9,18 @@ loop on the vector units:
   the transmittance, T_final x dL/dalpha, dL/dfeatures and the features blended behind) is float32,
   one row of 256 per quantity in one buffer at constant offsets, indexed with unsigned integers: LLVM
   then needs no alias checks between the rows and no negative-index wraparound;
-- for each Gaussian and each row of its box inside the tile whose span can reach 1/255
-  (`row_span32`), the inner loop runs over all 16 pixels of the tile row (a constant trip count: one
-  AVX-512 vector) with no branch: every test of the float64 kernels (the row's span, power > 0,
-  alpha < 1/255, the transmittance stop, a pixel already done or, in the backward, behind its last
-  contributor) is a per-pixel mask that selects between the updated and the old value. A tile stops
-  when all of its pixels are done, as before;
+- the tile is stored as two halves of 8 columns (16 rows x 8, contiguous): for each Gaussian and each
+  half its box touches, one flat loop runs over the box's rows x 8 columns, two rows per 16-lane
+  AVX-512 vector (an odd row count gets one more row, masked), with no branch: every test of the
+  float64 kernels (the box's columns and rows, power > 0, alpha < 1/255, the transmittance stop, a
+  pixel already done or, in the backward, behind its last contributor) is a per-pixel mask that
+  selects between the updated and the old value. Pixels outside the alpha >= 1/255 ellipse fail the
+  alpha test, so no per-row span is needed; a tile stops when all of its pixels are done, as before;
 - `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
   (`pow2_f32`), inlined, branch-free;
 - the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
-  3DGS evaluates lazily from the previous splat) and sums each Gaussian's gradients in per-lane
-  accumulators, reduced once per Gaussian and tile.
+  3DGS evaluates lazily from the previous splat) and keeps each Gaussian's gradient sums in vector
+  registers over its loop.
 
 Sums over lanes (the backward's gradients, the forward's count of pixels done) are vector
 reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads, so a run
@@ -92,25 +93,6 @@ def exp_neg32(x):
     z = r * r
     e = (((((E0 * r + E1) * r + E2) * r + E3) * r + E4) * r + E5) * z + r + ONE
     return e * pow2_f32(fk)
-
-
-@njit(cache=True, inline="always", fastmath=FASTMATH)
-def row_span32(ca, cb, cc, qmin, inv_ca, mx, dy, xs, xe):
-    """`cpu_kernels.row_span` in float32: pixel columns [lo, hi] of one row that may pass the alpha
-    threshold, clipped to [xs, xe]. The span keeps a pixel of slack each side, far above float32's
-    rounding at image coordinates, and the per-pixel tests decide."""
-    bq = cb * dy
-    disc = bq * bq - ca * (cc * dy * dy - qmin)
-    if not disc >= ZERO:  # also catches NaN (opacity below 1/255)
-        return 1, 0
-    sq = np.sqrt(disc)
-    lo = mx - HALF - (-bq + sq) * inv_ca - ONE
-    hi = mx - HALF - (-bq - sq) * inv_ca + ONE
-    lo = max(lo, F32(xs))
-    hi = min(hi, F32(xe))
-    if lo > hi:
-        return 1, 0
-    return int(np.ceil(lo)), int(np.floor(hi))
 
 
 @njit(parallel=True, cache=True)
