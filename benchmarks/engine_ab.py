@@ -9,8 +9,11 @@ versions run the same training steps (`train_step` + `refine`, each under its ow
 thread setting) in fresh processes: the old commit from a `git worktree` of it, this checkout
 from its own tree. Arms alternate within every repetition (old first in even repetitions).
 
-Printed per size: ms per step of each arm (median over repetitions), the ratio old / new, and
-whether both arms ended with bit-identical parameters. Then an estimate of the whole training of
+Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
+and process CPU time of all threads, which a loaded machine disturbs less), and whether both arms
+ended with bit-identical parameters (not expected across issue 37: the float32 blends follow another
+trajectory; `--new-backend cpu-f64` runs the new arm on the float64 kernels, whose parameters should
+then be identical to the old commit's). Then an estimate of the whole training of
 the default run: the per-step time of each arm interpolated linearly in the Gaussian count between
 the sampled sizes, summed over the run's 1 050 steps with the Gaussian count each step has
 (`--counts`, the counts logged every 50 steps by engine_profile's training; by default those of
@@ -42,10 +45,9 @@ def worker(state: str, first: int, steps: int) -> int:
     import engine_profile as E
 
     try:
-        from strings_bench.engine.trainer import cpu_threads
-        threads = cpu_threads()
+        from strings_bench.engine.trainer import cpu_threads as threads
     except ImportError:  # older commits: torch's own setting
-        threads = nullcontext()
+        threads = nullcontext
     try:  # the Trainer's CPU memory setting, where the arm's version has one
         from strings_bench.engine.trainer import keep_freed_memory
         keep_freed_memory()
@@ -60,23 +62,31 @@ def worker(state: str, first: int, steps: int) -> int:
         method.setup(scene, device="cpu")
     else:
         method = E.restore(scene, "early", Path(state))
+    if os.environ.get("ENGINE_AB_BACKEND"):
+        method.config.backend = os.environ["ENGINE_AB_BACKEND"]
+    with threads():  # one untimed step: loading each compiled kernel from the cache is not a step's time
+        method.train_step(first)
+        method.refine(first)
+    first += 1
     n0 = method.num_gaussians()
-    with threads:
-        t0 = time.perf_counter()
+    with threads():
+        t0, c0 = time.perf_counter(), time.process_time()
         for step in range(first, first + steps):
             method.train_step(step)
             method.refine(step)
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
     h = hashlib.sha256()
     for k, v in sorted(method.model.params.items()):
         h.update(k.encode())
         h.update(v.detach().contiguous().numpy().tobytes())
-    print(json.dumps({"ms": dt / steps * 1e3, "gaussians": n0, "hash": h.hexdigest()}))
+    print(json.dumps({"ms": dt / steps * 1e3, "cpu_ms": dc / steps * 1e3, "gaussians": n0, "hash": h.hexdigest()}))
     return 0
 
 
-def run_arm(tree: Path, state: str, first: int, steps: int) -> dict:
+def run_arm(tree: Path, state: str, first: int, steps: int, backend: str | None = None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
+    if backend:
+        env["ENGINE_AB_BACKEND"] = backend
     out = subprocess.run([sys.executable, str(HERE), "--worker", state, str(first), str(steps)], env=env,
                          capture_output=True, text=True, cwd=str(tree))
     if out.returncode != 0:
@@ -107,6 +117,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", default="12,8,5", help="steps per size and arm")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--total-steps", type=int, default=1050)
+    ap.add_argument("--new-backend", default=None, help="rasterizer backend of the new arm (e.g. cpu-f64)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -133,9 +144,10 @@ def main(argv=None) -> int:
         for r in range(args.reps):
             got = {}
             for arm in (("old", "new") if r % 2 == 0 else ("new", "old")):
-                got[arm] = run_arm(trees[arm], state, s + 1, n_steps)
+                got[arm] = run_arm(trees[arm], state, s + 1, n_steps, args.new_backend if arm == "new" else None)
             reps.append(got)
-            print(f"step {s}: old {got['old']['ms']:.0f} ms/step, new {got['new']['ms']:.0f} ms/step, "
+            print(f"step {s}: old {got['old']['ms']:.0f} ms/step ({got['old']['cpu_ms']:.0f} CPU), "
+                  f"new {got['new']['ms']:.0f} ms/step ({got['new']['cpu_ms']:.0f} CPU), "
                   f"same parameters {got['old']['hash'] == got['new']['hash']}", file=sys.stderr, flush=True)
         row = {"at": s, "gaussians": reps[0]["new"]["gaussians"], "steps": n_steps,
                "old_ms": statistics.median(x["old"]["ms"] for x in reps),
@@ -143,6 +155,9 @@ def main(argv=None) -> int:
                "ratio": statistics.median(x["old"]["ms"] / x["new"]["ms"] for x in reps),
                "ratio_range": [min(x["old"]["ms"] / x["new"]["ms"] for x in reps),
                                max(x["old"]["ms"] / x["new"]["ms"] for x in reps)],
+               "old_cpu_ms": statistics.median(x["old"]["cpu_ms"] for x in reps),
+               "new_cpu_ms": statistics.median(x["new"]["cpu_ms"] for x in reps),
+               "cpu_ratio": statistics.median(x["old"]["cpu_ms"] / x["new"]["cpu_ms"] for x in reps),
                "identical": all(x["old"]["hash"] == x["new"]["hash"] for x in reps)}
         rows.append(row)
     counts = default_counts(state_dir)
@@ -159,11 +174,13 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps({"rows": rows, "estimate": estimate}, indent=1))
         return 0
-    print("| after step | Gaussians | steps | old ms/step | new ms/step | old / new | identical parameters |")
-    print("|---|---|---|---|---|---|---|")
+    print("| after step | Gaussians | steps | old ms/step | new ms/step | old / new | old / new, process CPU time "
+          "| identical parameters |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['at']} | {r['gaussians']} | {r['steps']} | {r['old_ms']:.0f} | {r['new_ms']:.0f} | "
-              f"{r['ratio']:.2f} ({r['ratio_range'][0]:.2f}-{r['ratio_range'][1]:.2f}) | {r['identical']} |")
+              f"{r['ratio']:.2f} ({r['ratio_range'][0]:.2f}-{r['ratio_range'][1]:.2f}) | {r['cpu_ratio']:.2f} | "
+              f"{r['identical']} |")
     if estimate:
         print(f"default run's 3DGS training ({args.total_steps} steps), interpolated: old {estimate['old_s']:.0f} s, "
               f"new {estimate['new_s']:.0f} s, old / new {estimate['ratio']:.2f}")

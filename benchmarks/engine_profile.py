@@ -18,7 +18,7 @@ Trainer does) and splits each step's wall time into the stages, by timing the fu
 |---|---|
 | projection + SH | `raster.cpu.Preprocess.forward` |
 | binning + sort | `raster.cpu.RasterizeTiles.forward` minus its blend kernel (depth sort, packing, tile lists) |
-| forward blend | `raster.cpu_kernels.forward` |
+| forward blend | the blend kernel `forward` (`raster.cpu_kernels_f32`, the default, or `cpu_kernels` with `--backend cpu-f64`) |
 | backward blend | `RasterizeTiles.backward` (blend backward, per-Gaussian reduction, scatter) |
 | backward projection | `Preprocess.backward` |
 | loss + SSIM | the method's `loss` (forward) and the backward from its start until the render's gradient arrives (a hook on `out.color`) |
@@ -29,12 +29,18 @@ Trainer does) and splits each step's wall time into the stages, by timing the fu
 Lower bounds, measured in this run on this machine:
 - copy bandwidth: a parallel numba copy of 256 MiB with the kernels' thread count, counted as bytes
   read + written per second;
-- peak arithmetic: float32 matrix products (torch.mm 2048^2) at the same thread count.
+- peak arithmetic: float32 matrix products (torch.mm 2048^2) at the same thread count, for SSIM;
+- float32 vector peak (issue 37), for the two blends: a numba kernel of independent float32
+  multiply-add chains over arrays that LLVM vectorises (`vector_peak`), at the kernels' thread count:
+  what vectorised float32 code on this CPU can reach, without a matmul's cache blocking.
 Each stage's bound is max(bytes it must move / bandwidth, flops it must do / peak), with bytes
 counted at float32 for what the stage must read and write at least (listed in `stage_bounds`), and
 flops per blended (pixel, Gaussian) pair (20 forward, 40 backward, exp counted as one) for the
-blends; the pairs are counted by a separate numba kernel that walks the same lists. `fraction` is
-bound / measured.
+blends, over the vector peak; the pairs are counted by a separate numba kernel that walks the same
+lists. `fraction` is bound / measured.
+
+`--backend cpu-f64` profiles the float64 blend kernels (the setting `backend=cpu-f64`) instead of
+the default float32 ones.
 """
 
 from __future__ import annotations
@@ -127,6 +133,7 @@ def instrumented(clock: Clock):
     """Wrap the functions each stage runs in; every wrapper adds its wall time to `clock`."""
     import strings_bench.raster.cpu as cpu
     import strings_bench.raster.cpu_kernels as K
+    import strings_bench.raster.cpu_kernels_f32 as K32
     from strings_bench.engine.optim import GaussianAdam
 
     saved = []
@@ -148,6 +155,7 @@ def instrumented(clock: Clock):
     wrap(cpu.RasterizeTiles, "forward", "tiles_fwd", static=True)
     wrap(cpu.RasterizeTiles, "backward", "tiles_bwd", static=True)
     wrap(K, "forward", "blend_fwd")
+    wrap(K32, "forward", "blend_fwd")
     wrap(GaussianAdam, "step", "adam")
     orig_backward = torch.Tensor.backward
 
@@ -247,6 +255,39 @@ def peak_flops(n: int = 2048, reps: int = 3) -> float:
     return 2 * n ** 3 / best
 
 
+def vector_peak(reps: int = 5) -> float:
+    """float32 flops per second of vectorised multiply-adds (numba, the kernels' thread count): per
+    array element CHAINS independent chains of LINKS multiply-adds, written out; elements are
+    independent, so LLVM vectorises over them (as the blends do over a tile row) and the chains hide
+    the latency. Arrays in cache (no memory bound). 2 flops per multiply-add; best of `reps`."""
+    import numba
+    from numba import njit, prange
+
+    ind = " " * 12
+    lines = [f"{ind}v{k} = x[j] + np.float32({k})" for k in range(CHAINS)]
+    for _ in range(LINKS):
+        lines += [f"{ind}v{k} = v{k} * m + c" for k in range(CHAINS)]
+    lines.append(f"{ind}y[j] = " + " + ".join(f"v{k}" for k in range(CHAINS)))
+    src = ("def chains(x, y, m, c, n_threads):\n"
+           "    per = x.shape[0] // n_threads\n"
+           "    for t in prange(n_threads):\n"
+           "        for r in range(ROUNDS):\n"
+           "          for j in range(t * per, (t + 1) * per):\n" + "\n".join(lines) + "\n")
+    ns = {"prange": prange, "ROUNDS": 400, "np": np}
+    exec(src, ns)  # noqa: S102 (our own source, generated above)
+    chains = njit(parallel=True, fastmath={"contract"})(ns["chains"])
+    n_threads = numba.get_num_threads()
+    x = np.random.default_rng(0).random(n_threads * 2048).astype(np.float32)
+    y = np.empty_like(x)
+    m, c = np.float32(0.999), np.float32(0.001)
+    chains(x, y, m, c, n_threads)
+    best = min(_timed(lambda: chains(x, y, m, c, n_threads)) for _ in range(reps))
+    return x.shape[0] * 400 * CHAINS * LINKS * 2 / best
+
+
+CHAINS, LINKS = 4, 16
+
+
 def _timed(fn) -> float:
     t0 = time.perf_counter()
     fn()
@@ -256,22 +297,26 @@ def _timed(fn) -> float:
 def count_pairs(method, view: int) -> tuple[int, int, int, int]:
     """(visible Gaussians, tile intersections, blended pixel-Gaussian pairs forward, pairs backward)
     of one render of `view` at the current model: the work the blends cannot avoid."""
-    import strings_bench.raster.cpu as cpu
     import strings_bench.raster.cpu_kernels as K
+    import strings_bench.raster.cpu_kernels_f32 as K32
 
     got = {}
-    orig = K.forward
+    origs = {mod: mod.forward for mod in (K, K32)}
 
-    def spy(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
-        orig(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
-        got.update(V=P.shape[0], M=lst.shape[0], pairs=_blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last))
-    K.forward = spy
+    def spying(orig):
+        def spy(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
+            orig(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+            got.update(V=P.shape[0], M=lst.shape[0],
+                       pairs=_blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last))
+        return spy
+    for mod, orig in origs.items():
+        mod.forward = spying(orig)
     try:
         with torch.no_grad():
             method.render_raster(view, sh_degree=method.sh_degree_for_step(method.step))
     finally:
-        K.forward = orig
-    del cpu
+        for mod, orig in origs.items():
+            mod.forward = orig
     return got["V"], got["M"], got["pairs"][0], got["pairs"][1]
 
 
@@ -307,9 +352,11 @@ def _blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last):
 
 
 def stage_bounds(n: int, v: int, m: int, pairs_f: int, pairs_b: int, k_sh: int, hw: int, bw: float,
-                 flops: float, refine_every: int) -> dict[str, tuple[float, str]]:
+                 flops: float, refine_every: int, vflops: float | None = None) -> dict[str, tuple[float, str]]:
     """ms lower bound per stage and what it counts. n Gaussians, v visible, m tile intersections,
-    k_sh SH coefficients per channel in use, hw pixels."""
+    k_sh SH coefficients per channel in use, hw pixels; vflops the float32 vector peak (the blends'
+    arithmetic bound; the matmul peak `flops` where not given)."""
+    vflops = flops if vflops is None else vflops
     f4 = 4.0
     params = (3 + 4 + 3 + 1 + 3 * k_sh) * f4  # what projection+SH reads per Gaussian
     proj_out = (2 + 3 + 1 + 4) * f4 + 4 + 16  # means2d, conic, opacity, feats, radius, box
@@ -318,9 +365,9 @@ def stage_bounds(n: int, v: int, m: int, pairs_f: int, pairs_b: int, k_sh: int, 
     rows = {
         "projection+SH": (n * (params + proj_out) / bw, f"N x ({params:.0f} B read + {proj_out:.0f} B written)"),
         "binning+sort": ((v * 20 + m * 8) / bw, "V x 20 B (depth, box) + M x 8 B (key and list entry)"),
-        "forward blend": (max((m * 10 * f4 + hw * 24) / bw, pairs_f * FWD_FLOPS_PER_PAIR / flops),
+        "forward blend": (max((m * 10 * f4 + hw * 24) / bw, pairs_f * FWD_FLOPS_PER_PAIR / vflops),
                           f"max(M x 40 B + image, {FWD_FLOPS_PER_PAIR} flops x blended pairs)"),
-        "backward blend": (max((m * 10 * f4 + hw * 40 + v * 12 * f4) / bw, pairs_b * BWD_FLOPS_PER_PAIR / flops),
+        "backward blend": (max((m * 10 * f4 + hw * 40 + v * 12 * f4) / bw, pairs_b * BWD_FLOPS_PER_PAIR / vflops),
                            f"max(M x 40 B + image grads + V x 48 B, {BWD_FLOPS_PER_PAIR} flops x pairs)"),
         "backward projection": (n * (2 * params) / bw + v * 10 * f4 / bw, "N x params read and grads written + V x 40 B"),
         "loss+SSIM": (max(hw * 3 * f4 * 4 / bw, ssim_flops / flops), "max(2 images read, grad written; SSIM filter flops)"),
@@ -330,7 +377,8 @@ def stage_bounds(n: int, v: int, m: int, pairs_f: int, pairs_b: int, k_sh: int, 
     return {k: (sec * 1e3, what) for k, (sec, what) in rows.items()}
 
 
-def profile_case(name: str, method, first_step: int, steps: int, bw: float, flops: float) -> dict:
+def profile_case(name: str, method, first_step: int, steps: int, bw: float, flops: float,
+                 vflops: float | None = None) -> dict:
     """Warm one step, profile `steps`, count the pairs, time one densification round."""
     method.train_step(first_step)
     method.refine(first_step)
@@ -344,7 +392,7 @@ def profile_case(name: str, method, first_step: int, steps: int, bw: float, flop
     prof["stages"]["densification"] += dens / every
     prof["step_ms"] += dens / every
     deg = method.sh_degree_for_step(method.step)
-    bounds = stage_bounds(n, v, m, pf, pb, (deg + 1) ** 2, cam.width * cam.height, bw, flops, every)
+    bounds = stage_bounds(n, v, m, pf, pb, (deg + 1) ** 2, cam.width * cam.height, bw, flops, every, vflops)
     return {"case": name, "gaussians": n, "visible": v, "intersections": m, "pairs": pf,
             "width": cam.width, "height": cam.height, "sh_degree": deg, "step_ms": prof["step_ms"],
             "densify_round_ms": dens, "refine_every": every,
@@ -395,8 +443,11 @@ def main(argv=None) -> int:
                     help="torch intra-op threads during the steps: 'trainer' (the Trainer's CPU setting), N, or 'none'")
     ap.add_argument("--threads-ab", type=int, default=0, metavar="ROUNDS",
                     help="also time ROUNDS alternating rounds with torch at 1 and 2 threads per case")
+    ap.add_argument("--backend", default="cpu", choices=("cpu", "cpu-f64"),
+                    help="the CPU rasterizer: float32 blends (default) or the float64 reference kernels")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    import strings_bench.raster  # noqa: F401  (selects numba's workqueue threads before any kernel runs)
     from strings_bench.core.io import cache_root
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory
 
@@ -414,17 +465,22 @@ def main(argv=None) -> int:
 
     results = []
     with cpu_threads(threads):
-        bw, flops = copy_bandwidth(), peak_flops()
+        bw, flops, vflops = copy_bandwidth(), peak_flops(), vector_peak()
+        if threads is not None:  # numba's parallel launches above can reset the shared OpenMP thread count
+            torch.set_num_threads(threads)
         info = {"numba_threads": numba.get_num_threads(), "torch_threads": torch.get_num_threads(),
-                "copy_GBps": bw / 1e9, "peak_GFLOPs": flops / 1e9}
-        print(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write), float32 matmul peak {flops / 1e9:.0f} GFLOP/s; "
+                "copy_GBps": bw / 1e9, "peak_GFLOPs": flops / 1e9, "vector_peak_GFLOPs": vflops / 1e9,
+                "backend": args.backend}
+        print(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write), float32 matmul peak {flops / 1e9:.0f} GFLOP/s, "
+              f"float32 vector peak {vflops / 1e9:.0f} GFLOP/s (the blends' bound); backend {args.backend}; "
               f"numba threads {info['numba_threads']}, torch threads {info['torch_threads']}", flush=True)
         cases = [(f"{s} steps, 320x240", s, 1.0) for s in at]
         if args.big_at:
             cases.append((f"{args.big_at} steps, 640x480", args.big_at, 0.5))
         for name, s, ds in cases:
             method = restore(scene, args.schedule, paths[s], downscale=ds)
-            r = profile_case(name, method, s + 1, args.steps, bw, flops)
+            method.config.backend = args.backend
+            r = profile_case(name, method, s + 1, args.steps, bw, flops, vflops)
             if args.threads_ab:
                 r["threads_ab"] = threads_ab(method, args.threads_ab, args.steps)
             results.append(r)

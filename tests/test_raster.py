@@ -16,6 +16,9 @@ from strings_bench.raster.reference import rasterize_reference
 from strings_bench.raster.sh import sh_basis
 
 TOL = 1e-5
+# The accuracy tests below hold the float64 blend kernels to the brute-force reference; the float32
+# kernels (backend "cpu", the default) are held to these in tests/test_raster_f32.py.
+CPU_REF = "cpu-f64"
 NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh", "background")
 
 
@@ -54,11 +57,11 @@ def run_cpu(params, cam, sh_degree=None, mip=False, preprocess="numba", absgrad=
     leaves = [p.clone().float().requires_grad_() for p in params]
     deg = {1: 0, 4: 1, 9: 2, 16: 3}[leaves[4].shape[1]] if sh_degree is None else sh_degree
     if preprocess == "numba":
-        out = rasterize(*leaves[:5], cam, leaves[5], sh_degree=sh_degree, backend="cpu", mip_filter=mip,
+        out = rasterize(*leaves[:5], cam, leaves[5], sh_degree=sh_degree, backend=CPU_REF, mip_filter=mip,
                         compute_absgrad=absgrad)
     else:
         out = _rasterize_cpu(*leaves[:4], leaves[4], deg, cam, leaves[5], mip_filter=mip, compute_absgrad=absgrad,
-                             near=0.01, far=1e10, preprocess="torch")
+                             near=0.01, far=1e10, preprocess="torch", backend=CPU_REF)
     out.means2d.retain_grad()
     weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
     return out, leaves
@@ -558,21 +561,25 @@ def test_gsplat_means2d_hook_frees_each_steps_graph():
     assert all(r() is None for r in previous)
 
 
-def _blend_with_boxes(P, BB, W, H, seed=5):
-    """Forward and backward blend of P with pixel boxes BB; per-Gaussian gradients (input order = P's)."""
+def _blend_with_boxes(P, BB, W, H, seed=5, kernels=None):
+    """Forward and backward blend of P with pixel boxes BB; per-Gaussian gradients (input order = P's).
+    kernels: the blend kernels' module (default cpu_kernels, float64; or cpu_kernels_f32)."""
     import strings_bench.raster.cpu_kernels as K
+
+    KB = K if kernels is None else kernels
+    f32 = P.dtype == np.float32
 
     tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
     tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
     out_f = np.empty((H, W, K.NF), np.float32)
-    out_T = np.empty((H, W))
-    out_last = np.empty((H, W), np.int64)
-    K.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+    out_T = np.empty((H, W), np.float32 if f32 else np.float64)
+    out_last = np.empty((H, W), np.int32 if f32 else np.int64)
+    KB.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
     rng = np.random.default_rng(seed)
     gF = rng.standard_normal((H, W, K.NF)).astype(np.float32)
     gA = rng.standard_normal((H, W)).astype(np.float32)
     buf = np.empty((lst.shape[0], K.N_GRAD), np.float32)
-    K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
+    KB.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
     V = P.shape[0]
     grads = [np.empty(shape, np.float32) for shape in ((V, 2), (V, 3), (V,), (V, K.NF), (V, 2))]
     K.reduce_intersections(buf, g_start, isect_pos, np.arange(V), *grads)

@@ -308,8 +308,10 @@ class GaussianModel:
 
         degree = self.sh_degree if sh_degree is None else min(int(sh_degree), self.sh_degree)
         bg = torch.as_tensor(background, dtype=torch.float32, device=self.device)
+        # sh0 and shN as they are stored (no (N, 16, 3) concatenation and gradient split each step)
         return rasterize(self.params["means"], self.params["quats"], self.params["log_scales"],
-                         self.params["opacity_logits"], self.sh, camera, bg, sh_degree=degree, **raster_kwargs)
+                         self.params["opacity_logits"], self.params["sh0"], camera, bg, sh_degree=degree,
+                         sh_rest=self.params["shN"], **raster_kwargs)
 
     # ---- (de)serialisation ----------------------------------------------------------------
     def state_dict(self) -> dict:

@@ -46,6 +46,7 @@ from strings_bench.core.settings import Setting, dataclass_settings
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.losses import gs_loss
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
+from strings_bench.engine.optim_kernels import sums_finite
 from strings_bench.engine.strategies.base import Strategy, scaled_interval, scaled_step
 from strings_bench.engine.strategies.default import DefaultStrategy
 from strings_bench.core.method import Method
@@ -69,7 +70,7 @@ class TrainConfig:
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
-    backend: str = "auto"  # rasterizer backend: auto, cpu, gsplat
+    backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
 
     def __post_init__(self):
         if self.steps_scale <= 0:
@@ -380,7 +381,7 @@ class GaussianSplatting(Method):
         model, opt, strategy = self.model, self.optimizer, self.strategy
         # The rasterizer may cull a Gaussian with NaN parameters without a NaN loss: check the values too.
         with torch.no_grad():
-            if not torch.isfinite(torch.stack([p.sum() for p in model.params.values()])).all():
+            if not sums_finite(model.params.values()):
                 raise self._nonfinite_error(step, "a parameter is not finite")
         opt.set_lr("means", self.position_lr(step))
         view = self.views_for_step(step)
@@ -400,11 +401,11 @@ class GaussianSplatting(Method):
         loss.backward()
         grads = [p.grad for p in model.params.values() if p.grad is not None]
         # One reduction per group: a sum is non-finite when any element is, or when the gradients are so
-        # large (> 3e38 in total) that the run has diverged anyway.
-        if grads and not torch.isfinite(torch.stack([g.sum() for g in grads])).all():
+        # large (> 3e38 in total) that the run has diverged anyway (sums_finite: on the numba threads).
+        if grads and not sums_finite(grads):
             bad_grads = [k for k, p in model.params.items() if p.grad is not None and not torch.isfinite(p.grad).all()]
             bad_grads = bad_grads or [k for k, p in model.params.items() if p.grad is not None
-                                      and not torch.isfinite(p.grad.sum())]
+                                      and not sums_finite([p.grad])]
             raise self._nonfinite_error(step, f"the gradient of {', '.join(bad_grads)} is not finite", bad_grads)
         scale = self.position_lr_scale(step)
         row_scale = None

@@ -56,9 +56,10 @@ _ensure_numba_cache_dir()
 _prefer_workqueue_threads()
 
 
-def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree):
-    for name, x in (("means", means), ("quats", quats), ("log_scales", log_scales),
-                    ("opacity_logits", opacity_logits), ("sh", sh)):
+def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree, sh_rest=None):
+    named = [("means", means), ("quats", quats), ("log_scales", log_scales), ("opacity_logits", opacity_logits),
+             ("sh", sh)] + ([("sh_rest", sh_rest)] if sh_rest is not None else [])
+    for name, x in named:
         if not isinstance(x, torch.Tensor):
             raise RasterInputError(f"rasterize: {name} must be a torch tensor, got {type(x).__name__}",
                                    hint="pass torch tensors (float32)")
@@ -75,6 +76,12 @@ def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_d
             % tuple(tuple(x.shape) for x in (means, quats, log_scales, opacity_logits, sh)),
             hint="expected (N,3), (N,4) wxyz, (N,3), (N,) or (N,1), (N,K,3) with K = (deg+1)^2")
     k = sh.shape[1]
+    if sh_rest is not None:
+        if k != 1 or sh_rest.ndim != 3 or sh_rest.shape[0] != n or sh_rest.shape[2] != 3:
+            raise RasterInputError(
+                f"rasterize: with sh_rest, sh must be (N, 1, 3) and sh_rest (N, K - 1, 3); got {tuple(sh.shape)} "
+                f"and {tuple(sh_rest.shape)}", hint="pass the DC band as sh and the other bands as sh_rest")
+        k = 1 + sh_rest.shape[1]
     deg_avail = {1: 0, 4: 1, 9: 2, 16: 3}.get(k)
     if deg_avail is None:
         raise RasterInputError(f"rasterize: sh has {k} coefficients per channel",
@@ -92,19 +99,23 @@ def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_d
     return deg
 
 
+CPU_BACKENDS = {"cpu": "f32", "cpu-f64": "f64"}  # name -> blend kernels' precision (raster/cpu.py)
+BACKENDS = ("auto", *CPU_BACKENDS, "gsplat")
+
+
 def pick_backend(backend: str, device: torch.device) -> str:
     """The backend `rasterize` uses for tensors on `device`.
 
     Args:
-        backend: "auto", "cpu" or "gsplat". "auto" gives "gsplat" when `device` is CUDA and gsplat
-            imports, else "cpu"; the other two are returned as given.
+        backend: "auto", "cpu", "cpu-f64" or "gsplat". "auto" gives "gsplat" when `device` is CUDA
+            and gsplat imports, else "cpu"; the others are returned as given.
         device: the device of the input tensors (`means.device`).
 
     Returns:
-        "cpu" or "gsplat".
+        "cpu", "cpu-f64" or "gsplat".
 
     Raises:
-        RasterInputError: `backend` is not one of the three names.
+        RasterInputError: `backend` is not one of those names.
 
     Example:
         >>> import torch
@@ -112,8 +123,9 @@ def pick_backend(backend: str, device: torch.device) -> str:
         >>> pick_backend("auto", torch.device("cpu"))
         'cpu'
     """
-    if backend not in ("auto", "cpu", "gsplat"):
-        raise RasterInputError(f"rasterize: unknown backend {backend!r}", hint="use 'auto', 'cpu' or 'gsplat'")
+    if backend not in BACKENDS:
+        raise RasterInputError(f"rasterize: unknown backend {backend!r}",
+                               hint="use " + ", ".join(repr(b) for b in BACKENDS))
     if backend == "auto":
         if device.type == "cuda":
             from strings_bench.raster.gsplat_backend import gsplat_available
@@ -125,7 +137,8 @@ def pick_backend(backend: str, device: torch.device) -> str:
 
 
 def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, sh_degree=None,
-              backend="auto", mip_filter=False, compute_absgrad=False, near=0.01, far=1e10) -> RasterOutput:
+              backend="auto", mip_filter=False, compute_absgrad=False, near=0.01, far=1e10,
+              sh_rest=None) -> RasterOutput:
     """Render N 3D Gaussians into `camera`, differentiably (3DGS splatting; rules in docs/raster.md).
 
     Every input is a raw (pre-activation) parameter, as 3DGS stores it; all floating tensors must be
@@ -149,17 +162,23 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
             of `means`); composited as color + (1 - alpha) * background.
         sh_degree: int or None. Use SH bands 0..sh_degree only (None: every band `sh` holds);
             inactive bands get zero gradient.
-        backend: "auto" (gsplat for CUDA tensors when gsplat imports, else "cpu"), "cpu" (torch +
-            numba tile kernels with a hand-written backward) or "gsplat" (CUDA only).
+        backend: "auto" (gsplat for CUDA tensors when gsplat imports, else "cpu"), "cpu" (numba
+            preprocessing and tile kernels with a hand-written backward; float32 blending on the
+            vector units), "cpu-f64" (the same with the float64 blend kernels: the reference the
+            tests hold "cpu" to; about 3x slower) or "gsplat" (CUDA only).
         mip_filter: bool. Mip-Splatting's 2D filter: a 0.1 px^2 dilation with opacity compensation
             sqrt(det Sigma2D / det(Sigma2D + 0.1 I)) instead of 3DGS's plain 0.3 px^2 dilation.
         compute_absgrad: bool. Allocate `absgrad` and fill it during backward with the AbsGS
             statistic sum_pixels |dL_pixel / d means2d| per component (pixel units).
         near, far: float, camera-space depth z (world units) outside of which a Gaussian is
             culled (z <= near or z >= far). Need 0 < near < far.
+        sh_rest: None, or (N, K - 1, 3) float: the SH bands above the DC one, with `sh` then only
+            the DC band (N, 1, 3) — the model's sh0 / shN as they are stored. Same result as
+            passing their concatenation as `sh`; the CPU backends then read both in place (no
+            (N, K, 3) copy each step, no split of its gradient).
 
-    Dtypes: float32 is the usual input; the CPU backend computes in float64 inside and returns the
-    input dtype. `radii` is int32.
+    Dtypes: float32 is the usual input; the CPU backends project in float64, blend in float32
+    ("cpu") or float64 ("cpu-f64") and return the input dtype. `radii` is int32.
 
     Returns:
         RasterOutput with
@@ -172,7 +191,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
                 as the 3DGS threshold 2e-4, are grad * 0.5 * [W, H]);
             absgrad: (N, 2) or None (None unless compute_absgrad), filled by backward;
             visible: (N,) bool, radii > 0;
-            backend: "cpu" or "gsplat", the backend that ran.
+            backend: "cpu", "cpu-f64" or "gsplat", the backend that ran.
 
     Raises:
         RasterInputError (a StringsBenchError with a hint): an input is not a floating torch
@@ -203,12 +222,14 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
         (torch.Size([3, 2]), torch.Size([3, 3]))
     """
     background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
-    deg = _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree)
+    deg = _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree, sh_rest)
     if not near > 0 or not far > near:
         raise RasterInputError(f"rasterize: need 0 < near < far, got near={near}, far={far}",
                                hint="the default near plane is 0.01")
     chosen = pick_backend(backend, means.device)
     opacity_logits = opacity_logits.reshape(-1)
+    if sh_rest is not None and (chosen == "gsplat" or sh_rest.shape[1] == 0):
+        sh, sh_rest = torch.cat([sh, sh_rest], dim=1), None
     if chosen == "gsplat":
         from strings_bench.raster.gsplat_backend import rasterize_gsplat
 
@@ -216,7 +237,8 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
         return rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, camera, background,
                                 mip_filter=mip_filter, compute_absgrad=compute_absgrad, near=near, far=far)
     return _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, background,
-                          mip_filter=mip_filter, compute_absgrad=compute_absgrad, near=near, far=far)
+                          mip_filter=mip_filter, compute_absgrad=compute_absgrad, near=near, far=far,
+                          backend=chosen, sh_rest=sh_rest)
 
 
 def _cam_center(camera, like: torch.Tensor) -> torch.Tensor:
@@ -224,9 +246,10 @@ def _cam_center(camera, like: torch.Tensor) -> torch.Tensor:
 
 
 def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, background, mip_filter,
-                   compute_absgrad, near, far, preprocess="numba") -> RasterOutput:
+                   compute_absgrad, near, far, preprocess="numba", backend="cpu", sh_rest=None) -> RasterOutput:
     """preprocess="numba" (default, fast) or "torch" (projection.py + sh.py through autograd; the
-    tests use it as an independent check of the hand-written preprocessing backward)."""
+    tests use it as an independent check of the hand-written preprocessing backward). backend:
+    "cpu" (float32 blend kernels) or "cpu-f64" (float64)."""
     from strings_bench.raster.cpu import Preprocess, RasterizeTiles
 
     if means.device.type != "cpu":
@@ -235,8 +258,10 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
     n = means.shape[0]
     if preprocess == "numba":
         means2d, conics, opacities, feats, radii, bbox = Preprocess.apply(
-            means, quats, log_scales, opacity_logits, sh, deg, camera, mip_filter, near, far)
+            means, quats, log_scales, opacity_logits, sh, deg, camera, mip_filter, near, far, sh_rest)
     else:
+        if sh_rest is not None:
+            sh = torch.cat([sh, sh_rest], dim=1)
         from strings_bench.raster.projection import project
 
         proj = project(means, quats, log_scales, opacity_logits, camera, mip_filter=mip_filter, near=near, far=far)
@@ -245,11 +270,11 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, sh, deg, camera, ba
         feats = torch.cat([colors, proj.depths[:, None]], dim=1)
     absgrad = torch.zeros((n, 2), dtype=means.dtype, device=means.device) if compute_absgrad else None
     feat_img, alpha = RasterizeTiles.apply(means2d, conics, opacities, feats, radii, bbox, feats[:, 3].detach(),
-                                           camera.width, camera.height, absgrad)
+                                           camera.width, camera.height, absgrad, CPU_BACKENDS[backend])
     color = feat_img[..., :3] + (1.0 - alpha)[..., None] * background
     depth = feat_img[..., 3] / alpha.clamp_min(1e-10)
     return RasterOutput(color=color, alpha=alpha, depth=depth, radii=radii, means2d=means2d,
-                        absgrad=absgrad, visible=radii > 0, backend="cpu")
+                        absgrad=absgrad, visible=radii > 0, backend=backend)
 
 
 __all__ = ["rasterize", "RasterOutput", "RasterInputError", "pick_backend"]

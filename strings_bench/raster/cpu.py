@@ -7,6 +7,7 @@ import numpy as np
 import torch
 
 import strings_bench.raster.cpu_kernels as K
+import strings_bench.raster.cpu_kernels_f32 as K32
 
 
 CHUNK = 2  # tiles per work item: tiles differ a lot in cost, so hand them out in small chunks
@@ -24,30 +25,38 @@ def _np_in(x: torch.Tensor) -> np.ndarray:
     return _np(x, np.float64)
 
 
+# blend kernels by precision: "f32" (default: float32, vectorised) and "f64" (the float64 reference)
+BLEND_KERNELS = {"f32": K32, "f64": K}
+
+
 class RasterizeTiles(torch.autograd.Function):
     """Blend (means2d, conics, opacities, features) over an H x W image.
 
     Returns features (H, W, NF) = sum_i w_i f_i and alpha (H, W) = 1 - prod_i (1 - alpha_i).
     `absgrad_out` (N, 2), if given, is filled in backward with sum over pixels of |dL/dmean2d|.
+    `precision`: "f32" (cpu_kernels_f32) or "f64" (cpu_kernels, the reference).
     """
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, radii, bbox, depths, width, height, absgrad_out):
+    def forward(ctx, means2d, conics, opacities, feats, radii, bbox, depths, width, height, absgrad_out,
+                precision="f32"):
+        KB = BLEND_KERNELS[precision]
         N = means2d.shape[0]
         H, W = int(height), int(width)
         tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
         with torch.no_grad():
             vis = torch.nonzero(radii > 0).flatten()
             order = vis[torch.argsort(depths.detach()[vis], stable=True)]
-        P, BB = K.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)),
+        P, BB = KB.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)),
                        bbox.contiguous().numpy())
         tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
         out_f = np.empty((H, W, K.NF), np.float32)
-        out_T = np.empty((H, W), np.float64)
-        out_last = np.empty((H, W), np.int64)
+        out_T = np.empty((H, W), np.float32 if precision == "f32" else np.float64)
+        out_last = np.empty((H, W), np.int32 if precision == "f32" else np.int64)
         with numba.parallel_chunksize(CHUNK):
-            K.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+            KB.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
         ctx.saved = (tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x)
+        ctx.kernels = KB
         ctx.order = order
         ctx.N = N
         ctx.size = (W, H)
@@ -71,7 +80,7 @@ class RasterizeTiles(torch.autograd.Function):
         M = lst.shape[0]
         buf = np.empty((M, K.N_GRAD), np.float32)
         with numba.parallel_chunksize(CHUNK):
-            K.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
+            ctx.kernels.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
         # Each gradient in its input's dtype (a float32 is rounded once from the float64 sum).
         # (device given: a caller's default device, e.g. meta, must not reach these host buffers)
         d_m, d_c, d_o, d_f = (torch.empty(shape, dtype=dt, device="cpu") for shape, dt in
@@ -80,7 +89,7 @@ class RasterizeTiles(torch.autograd.Function):
         g_abs = ctx.absgrad_out.numpy() if ctx.absgrad_out is not None else np.empty((0, 2))
         K.reduce_intersections(buf, g_start, isect_pos, ctx.order.numpy(), d_m.numpy(), d_c.numpy(), d_o.numpy(),
                                d_f.numpy(), g_abs)
-        return d_m, d_c, d_o, d_f, None, None, None, None, None, None
+        return d_m, d_c, d_o, d_f, None, None, None, None, None, None, None
 
 
 def camera_array(camera) -> np.ndarray:
@@ -98,7 +107,10 @@ class Preprocess(torch.autograd.Function):
     conics (N,3), opacities (N,), feats (N,4) = RGB and camera depth, radii (N,) int32, bbox (N,4)."""
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far):
+    def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far, sh_rest=None):
+        """sh (N, K, 3), or with `sh_rest`: sh (N, 1, 3) the DC band and sh_rest (N, K - 1, 3) the
+        others (the model's sh0 and shN, read where they are: no concatenation, no split of the
+        gradient)."""
         from strings_bench.raster.cpu_preprocess import preprocess_forward
         from strings_bench.raster.projection import DILATION, MIP_FILTER
 
@@ -106,19 +118,25 @@ class Preprocess(torch.autograd.Function):
         cam = camera_array(camera)
         eps = MIP_FILTER if mip else DILATION
         arrs = [_np_in(x) for x in (means, quats, log_scales, opacity_logits, sh)]
+        split = sh_rest is not None
+        rest = _np_in(sh_rest) if split else arrs[4]
         means2d = np.empty((N, 2), np.float32)
         conics = np.empty((N, 3), np.float32)
         opac = np.empty(N, np.float32)
         feats = np.empty((N, K.NF), np.float32)
         radii = np.empty(N, np.int32)
         bbox = np.empty((N, 4), np.int32)
-        preprocess_forward(*arrs, int(deg), cam, int(camera.width), int(camera.height), float(near), float(far),
-                           eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
+        preprocess_forward(*arrs, rest, 0 if split else 1, int(deg), cam, int(camera.width), int(camera.height),
+                           float(near), float(far), eps, bool(mip), means2d, conics, opac, feats, radii, bbox)
         # The kernels read the parameters' own memory: saved for backward (torch's version check
         # refuses a backward after an in-place change), converted again there.
-        ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh)
+        if split:
+            ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh, sh_rest)
+        else:
+            ctx.save_for_backward(means, quats, log_scales, opacity_logits, sh)
         ctx.setup = (int(deg), cam, eps, bool(mip), radii)
-        ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)]
+        ctx.dtypes = [x.dtype for x in (means, quats, log_scales, opacity_logits, sh)] + (
+            [sh_rest.dtype] if split else [])
         dt = means.dtype
         radii_t, bbox_t = torch.from_numpy(radii), torch.from_numpy(bbox)
         ctx.mark_non_differentiable(radii_t, bbox_t)
@@ -129,7 +147,10 @@ class Preprocess(torch.autograd.Function):
     def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
         from strings_bench.raster.cpu_preprocess import preprocess_backward
 
-        means, quats, log_scales, logits, sh = (_np_in(x) for x in ctx.saved_tensors)
+        saved = [_np_in(x) for x in ctx.saved_tensors]
+        split = len(saved) == 6
+        means, quats, log_scales, logits, sh = saved[:5]
+        rest = saved[5] if split else sh
         deg, cam, eps, mip, radii = ctx.setup
         N = means.shape[0]
         grads_in = [(_np_in(g) if g is not None else np.zeros(shape))
@@ -137,6 +158,8 @@ class Preprocess(torch.autograd.Function):
         # Gradients are written in the inputs' dtype (float32: rounded once at the store, as the
         # float64 result's conversion did).
         outs = [np.empty_like(x) for x in (means, quats, log_scales, logits, sh)]
-        preprocess_backward(means, quats, log_scales, logits, sh, deg, cam, eps, mip, radii, *grads_in, *outs)
-        res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs, ctx.dtypes)]
-        return (*res, None, None, None, None, None)
+        d_rest = np.empty_like(rest) if split else outs[4]
+        preprocess_backward(means, quats, log_scales, logits, sh, rest, 0 if split else 1, deg, cam, eps, mip, radii,
+                            *grads_in, *outs, d_rest)
+        res = [torch.from_numpy(o).to(dt) for o, dt in zip(outs + ([d_rest] if split else []), ctx.dtypes)]
+        return (*res[:5], None, None, None, None, None, res[5] if split else None)

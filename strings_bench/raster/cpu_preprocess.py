@@ -175,9 +175,11 @@ def _cov2d(M, eps):
 
 
 @njit(parallel=True, cache=True)
-def preprocess_forward(means, quats, log_scales, opacity_logits, sh, deg, cam, W, H, near, far, eps, mip,
+def preprocess_forward(means, quats, log_scales, opacity_logits, sh0, shN, off, deg, cam, W, H, near, far, eps, mip,
                        means2d, conics, opac, feats, radii, bbox):
     """cam: R (9), t (3), fx, fy, cx, cy, clamp limits (4), camera centre (3).
+    SH coefficient k of Gaussian g: sh0[g, 0] for k = 0, shN[g, k - 1 + off] above (the model's
+    sh0 / shN with off = 0, or one (N, K, 3) array passed as both with off = 1: no concatenation).
     Outputs float32 except radii / bbox (int32). feats = (r, g, b, z)."""
     N = means.shape[0]
     n_chunks = (N + CHUNK - 1) // CHUNK
@@ -223,9 +225,9 @@ def preprocess_forward(means, quats, log_scales, opacity_logits, sh, deg, cam, W
             dn = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
             _sh_basis(dx / dn, dy / dn, dz / dn, deg, Y)
             for ci in range(3):
-                acc = 0.0
-                for k in range(nk):
-                    acc += Y[k] * np.float64(sh[g, k, ci])
+                acc = Y[0] * np.float64(sh0[g, 0, ci])
+                for k in range(1, nk):
+                    acc += Y[k] * np.float64(shN[g, k - 1 + off, ci])
                 feats[g, ci] = max(acc + 0.5, 0.0)
             # radius and pixel box
             mid = 0.5 * (A + C)
@@ -246,9 +248,11 @@ def preprocess_forward(means, quats, log_scales, opacity_logits, sh, deg, cam, W
 
 
 @njit(parallel=True, cache=True)
-def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, eps, mip, radii,
+def preprocess_backward(means, quats, log_scales, opacity_logits, sh0, shN, off, deg, cam, eps, mip, radii,
                         g_means2d, g_conics, g_opac, g_feats,
-                        d_means, d_quats, d_log_scales, d_logits, d_sh):
+                        d_means, d_quats, d_log_scales, d_logits, d_sh0, d_shN):
+    """The chain rule of preprocess_forward; d_sh0 / d_shN laid out as sh0 / shN (the same array
+    twice with off = 1 for an unsplit sh)."""
     N = means.shape[0]
     n_chunks = (N + CHUNK - 1) // CHUNK
     nk = (deg + 1) * (deg + 1)
@@ -269,9 +273,11 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
             for j in range(4):
                 d_quats[g, j] = 0.0
             d_logits[g] = 0.0
-            for k in range(sh.shape[1]):
+            for ci in range(3):
+                d_sh0[g, 0, ci] = 0.0
+            for k in range(off, shN.shape[1]):
                 for ci in range(3):
-                    d_sh[g, k, ci] = 0.0
+                    d_shN[g, k, ci] = 0.0
             if radii[g] <= 0:
                 continue
             x, y, z, u, v, j00, j02, j11, j12, txc, tyc, qw, qx, qy, qz, qn, s0, s1, s2 = _geometry(
@@ -408,16 +414,22 @@ def preprocess_backward(means, quats, log_scales, opacity_logits, sh, deg, cam, 
             if deg > 0:
                 _sh_basis_grad(ux, uy, uz, deg, dY)
             for ci in range(3):
-                acc = 0.0
-                for k in range(nk):
-                    acc += Y[k] * np.float64(sh[g, k, ci])
+                acc = Y[0] * np.float64(sh0[g, 0, ci])
+                for k in range(1, nk):
+                    acc += Y[k] * np.float64(shN[g, k - 1 + off, ci])
                 gcol = np.float64(g_feats[g, ci]) if acc + 0.5 >= 0.0 else 0.0
                 if gcol == 0.0:
                     continue
-                for k in range(nk):
-                    d_sh[g, k, ci] = Y[k] * gcol
+                d_sh0[g, 0, ci] = Y[0] * gcol
+                if deg > 0:
+                    w_k = np.float64(sh0[g, 0, ci]) * gcol
+                    gdir0 += w_k * dY[0, 0]
+                    gdir1 += w_k * dY[0, 1]
+                    gdir2 += w_k * dY[0, 2]
+                for k in range(1, nk):
+                    d_shN[g, k - 1 + off, ci] = Y[k] * gcol
                     if deg > 0:
-                        w_k = np.float64(sh[g, k, ci]) * gcol
+                        w_k = np.float64(shN[g, k - 1 + off, ci]) * gcol
                         gdir0 += w_k * dY[k, 0]
                         gdir1 += w_k * dY[k, 1]
                         gdir2 += w_k * dY[k, 2]

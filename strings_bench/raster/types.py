@@ -33,7 +33,7 @@ class RasterOutput:
             during backward with sum over pixels of |dL_pixel / d means2d| per component (AbsGS),
             in the same pixel units as `means2d.grad`. Read it after backward.
         visible: (N,) bool, radii > 0.
-        backend: "cpu" or "gsplat": the backend that produced this output.
+        backend: "cpu", "cpu-f64" or "gsplat": the backend that produced this output.
 
     Example:
         >>> import torch

@@ -1,0 +1,389 @@
+"""Float32 blend kernels of the CPU rasterizer (the default; `cpu_kernels` keeps the float64 reference).
+
+Same rules, layout and binning as `cpu_kernels` (its docstring): P rows are (mean2d x, y, conic a, b,
+c, opacity, NF features, qmin), here in float32; BB the tight pixel boxes; per 16x16 tile a slice of
+`lst` front to back. What differs is the arithmetic and the loop shape, so that LLVM puts the pixel
+loop on the vector units:
+
+- the per-pixel state of a tile (transmittance, accumulated features, the done mask; in the backward
+  the transmittance, T_final x dL/dalpha, dL/dfeatures and the features blended behind) is float32,
+  one row of 256 per quantity in one buffer at constant offsets, indexed with unsigned integers: LLVM
+  then needs no alias checks between the rows and no negative-index wraparound;
+- the tile is stored as two halves of 8 columns (16 rows x 8, contiguous): for each Gaussian and each
+  half its box touches, one flat loop runs over the box's rows x 8 columns, two rows per 16-lane
+  AVX-512 vector (an odd row count gets one more row, masked), with no branch: every test of the
+  float64 kernels (the box's columns and rows, power > 0, alpha < 1/255, the transmittance stop, a
+  pixel already done or, in the backward, behind its last contributor) is a per-pixel mask that
+  selects between the updated and the old value. Pixels outside the alpha >= 1/255 ellipse fail the
+  alpha test, so no per-row span is needed; a tile stops when all of its pixels are done, as before;
+- `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
+  (`pow2_f32`), inlined, branch-free;
+- the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
+  3DGS evaluates lazily from the previous splat) and keeps each Gaussian's gradient sums in vector
+  registers over its loop.
+
+Sums over lanes (the backward's gradients, the forward's count of pixels done) are vector
+reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads, so a run
+is bit-identical for the same inputs and machine at any thread count. Each tile is one thread's, and
+the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections` (float64, in intersection
+order).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir as llvm_ir
+from numba import njit, prange
+from numba.core import types
+from numba.extending import intrinsic
+
+from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
+                                              TILE, tight_box)
+
+F32 = np.float32
+ZERO = F32(0.0)
+ONE = F32(1.0)
+HALF = F32(0.5)
+AMAX = F32(ALPHA_MAX)
+AMIN = F32(ALPHA_MIN)
+TMIN = F32(T_MIN)
+# exp: e^x = 2^k e^r, k = round(x / ln 2), r = x - k ln 2 in [-ln2/2, ln2/2] (ln 2 in two parts, Cody-Waite)
+EXP_LO = F32(-10.0)  # o e^-10 <= 4.5e-5 < 1/255: anything below gives a skipped alpha anyway
+LOG2E = F32(1.44269504088896341)
+LN2_HI = F32(0.693359375)
+LN2_LO = F32(-2.12194440e-4)
+# Cephes expf (S. L. Moshier): e^r = 1 + r + r^2 (E5 + r (E4 + ...)), relative error ~1 ulp on the range
+E0 = F32(1.9875691500e-4)
+E1 = F32(1.3981999507e-3)
+E2 = F32(8.3334519073e-3)
+E3 = F32(4.1665795894e-2)
+E4 = F32(1.6666665459e-1)
+E5 = F32(5.0000001201e-1)
+# reassoc: vector reductions; contract: fused multiply-adds. No nnan/ninf: NaN checks keep their meaning.
+FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@intrinsic
+def pow2_f32(typingctx, k):
+    """2^k as float32 for an integral float32 k in [-126, 127]: the exponent field built from k's
+    integer value and the bits taken as a float (LLVM fptosi, add, shl, bitcast: vectorises)."""
+    if k != types.float32:
+        return None
+
+    def codegen(context, builder, signature, args):
+        i32 = llvm_ir.IntType(32)
+        ki = builder.fptosi(args[0], i32)
+        bits = builder.shl(builder.add(ki, llvm_ir.Constant(i32, 127)), llvm_ir.Constant(i32, 23))
+        return builder.bitcast(bits, llvm_ir.FloatType())
+
+    return types.float32(types.float32), codegen
+
+
+@njit(cache=True, inline="always", fastmath=FASTMATH)
+def exp_neg32(x):
+    """e^x in float32 for x <= 0, without a branch or a call (vectorises). x is clamped at -10
+    (e^-10 = 4.5e-5: the caller's alpha = o e^x is below 1/255 there anyway). Relative error
+    about 1e-7 (checked against float64 in the tests)."""
+    x = max(x, EXP_LO)
+    fk = np.floor(x * LOG2E + HALF)  # k in [-15, 0]
+    r = x - fk * LN2_HI
+    r = r - fk * LN2_LO
+    z = r * r
+    e = (((((E0 * r + E1) * r + E2) * r + E3) * r + E4) * r + E5) * z + r + ONE
+    return e * pow2_f32(fk)
+
+
+@njit(parallel=True, cache=True)
+def pack(order, means2d, conics, opacities, feats, bbox):
+    """P (V, N_PARAM) float32 and BB (V, 4) int64 of the Gaussians `order` (front to back), as
+    `cpu_kernels.pack` (same tight boxes, computed in float64 from the same float32 values)."""
+    V = order.shape[0]
+    P = np.empty((V, N_PARAM), np.float32)
+    BB = np.empty((V, 4), np.int64)
+    for v in prange(V):
+        i = order[v]
+        mx = np.float64(means2d[i, 0])
+        my = np.float64(means2d[i, 1])
+        ca = np.float64(conics[i, 0])
+        cb = np.float64(conics[i, 1])
+        cc = np.float64(conics[i, 2])
+        o = np.float64(opacities[i])
+        P[v, 0] = mx
+        P[v, 1] = my
+        P[v, 2] = ca
+        P[v, 3] = cb
+        P[v, 4] = cc
+        P[v, 5] = o
+        for c in range(NF):
+            P[v, 6 + c] = feats[i, c]
+        qmin = 2.0 * (math.log(255.0 * o) + SPAN_SLACK) if o >= ALPHA_MIN else np.nan
+        P[v, 6 + NF] = qmin
+        x0, x1, y0, y1 = tight_box(mx, my, ca, cb, cc, qmin, bbox[i, 0], bbox[i, 1], bbox[i, 2], bbox[i, 3])
+        BB[v, 0] = x0
+        BB[v, 1] = x1
+        BB[v, 2] = y0
+        BB[v, 3] = y1
+    return P, BB
+
+
+# Per-tile pixel state: one float32 buffer, one row of TILE*TILE per quantity at a constant offset,
+# indexed with unsigned integers. LLVM then sees that the rows never overlap (no runtime alias
+# checks, which it gives up on past a few arrays) and needs no negative-index wraparound.
+NPIX = TILE * TILE
+# Pixel (row, col) of a tile is stored at pix_index(row, col): the tile as two halves of 8 columns,
+# each 16 rows x 8 contiguous. A Gaussian whose box lies in one half (most) then runs over 8-pixel
+# row pieces, two rows per 16-lane vector, instead of whole 16-pixel rows.
+HW = 8  # columns per half
+HSZ = TILE * HW  # pixels per half
+# forward rows: transmittance, accumulated features (4), done (1 = stopped or outside the image)
+F_T, F_A0, F_A1, F_A2, F_A3, F_DONE, F_ROWS = (np.uint64(r * NPIX) for r in range(7))
+# backward rows: transmittance, final transmittance x dL/dalpha, dL/dfeatures (4), the features
+# blended behind the current splat (4)
+B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(r * NPIX) for r in range(11))
+
+
+@njit(parallel=True, cache=True, fastmath=FASTMATH)
+def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
+    """out_f (H, W, NF) float32, out_T (H, W) float32 final transmittance, out_last (H, W) int32: one
+    past the lst position of the last Gaussian blended into the pixel (0 = none)."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        S = np.zeros(F_ROWS, np.float32)
+        last = np.zeros(NPIX, np.int32)
+        for q in range(NPIX):
+            S[F_T + np.uint64(q)] = ONE
+            if (q // HSZ) * HW + q % HW >= pw:  # columns outside the image: done from the start
+                S[F_DONE + np.uint64(q)] = ONE
+        n_pix = F32(pw * ph)
+        n_done = ZERO
+        cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
+        for k in range(tile_start[t], tile_start[t + 1]):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            f0 = P[i, 6]
+            f1 = P[i, 7]
+            f2 = P[i, 8]
+            f3 = P[i, 9]
+            k1 = np.int32(k + 1)
+            if xs > xe or ys > ye:
+                continue
+            # the box's rows in the tile as flat loops over (row, column) of each half it touches, 8
+            # lanes a row, an even number of rows (two rows a 16-lane vector; a row outside the box is
+            # added and masked when needed); the mask keeps the box's columns and rows
+            r0 = ys - py0
+            r1 = ye - py0
+            if (r1 - r0) % 2 == 0:  # odd row count
+                if r1 < TILE - 1:
+                    r1 += 1
+                else:
+                    r0 -= 1
+            j_lo = F32(xs - px0) - HALF
+            j_hi = F32(xe - px0) + HALF
+            i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
+            i_hi = F32(ye - py0 - r0) + HALF
+            cy0 = F32(py0 + r0) + HALF
+            nd = ZERO
+            for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
+                base = np.uint64(h * HSZ + r0 * HW)
+                cxh = cx0 + F32(h * HW)
+                fjh = F32(h * HW)
+                for q in range((r1 - r0 + 1) * HW):
+                    p = base + np.uint64(q)
+                    fc = F32(q & (HW - 1))
+                    fr = F32(q >> 3)
+                    fj = fjh + fc
+                    dx = mx - (cxh + fc)
+                    dy = my - (cy0 + fr)
+                    power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
+                    Tp = S[F_T + p]
+                    test_T = Tp * (ONE - alpha)
+                    ok = ((S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                          & (power <= ZERO) & (alpha >= AMIN))
+                    stop = ok & (test_T < TMIN)
+                    blend = ok & (test_T >= TMIN)
+                    w = alpha * Tp if blend else ZERO
+                    S[F_A0 + p] += w * f0
+                    S[F_A1 + p] += w * f1
+                    S[F_A2 + p] += w * f2
+                    S[F_A3 + p] += w * f3
+                    S[F_T + p] = test_T if blend else Tp
+                    last[p] = k1 if blend else last[p]
+                    S[F_DONE + p] = ONE if stop else S[F_DONE + p]
+                    nd += ONE if stop else ZERO
+            n_done += nd
+            if n_done == n_pix:
+                break
+        for py in range(ph):
+            for px in range(pw):
+                p = np.uint64((px // HW) * HSZ + py * HW + px % HW)
+                out_f[py0 + py, px0 + px, 0] = S[F_A0 + p]
+                out_f[py0 + py, px0 + px, 1] = S[F_A1 + p]
+                out_f[py0 + py, px0 + px, 2] = S[F_A2 + p]
+                out_f[py0 + py, px0 + px, 3] = S[F_A3 + p]
+                out_T[py0 + py, px0 + px] = S[F_T + p]
+                out_last[py0 + py, px0 + px] = last[p]
+
+
+@njit(parallel=True, cache=True, fastmath=FASTMATH)
+def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, grad_alpha, buf):
+    """grad_f (H, W, NF), grad_alpha (H, W): dL/d(outputs). T_final float32 and last_k int32 from
+    `forward`. buf (M, N_GRAD) float32: per-intersection gradient w.r.t. the Gaussian's row of P
+    (summed over the tile's pixels) and the sums of |dL/dmean2d|. Each pixel's recursion is
+    `cpu_kernels.backward`'s (3DGS, back to front, transmittance recovered by division, the 0.99
+    clamp passed through), in float32 with masks."""
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * TILE
+        py0 = ty * TILE
+        pw = min(TILE, W - px0)
+        ph = min(TILE, H - py0)
+        S = np.zeros(B_ROWS, np.float32)
+        lastk = np.zeros(NPIX, np.int32)
+        kmax = tile_start[t]
+        for py in range(ph):
+            for px in range(pw):
+                p = np.uint64((px // HW) * HSZ + py * HW + px % HW)
+                S[B_T + p] = T_final[py0 + py, px0 + px]
+                S[B_TGA + p] = T_final[py0 + py, px0 + px] * grad_alpha[py0 + py, px0 + px]
+                lastk[p] = last_k[py0 + py, px0 + px]
+                kmax = max(kmax, np.int64(lastk[p]))
+                S[B_G0 + p] = grad_f[py0 + py, px0 + px, 0]
+                S[B_G1 + p] = grad_f[py0 + py, px0 + px, 1]
+                S[B_G2 + p] = grad_f[py0 + py, px0 + px, 2]
+                S[B_G3 + p] = grad_f[py0 + py, px0 + px, 3]
+        for k in range(kmax, tile_start[t + 1]):
+            for j in range(N_GRAD):
+                buf[k, j] = 0.0
+        cx0 = F32(px0) + HALF
+        for k in range(kmax - 1, tile_start[t] - 1, -1):
+            i = lst[k]
+            xs = max(BB[i, 0], px0)
+            xe = min(BB[i, 1], px0 + pw - 1)
+            ys = max(BB[i, 2], py0)
+            ye = min(BB[i, 3], py0 + ph - 1)
+            mx = P[i, 0]
+            my = P[i, 1]
+            ca = P[i, 2]
+            cb = P[i, 3]
+            cc = P[i, 4]
+            op = P[i, 5]
+            f0 = P[i, 6]
+            f1 = P[i, 7]
+            f2 = P[i, 8]
+            f3 = P[i, 9]
+            k32 = np.int32(k)
+            g_mx = ZERO
+            g_my = ZERO
+            g_ca = ZERO
+            g_cb = ZERO
+            g_cc = ZERO
+            g_op = ZERO
+            gf0 = ZERO
+            gf1 = ZERO
+            gf2 = ZERO
+            gf3 = ZERO
+            abs_x = ZERO
+            abs_y = ZERO
+            if xs <= xe and ys <= ye:
+                r0 = ys - py0
+                r1 = ye - py0
+                if (r1 - r0) % 2 == 0:
+                    if r1 < TILE - 1:
+                        r1 += 1
+                    else:
+                        r0 -= 1
+                j_lo = F32(xs - px0) - HALF
+                j_hi = F32(xe - px0) + HALF
+                i_lo = F32(ys - py0 - r0) - HALF
+                i_hi = F32(ye - py0 - r0) + HALF
+                cy0 = F32(py0 + r0) + HALF
+                # as the forward: each half the box touches as one flat loop, two rows a vector; the
+                # sums stay in vector registers over the loop
+                for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
+                    base = np.uint64(h * HSZ + r0 * HW)
+                    cxh = cx0 + F32(h * HW)
+                    fjh = F32(h * HW)
+                    for q in range((r1 - r0 + 1) * HW):
+                        p = base + np.uint64(q)
+                        fc = F32(q & (HW - 1))
+                        fr = F32(q >> 3)
+                        fj = fjh + fc
+                        dx = mx - (cxh + fc)
+                        dy = my - (cy0 + fr)
+                        power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        G = exp_neg32(min(power, ZERO))
+                        alpha = min(op * G, AMAX)
+                        act = ((k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                               & (power <= ZERO) & (alpha >= AMIN))
+                        one_m = ONE - alpha
+                        inv_one_m = ONE / one_m
+                        Tp = S[B_T + p]
+                        Tn = Tp * inv_one_m
+                        # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
+                        # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
+                        c0 = S[B_S0 + p]
+                        c1 = S[B_S1 + p]
+                        c2 = S[B_S2 + p]
+                        c3 = S[B_S3 + p]
+                        g0 = S[B_G0 + p]
+                        g1 = S[B_G1 + p]
+                        g2 = S[B_G2 + p]
+                        g3 = S[B_G3 + p]
+                        dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
+                        dL_da += S[B_TGA + p] * inv_one_m
+                        dL_da = dL_da if act else ZERO
+                        wa = alpha * Tn if act else ZERO
+                        S[B_T + p] = Tn if act else Tp
+                        S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
+                        S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
+                        S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
+                        S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
+                        # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
+                        # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
+                        qg = op * G * dL_da
+                        gx = -qg * (ca * dx + cb * dy)
+                        gy = -qg * (cc * dy + cb * dx)
+                        g_mx += gx
+                        g_my += gy
+                        g_ca += qg * dx * dx
+                        g_cb += qg * dx * dy
+                        g_cc += qg * dy * dy
+                        g_op += G * dL_da
+                        gf0 += wa * g0
+                        gf1 += wa * g1
+                        gf2 += wa * g2
+                        gf3 += wa * g3
+                        abs_x += abs(gx)
+                        abs_y += abs(gy)
+            buf[k, 0] = g_mx
+            buf[k, 1] = g_my
+            buf[k, 2] = -HALF * g_ca
+            buf[k, 3] = -g_cb
+            buf[k, 4] = -HALF * g_cc
+            buf[k, 5] = g_op
+            buf[k, 6] = gf0
+            buf[k, 7] = gf1
+            buf[k, 8] = gf2
+            buf[k, 9] = gf3
+            buf[k, 6 + NF] = abs_x
+            buf[k, 7 + NF] = abs_y
