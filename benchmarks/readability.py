@@ -63,7 +63,7 @@ def main(argv=None) -> int:
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
-    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, get_schedule
+    from strings_bench.core.schedules import DEFAULT_SCHEDULE, get_schedule
 
     args.preset = args.preset or DEFAULT_SCHEDULE
     if args.datasets:

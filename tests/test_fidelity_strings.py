@@ -338,7 +338,7 @@ def test_broken_import_inside_cards_surfaces(monkeypatch):
         registry.list_datasets()
 
 
-# ---- §4 benchmarks/baselines.py presets ------------------------------------------------------------
+# ---- §4 benchmarks/baselines.py schedules ------------------------------------------------------------
 def _load_script(name):
     spec = importlib.util.spec_from_file_location(f"_bench_{name}", REPO / "benchmarks" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
@@ -347,10 +347,10 @@ def _load_script(name):
 
 
 def test_baselines_script_uses_the_suite_schedule_table():
-    from strings_bench.core.schedules import SCHEDULE_SCALES
+    from strings_bench.core.schedules import SCHEDULES
 
     mod = _load_script("baselines")
-    assert set(mod.parser()._option_string_actions["--preset"].choices) == set(SCHEDULE_SCALES)
+    assert set(mod.parser()._option_string_actions["--schedule"].choices) == set(SCHEDULES)
     # quick = x0.01 in the suite: 7K -> 70, 30K -> 300 steps (the script's own table said x0.05 -> 350).
     adapter, s, its = mod.build("3dgs", "quick", [7000, 30000])
     assert s == 0.01 and its == [70, 300] and adapter.settings["steps_scale"] == 0.01

@@ -14,7 +14,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.bench.schedules import SCHEDULES
+from strings_bench.core.schedules import SCHEDULES
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
@@ -562,3 +562,32 @@ def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
     _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
     with pytest.raises(StringsBenchError, match="unknown CER profile"):
         _run(tmp_path / "x", scene_dir, methods=["fake-a"], cer_profile="nope")
+
+
+def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
+    """A method spec with no defaults at all (no steps_scale in its defaults) trains the run's scaled number of
+    steps, and its internal schedules (densification, SH degree, position LR) are scaled with it."""
+    from strings_bench.engine.strategies.base import Strategy
+    from strings_bench.reports.results import read_cell
+
+    spec = MethodSpec(name="bare-3dgs", implementation="strings_bench.methods.gs3d:GS3D")
+    assert spec.defaults == {} and spec.takes_steps_scale()
+    register_method(spec)
+    plan = runner.plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+                           checkpoints=[3000, 7000])
+    job = plan.jobs[0]
+    assert job.checkpoints == (15, 35) and job.method_overrides == {"steps_scale": 0.005}
+    method = runner._build_method(job)
+    assert method.config.steps_scale == 0.005
+    # 3DGS' nominal schedules, scaled: densification stops at 15K -> 75 steps, the SH degree rises every 1K -> 50
+    # steps (the floor of a scaled interval) instead of every 1 000.
+    assert method.at(15_000) == 75 and method.every(1_000) == 50
+    assert method.sh_degree_for_step(50) == 1 and method.sh_degree_for_step(49) == 0
+    state = method.strategy.initialize_state(1.0, method.config.steps_scale)
+    assert Strategy.at(state, method.strategy.refine_stop_iter) == 75
+    runner.run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+               ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False, checkpoints=[3000, 7000],
+               method_overrides={"bare-3dgs": {"sh_degree": 0}})
+    rec = read_cell(tmp_path / "run", runner.CellKey("bare-3dgs", job.dataset, job.scene, 35))
+    assert rec["extra"]["steps_scale"] == 0.005 and rec["extra"]["paper_iteration"] == 7000
+    assert rec["config"]["method"]["settings"]["steps_scale"] == 0.005

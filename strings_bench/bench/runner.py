@@ -23,7 +23,7 @@ Run folder (see docs/running.md):
       report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
 The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`; the
-schedules are bench/schedules.py. Execution goes through an `Executor` (bench/executors.py:
+schedules are core/schedules.py. Execution goes through an `Executor` (bench/executors.py:
 `submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one after another in this process,
 `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
 are plain data) — cells are independent files, and results.csv is rebuilt from them on the driver.

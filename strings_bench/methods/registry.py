@@ -110,27 +110,48 @@ class MethodSpec:
                                          f"(`strings-bench methods show {self.name}`)")
         return names
 
-    def resolve(self, presets=None, schedule: str | None = None, **overrides) -> dict:
-        """The settings a build uses: defaults, then each preset in order, then the steps scale of `schedule`
-        (a run schedule's name: paper, standard, early, quick, tiny; for methods with a steps_scale), then the
-        overrides."""
-        from strings_bench.core.schedules import SCHEDULE_SCALES
+    def takes_steps_scale(self) -> bool:
+        """Whether the run's schedule scale reaches this method as its `steps_scale` setting: every method whose
+        implementation describes that setting (every Gaussian method: engine TrainConfig); an implementation that
+        describes no settings takes it when the spec names it (defaults or a preset). Adapters (ply, external)
+        train nothing and have no steps to scale."""
+        schema = self.settings()
+        if schema is not None:
+            return any(s.name == "steps_scale" for s in schema)
+        return "steps_scale" in self.defaults or any("steps_scale" in p for p in self.presets.values())
 
+    def with_steps_scale(self, steps_scale: float, overrides: dict | None = None) -> dict:
+        """`overrides` (`--set` values) with the run's `steps_scale` added where this method takes one
+        (`takes_steps_scale`); a `steps_scale` in `overrides` wins. The one way a schedule reaches a method."""
+        overrides = dict(overrides or {})
+        if self.takes_steps_scale():
+            overrides.setdefault("steps_scale", float(steps_scale))
+        return overrides
+
+    def resolve(self, presets=None, **overrides) -> dict:
+        """The settings a build uses: defaults, then each preset in order, then the overrides (where a run's
+        schedule scale is one: `with_steps_scale`)."""
         settings = dict(self.defaults)
         for name in self.check_presets(presets):
             settings.update({k: v for k, v in self.presets[name].items() if not k.startswith("@")})
-        if schedule is not None:
-            if schedule not in SCHEDULE_SCALES:
-                raise StringsBenchError(f"unknown schedule {schedule!r}", hint=f"schedules: {', '.join(SCHEDULE_SCALES)}")
-            if "steps_scale" in settings:
-                settings["steps_scale"] = SCHEDULE_SCALES[schedule]
         settings.update(overrides)
         return settings
 
-    def build(self, presets=None, schedule: str | None = None, **overrides):
+    def fixed_checkpoints(self, settings: dict) -> list[int] | None:
+        """The iterations this method is evaluated at whatever the schedule says, from its resolved settings
+        (the ply adapter: the model's own iteration); None: the schedule's. Read without building the method."""
+        fixed = getattr(self.load(), "fixed_checkpoints", None)
+        its = fixed(settings) if fixed is not None else None
+        return sorted(int(i) for i in its) if its else None
+
+    def build(self, presets=None, *, schedule: str | None = None, **overrides):
         """A configured method object (a `Method` or a `MethodAdapter`); `presets`: a preset name or a list;
-        `schedule`: train at that run schedule's steps scale (`build(schedule="tiny")`)."""
-        settings = self.resolve(presets, schedule, **overrides)
+        `schedule`: train at that run schedule's steps scale, as a run of it does (`build(schedule="tiny")`)."""
+        if schedule is not None:
+            from strings_bench.core.schedules import get_schedule
+
+            overrides = self.with_steps_scale(get_schedule(schedule).steps_scale, overrides)
+        settings = self.resolve(presets, **overrides)
         impl = self.load()
         self.check_keys(settings)
         from_settings = getattr(impl, "from_settings", None)
@@ -180,7 +201,6 @@ def _paper(cer: tuple[tuple[float, float], ...], minutes: tuple[float, float]) -
 
 
 STRINGS_PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
-_SCHEDULES: dict[str, dict] = {}  # the run's schedule scales every method (bench/schedules.py), not a preset
 
 
 def _n_max(dataset: str, value: int, scenes=None) -> dict:
@@ -210,38 +230,38 @@ BUILTIN_SPECS: list[MethodSpec] = [
                "vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
                "Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
                "Rendering (SIGGRAPH 2023)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2)), title='3DGS', group='baseline'),
+               {}, {}, _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2)), title='3DGS', group='baseline'),
     MethodSpec("mip-splatting", "strings_bench.methods.mip_splatting:MipSplatting",
                "Mip-Splatting: 3D smoothing filter from the training cameras' sampling rate + 2D mip filter",
                "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7)), title='Mip-Splatting', group='baseline'),
+               {}, {}, _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7)), title='Mip-Splatting', group='baseline'),
     MethodSpec("mcmc", "strings_bench.methods.mcmc:MCMC",
                "3DGS-MCMC: dead-Gaussian relocation (eq. 9), 5% growth to a cap, opacity/scale L1, SGLD position noise",
                "Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
                "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)",
-               {"steps_scale": 1.0, "init_opacity": 0.5, "init_scale_factor": 0.1}, dict(_SCHEDULES),
+               {"init_opacity": 0.5, "init_scale_factor": 0.1}, {},
                _paper(((.272, .120), (.511, .142), (.927, .110)), (5.6, 34.0)), title='3DGS-MCMC', group='baseline'),
     MethodSpec("absgs", "strings_bench.methods.absgs:AbsGS",
                "AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) gradient",
                "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5)), title='AbsGS', group='baseline'),
+               {}, {}, _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5)), title='AbsGS', group='baseline'),
     MethodSpec("edc-absgs", "strings_bench.methods.edc_absgs:EDCAbsGS",
                "EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
                "position LR 4e-5 -> 2e-6",
                "Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
-               {"steps_scale": 1.0, "lr_means": 4e-5, "lr_means_final": 2e-6}, dict(_SCHEDULES),
+               {"lr_means": 4e-5, "lr_means_final": 2e-6}, {},
                _paper(((.142, .118), (.239, .162), (.328, .116)), (5.5, 23.2)), title='EDC-AbsGS', group='baseline'),
     MethodSpec("strings", "strings_bench.methods.strings.method:Strings",
                "STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
                "masked phase-1 loss, region-dependent position LR)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS),
+               {}, dict(_STRINGS_PRESETS),
                _paper(((.122, .099), (.187, .123), (.177, .106)), (1.9, 12.6)), title='STRinGS', group='ours'),
     MethodSpec("strings-no-densify", "strings_bench.methods.strings.method:StringsNoDensify",
                "STRinGS ablation: without the one-time text densification (Eq. 1)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS w/o text densification', group='ablation'),
+               {}, dict(_STRINGS_PRESETS), title='STRinGS w/o text densification', group='ablation'),
     MethodSpec("strings-pos-lr", "strings_bench.methods.strings.method:StringsPosLR",
                "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS with phase-1 position LR', group='ablation'),
+               {}, dict(_STRINGS_PRESETS), title='STRinGS with phase-1 position LR', group='ablation'),
     MethodSpec("ply", "strings_bench.methods.ply_adapter:PlyAdapter",
                "evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
                defaults={"iteration": 30000}, title='PLY models', group='adapter'),
