@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Iterable
 
 from strings_bench.bench.executors import Job
-from strings_bench.bench.records import jsonable
+from strings_bench.core.io import jsonable
 from strings_bench.core.schedules import DEFAULT_SCHEDULE, schedule
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey

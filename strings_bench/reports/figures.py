@@ -14,7 +14,7 @@ from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WOR
                                                         pareto_front, size_label)
 from strings_bench.reports.tables import (GT_CEILING, dataset_title, is_ablation, main_labels, method_order, method_title,
                                           with_total_seconds)
-from strings_bench.reports.results import read_cell
+from strings_bench.reports.results import read_cell, render_file_name
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
 
@@ -345,8 +345,7 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     ncols = len(methods) + 1
     fig, axes = plt.subplots(len(rows), ncols, figsize=(2.6 * ncols, 2.2 * len(rows)), squeeze=False)
     for ri, (d, s, (view, words), recs) in enumerate(rows):
-        stem = Path(view).stem
-        gt_path = run_dir / "gt" / safe_name(d) / safe_name(s) / f"{stem}.png"
+        gt_path = run_dir / "gt" / safe_name(d) / safe_name(s) / render_file_name(view)
         gt = np.asarray(Image.open(gt_path).convert("RGB")) if gt_path.exists() else None
         shape = gt.shape[:2] if gt is not None else (10**6, 10**6)
         box = _crop_box(words, shape)
@@ -367,7 +366,7 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                 rec = recs.get(m)
                 img, caption, title = None, "(not run)", method_title(m)
                 if rec is not None:
-                    p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / f"{stem}.png"
+                    p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / render_file_name(view)
                     img = np.asarray(Image.open(p).convert("RGB")) if p.exists() else None
                     v = rec["ocr"]["views"].get(view, {})
                     caption = _words_text(_in_box(v.get("render_words"), box))[:40]

@@ -43,7 +43,7 @@ import pandas as pd
 
 from strings_bench.reports.tables import (GT_CEILING, Table, _fmt3, dataset_title, label_value,
                                                 method_order, method_title)
-from strings_bench.reports.results import RESULT_FILE, CellKey, safe_name
+from strings_bench.reports.results import RESULT_FILE, CellKey, render_file_name, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
 __all__ = ["write_html", "table_html", "GALLERY_PAGE_SIZE", "CELLS_PAGE_SIZE"]
@@ -481,8 +481,8 @@ def write_crops(run_dir: Path, out: Path, g: SceneGallery) -> dict:
     keep: set[Path] = set()
     gt_dir = run_dir / "gt" / safe_name(g.dataset) / safe_name(g.scene)
     for k, w in g.words.items():
-        stem = Path(w.view).stem
-        src = gt_dir / f"{stem}.png"
+        stem = Path(render_file_name(w.view)).stem
+        src = gt_dir / render_file_name(w.view)
         img = images.get(src)
         rel = Path("crops") / "gt" / safe_name(stem) / w.crop_name
         ok = img is not None and _write_crop(base / rel, img, w, src)
@@ -491,7 +491,7 @@ def write_crops(run_dir: Path, out: Path, g: SceneGallery) -> dict:
             keep.add(base / rel)
         for (method, label), reading in w.renders.items():
             it = reading["iteration"]
-            src = CellKey(method, g.dataset, g.scene, it).path(run_dir) / "renders" / f"{stem}.png"
+            src = CellKey(method, g.dataset, g.scene, it).path(run_dir) / "renders" / render_file_name(w.view)
             img = images.get(src)
             rel = Path("crops") / safe_name(method) / str(it) / safe_name(stem) / w.crop_name
             ok = img is not None and _write_crop(base / rel, img, w, src)
