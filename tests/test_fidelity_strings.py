@@ -172,7 +172,8 @@ def _fake_registry():
                 yield CheckpointResult(r.iteration, r.renders, r.train_seconds, r.gaussians,
                                        preprocess_seconds=float(self.settings.get("pre", 0.0)))
 
-    register_method(MethodSpec("fake-pre", lambda **s: PreAdapter(tag="fake-pre", blur=0.2, pre=30.0, **s), "pre"))
+    register_method(MethodSpec(name="fake-pre", implementation=lambda **s: PreAdapter(tag="fake-pre", blur=0.2, pre=30.0, **s),
+                               description="pre"))
     rf.register_fakes()
     return rf
 

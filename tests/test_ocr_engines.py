@@ -214,8 +214,9 @@ class CopyViews(MethodAdapter):
 
 @needs_tesseract
 def test_two_real_engines_end_to_end(tmp_path):
-    register_method(MethodSpec("copy-views", CopyViews, "the GT views"))
-    register_method(MethodSpec("erase-number", lambda **s: CopyViews(erase=True, **s), "the GT views without the number"))
+    register_method(MethodSpec(name="copy-views", implementation=CopyViews, description="the GT views"))
+    register_method(MethodSpec(name="erase-number", implementation=lambda **s: CopyViews(erase=True, **s),
+                               description="the GT views without the number"))
     scene = _text_scene(tmp_path)
     out = runner.run(["copy-views", "erase-number"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,tesseract",
                      with_lpips=False, progress=False, checkpoints=[1000])

@@ -110,7 +110,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
 def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):
     out = tmp_path / "run"
     # First run: fake-a finishes; fake-b is interrupted after its first checkpoint.
-    register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=1, **s)))
+    register_method(MethodSpec(name="fake-b", implementation=lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=1, **s)))
     with pytest.raises(KeyboardInterrupt):
         _run(out, scene_dir)
     rows = _rows(out)
@@ -151,7 +151,7 @@ import strings_bench.bench.runner as runner
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
 rf.register_fakes()
-register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
+register_method(MethodSpec(name="fake-b", implementation=lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
 runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
            with_lpips=False, progress=False)
 """
@@ -205,7 +205,7 @@ def test_bad_render_size_is_clear(tmp_path, scene_dir):
                 r.renders = {k: v[:-1] for k, v in r.renders.items()}
                 yield r
 
-    register_method(MethodSpec("fake-wrong", lambda **s: Wrong(**s)))
+    register_method(MethodSpec(name="fake-wrong", implementation=lambda **s: Wrong(**s)))
     with pytest.raises(StringsBenchError, match="render of view_00.png"):
         _run(tmp_path / "run", scene_dir, methods=["fake-wrong"], write_report=False)
 
@@ -236,7 +236,7 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
         "    name = 'plugin-splat'\n"
         "    def train(self, scene, checkpoints, downscale=1):\n"
         "        return iter(())\n"
-        "SPEC = MethodSpec('plugin-splat', A, 'a plug-in method', 'Plugin\\'26')\n")
+        "SPEC = MethodSpec(name='plugin-splat', implementation=A, description='a plug-in method', paper='Plugin\\'26')\n")
     dist = tmp_path / "my_splat_plugin-0.1.dist-info"
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-splat-plugin\nVersion: 0.1\n")
@@ -351,7 +351,7 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
 
 def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
-    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+    register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"blurry": {"steps_scale": 0.005, "floor": 0.2}}))
     plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
                            steps_scale=0.02, checkpoints=[7000, 3000], method_presets={"fake-scaled": ["blurry"]})
@@ -486,7 +486,7 @@ def test_lpips_at_all_checkpoints(tmp_path, scene_dir):
 
 def test_schedule_scales_every_method_and_never_picks_a_preset(tmp_path, scene_dir):
     """A schedule and a method preset are different things: a preset named like the schedule is not taken."""
-    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+    register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"quick": {"steps_scale": 0.5, "floor": 0.3}}))
     tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
     assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}

@@ -110,7 +110,7 @@ def resolve_spec(name: str):
         if not module or not attr:
             raise StringsBenchError(f"{name!r} is neither a method name nor module:Class",
                                     hint="e.g. `strings-bench methods check 3dgs` or `... check mypkg.mymethod:MyMethod`")
-        spec = MethodSpec(attr.lower(), name, f"{name} (checked by its implementation path)")
+        spec = MethodSpec(name=attr.lower(), implementation=name, description=f"{name} (checked by its implementation path)")
         spec.load()  # a clear error now when it does not import
         return spec
     return get_method(name)

@@ -184,7 +184,10 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         "method_presets": {m: chosen for m, chosen, _ in planned},
         "method_overrides": {m: jsonable(given_settings[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description, "title": specs[m].title or m,
-                        "group": specs[m].group} for m in methods},
+                        "group": specs[m].group,
+                        **({"ablation_of": specs[m].ablation_of, "ablation_at": specs[m].ablation_at,
+                            "ablation_effect": specs[m].ablation_effect} if specs[m].ablation_of else {})}
+                    for m in methods},
         "datasets": datasets,
         "device": c.device,  # as asked; execute() adds where it resolved to on this machine
     }

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS, cer_per_script
+from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS, cer_per_script, iteration_label
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).
@@ -45,14 +45,18 @@ def use_run_methods(manifest: dict | None) -> None:
 
 
 def method_info(method: str) -> dict:
-    """{"title", "group", "order"} of a method: run.json's entry over its spec's; unknown methods get their name."""
+    """{"title", "group", "order", "ablation_of", "ablation_at", "ablation_effect"} of a method: run.json's entry over
+    its spec's; unknown methods get their name."""
     from strings_bench.methods.registry import list_methods
 
     specs = {s.name: (k, s) for k, s in enumerate(list_methods())}
     k, spec = specs.get(method, (len(specs), None))
-    info = {"title": (spec.title or spec.name) if spec else method, "group": spec.group if spec else "baseline", "order": k}
+    info = {"title": (spec.title or spec.name) if spec else method, "group": spec.group if spec else "baseline", "order": k,
+            "ablation_of": spec.ablation_of if spec else None, "ablation_at": spec.ablation_at if spec else None,
+            "ablation_effect": spec.ablation_effect if spec else ""}
     given = _RUN_METHODS.get(method, {})
-    info.update({key: given[key] for key in ("title", "group") if given.get(key)})
+    info.update({key: given[key] for key in ("title", "group", "ablation_of", "ablation_at", "ablation_effect")
+                 if given.get(key)})
     return info
 
 
@@ -611,29 +615,33 @@ def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
 
 
 def ablation_table(df: pd.DataFrame, note: str = "") -> Table | None:
-    """The paper's ablations: w/o text densification (7K) and with a phase-1 position LR (3K)."""
+    """The paper's ablations: each method with `ablation_of` (its spec's, or run.json's) against that method, at
+    the checkpoint its spec names (`ablation_at`: w/o text densification at 7K, a phase-1 position LR at 3K)."""
     present = set(df["method"])
-    if "strings" not in present or not any(is_ablation(m) for m in present):
-        return None
-    blocks = []
     labels = set(df["label"])
-    if "strings-no-densify" in present:
-        blocks.append(("Effect of text densification", "strings-no-densify", "7K" if "7K" in labels else main_labels(df)[0]))
-    if "strings-pos-lr" in present:
-        blocks.append(("Effect of zero position LR of Gaussians", "strings-pos-lr",
-                       "3K" if "3K" in labels else main_labels(df)[0]))
+    blocks = []
+    for m in method_order(present):
+        info = method_info(m)
+        if info["group"] != "ablation" or info["ablation_of"] not in present:
+            continue
+        label = iteration_label(int(info["ablation_at"]))
+        blocks.append((f"Effect of {info['ablation_effect']}", m, label if label in labels else main_labels(df)[0],
+                       info["ablation_of"]))
+    if not blocks:
+        return None
     means = dataset_means(df, "cer")
     datasets = list(dict.fromkeys(df["dataset"]))
     rows = []
-    for title, abl, label in blocks:
+    for title, abl, label, of in blocks:
         vals = []
         for d in datasets:
             def get(m):
                 s = means[(means["method"] == m) & (means["dataset"] == d) & (means["label"] == label)]["cer"]
                 return float(s.iloc[0]) if len(s) else math.nan
-            vals.append((get(abl), get("strings")))
+            vals.append((get(abl), get(of)))
         rows.append((title, abl, label, vals))
-    t = Table("ablations", "Dataset", "Dataset", [], ["strings", *[r[1] for r in rows]],
+    compared = list(dict.fromkeys(of for *_, of in blocks))
+    t = Table("ablations", "Dataset", "Dataset", [], [*compared, *[r[1] for r in rows]],
               "Ablations: OCR-CER of STRinGS without text densification, and with a non-zero position learning rate "
               "in phase 1, against full STRinGS (the better one in bold), mean over the scenes of each dataset." + note,
               shade=False, heading="Ablations of STRinGS")
