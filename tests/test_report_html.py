@@ -271,7 +271,7 @@ def test_report_page_in_headless_chromium(fake_run, tmp_path):
     big = pd.concat([csv] * 7, ignore_index=True).head(60)
     big["psnr"] = np.arange(60, dtype=float)[::-1]
     paged = tmp_path / "paged.html"
-    paged.write_text(report_html._page("paged", f'<div>{report_html._cells_table(big)}</div>'), encoding="utf-8")
+    paged.write_text(report_html.html_page("paged", f'<div>{report_html._cells_table(big)}</div>'), encoding="utf-8")
 
     problems: list[str] = []
     with sync_api.sync_playwright() as pw:

@@ -73,6 +73,7 @@ th[aria-sort="descending"]::after { content: " \\25BC"; color: #333; }
 td.greyed { color: #9a9a9a; background: #f2f2f2; font-style: italic; } td.first { background: var(--first); } td.second { background: var(--second); } td.third { background: var(--third); }
 tr.ceiling td { font-style: italic; color: #555; background: #fafafa; }
 td.best { font-weight: bold; }
+td.decided { font-weight: 600; color: #1a6d1a; } td.undecided { color: #9a5b00; }
 .caption { color: #555; max-width: 1000px; font-size: 13px; }
 .legend span { padding: 1px 8px; margin-right: 6px; border: 1px solid var(--line); }
 .note { background: #fff6e0; border-left: 4px solid #e0a000; padding: 4px 10px; }
@@ -214,7 +215,7 @@ def _plain(s: str) -> str:
     return s
 
 
-def _page(title: str, body: str, back: str | None = None) -> str:
+def html_page(title: str, body: str, back: str | None = None) -> str:
     nav = f'<header><p><a href="{href(back)}">&larr; back to the report</a></p></header>' if back else ""
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
@@ -541,7 +542,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
     if not g.words:
         parts.append('<p class="note">This scene has no reference words (no legible known text and nothing read on '
                      "the GT views), so there is nothing to show.</p>")
-        return _page(title, "\n".join(parts) + "</main>", back)
+        return html_page(title, "\n".join(parts) + "</main>", back)
     parts.append('<div class="tabs">' + "".join(
         f'<button type="button" data-panel="ckpt-{i}"{" class=" + chr(34) + "active" + chr(34) if i == len(labels) - 1 else ""}>'
         f"{esc(label)}</button>" for i, label in enumerate(labels)) + "</div>")
@@ -567,7 +568,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
                      f"<h2>Checkpoint {esc(label)}</h2><p class=\"muted\">iterations trained: {esc(its)}</p>"
                      f'<table class="data gallery" id="gallery-{i}" data-page-size="{GALLERY_PAGE_SIZE}"><thead><tr>{"".join(head)}</tr></thead>'
                      f"<tbody>{''.join(rows)}</tbody></table></section>")
-    return _page(title, "\n".join(parts) + "</main>", back)
+    return html_page(title, "\n".join(parts) + "</main>", back)
 
 
 def _fronts_html(fronts: list[dict]) -> str:
@@ -663,4 +664,4 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
                  "one per (method, dataset, scene, checkpoint); docs/running.md lists the columns.</p>")
     if not df.empty:
         parts.append(f'<div class="scroll">{_cells_table(df)}</div>')
-    return atomic_write_text(out / "index.html", _page(title, "\n".join(parts) + "</main>"))
+    return atomic_write_text(out / "index.html", html_page(title, "\n".join(parts) + "</main>"))
