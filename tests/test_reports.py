@@ -46,7 +46,7 @@ def test_ocr_cer_latex_shades_best_three(tmp_path):
     cer7 = {"3dgs": 0.736, "mip-splatting": 0.748, "mcmc": 0.927, "absgs": 0.768, "edc-absgs": 0.328, "strings": 0.177}
     cer30 = {"3dgs": 0.148, "mip-splatting": 0.129, "mcmc": 0.110, "absgs": 0.143, "edc-absgs": 0.116, "strings": 0.106}
     df = _frame(cer7, cer30)
-    manifest = {"preset": {"name": "quick", "steps_scale": 0.05},
+    manifest = {"schedule": {"name": "quick", "steps_scale": 0.05},
                 "methods": {"3dgs": {"paper": "SIGGRAPH'23"}, "strings": {"paper": "WACV'26"}}}
     written = tables.write_tables(df, tmp_path, manifest)
     tex = written["ocr_cer"]["tex"].read_text()

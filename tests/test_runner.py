@@ -74,7 +74,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     # Cell contents: config, OCR words for GT and render, renders on disk.
     cell = runner.CellKey("fake-b", "toy", "toy", 15).path(out)
     rec = json.loads((cell / "result.json").read_text())
-    assert rec["config"]["preset"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
+    assert rec["config"]["schedule"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
     v = rec["ocr"]["views"]["view_00.png"]
     assert v["gt_words"][0]["text"] == "hello" and v["render_words"][0]["text"] == "hallo"
     assert v["mask"] == "dilated text mask"
@@ -365,7 +365,7 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     # A method without a steps_scale setting follows the run's scale.
     assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_overrides == {}
     assert plan.manifest["steps_scale"] == 0.02 and plan.manifest["checkpoints"] == [3000, 7000]
-    assert plan.manifest["preset"]["name"] == "tiny" and plan.manifest["preset"]["steps_scale"] == 0.02
+    assert plan.manifest["schedule"]["name"] == "tiny" and plan.manifest["schedule"]["steps_scale"] == 0.02
     assert SCHEDULES["tiny"].steps_scale == 0.005  # nothing global was changed
     # Each option alone; a --set steps_scale for a method wins over --steps-scale.
     only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)

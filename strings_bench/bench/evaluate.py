@@ -175,7 +175,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             record = CellRecord(
                 method=method, dataset=source.dataset, scene=source.scene, iteration=ck.iteration,
                 label=ck.label or iteration_label(ck.iteration),
-                config={"evaluate": {**manifest, "checkpoint": ck.iteration}, "preset": None, "downscale": ds,
+                config={"evaluate": {**manifest, "checkpoint": ck.iteration}, "schedule": None, "downscale": ds,
                         "cer_profile": opts.cer_profile, "scene": {"settings": source.settings, "test_views": evaluator.names},
                         "versions": versions(), "metrics": metrics_describe()},
                 timings={"train_seconds": train, "preprocess_seconds": None if train is None else 0.0,

@@ -176,8 +176,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
                             labels, p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every),
                             bool(c.keep_models), presets, dense))
     manifest = {
-        "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
-        # --steps-scale / --checkpoints as given (None: the schedule's); `preset` above holds the schedule in effect.
+        "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
+        # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
         "steps_scale": None if c.steps_scale is None else p.steps_scale,
         "checkpoints": None if c.checkpoints is None else list(p.paper_checkpoints),
         "dense_every": c.dense_every, "dense_eval": c.dense_eval if c.dense_every else None,
@@ -226,9 +226,9 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
             + ("" if "cer_profile" in old else " (made before --cer-profile existed: the rules now named robust)")
             + f"; this run asks for {manifest.get('cer_profile', 'paper')!r}",
             hint="use another --out folder, or the same --cer-profile to resume")
-    if (old.get("preset") or {}).get("name") != manifest["preset"]["name"]:
+    if old["schedule"].get("name") != manifest["schedule"]["name"]:
         raise StringsBenchError(
-            f"{run_dir} holds results of schedule {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
+            f"{run_dir} holds results of schedule {old['schedule'].get('name')!r}; this run asks for {manifest['schedule']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same --schedule to resume")
     # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
     # run gave the option; folders made without it keep resuming as before.
@@ -237,8 +237,8 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
                                   ("dense_every", "dense_every", "--checkpoints every:N")):
         if old.get(k) is None and manifest.get(k) is None:
             continue
-        was = (old.get("preset") or {}).get(field_name)
-        now = manifest["preset"].get(field_name)
+        was = old["schedule"].get(field_name)
+        now = manifest["schedule"].get(field_name)
         if _as_list(was) != _as_list(now):
             raise StringsBenchError(
                 f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",

@@ -10,7 +10,7 @@ checkpoints already evaluated are passed over (never rewritten).
 Run folder (see docs/running.md):
 
     RUN_DIR/
-      run.json                          the run's settings (preset, steps scale, checkpoints, downscale, OCR,
+      run.json                          the run's settings (schedule, steps scale, checkpoints, downscale, OCR,
                                         --set values); a re-run must match
       results.csv                       one row per cell, rebuilt after every cell
       cells/<method>/<dataset>/<scene>/<iteration>/
@@ -183,7 +183,7 @@ class Runner:
             config={
                 "method": describe,
                 "scene": {"path": job.scene_path, "settings": job.scene_settings, "test_views": evaluator.names},
-                "preset": job.schedule,
+                "schedule": job.schedule,
                 "method_presets": list(job.method_presets),
                 "downscale": job.downscale,
                 "cer_profile": job.cer_profile,

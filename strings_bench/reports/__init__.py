@@ -51,9 +51,9 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if analysis.fronts:
         write_fronts(analysis.fronts, out / "tables" / "pareto_front.csv")
     lines = [f"# strings-bench report: {run_dir.name}", ""]
-    preset = manifest.get("preset") or {}
-    if preset:
-        lines.append(f"Schedule **{preset.get('name')}** (steps scale {preset.get('steps_scale')}), downscale "
+    schedule = manifest.get("schedule") or {}
+    if schedule:
+        lines.append(f"Schedule **{schedule.get('name')}** (steps scale {schedule.get('steps_scale')}), downscale "
                      f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
     lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
                  "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")

@@ -314,12 +314,13 @@ def _cells_table(df: pd.DataFrame) -> str:
 def _config_html(manifest: dict, run_dir: Path, n_cells: int) -> str:
     if not manifest:
         return '<p class="note">This run folder has no run.json: its configuration is unknown.</p>'
-    preset = manifest.get("preset") or {}
+    schedule = manifest.get("schedule") or {}
     rows: list[tuple[str, str]] = [("run folder", str(run_dir.resolve())), ("cells", str(n_cells))]
-    if preset:
-        rows.append(("preset", f"{preset.get('name')} (steps scale {preset.get('steps_scale')}): {preset.get('description', '')}"))
-        if preset.get("paper_checkpoints"):
-            rows.append(("checkpoints (paper iterations)", ", ".join(str(c) for c in preset["paper_checkpoints"])))
+    if schedule:
+        rows.append(("schedule", f"{schedule.get('name')} (steps scale {schedule.get('steps_scale')}): "
+                                 f"{schedule.get('description', '')}"))
+        if schedule.get("paper_checkpoints"):
+            rows.append(("checkpoints (paper iterations)", ", ".join(str(c) for c in schedule["paper_checkpoints"])))
     for key in ("downscale", "ocr", "cer_profile", "device", "save_every"):
         if manifest.get(key) not in (None, ""):
             rows.append((key.replace("_", " "), str(manifest[key])))

@@ -23,7 +23,7 @@ from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellK
 
 __all__ = [
     "CellRecord", "write_cell", "render_file_name", "write_png", "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV",
-    "RUN_FILE", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
+    "RUN_FILE", "FORMER_NAMES", "upgrade_names", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
     "safe_name", "timing_columns", "write_results_csv", "script_columns", "cer_per_script",
 ]
 
@@ -36,8 +36,22 @@ CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
     "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
-    "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
+    "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]
+# Names of the run folder's fields before issue 41, when "preset" named the run's schedule (run.json, result.json's
+# config, results.csv's column): the readers of this module take such folders as today's.
+FORMER_NAMES = {"preset": "schedule"}
+
+
+def upgrade_names(d: dict) -> dict:
+    """`d` (run.json, a cell's config, a results.csv row) with its former field names as today's (FORMER_NAMES);
+    a field present under both names keeps today's."""
+    out = dict(d)
+    for old, new in FORMER_NAMES.items():
+        if old in out:
+            value = out.pop(old)
+            out.setdefault(new, value)
+    return out
 
 
 # ---- writing a cell ------------------------------------------------------------------------------------
@@ -188,8 +202,9 @@ def read_manifest(run_dir: str | Path) -> dict | None:
             raise StringsBenchError(f"run settings {p} are malformed: {what}",
                                     hint="restore it from a backup, or use another --out folder (the cells are kept)")
     need(isinstance(m, dict), f"a JSON {type(m).__name__}, not an object")
-    need(isinstance(m.get("preset"), dict) and isinstance(m["preset"].get("name"), str),
-         "'preset' is missing or not an object with a name")
+    m = upgrade_names(m)  # a folder written before issue 41 names the schedule "preset"
+    need(isinstance(m.get("schedule"), dict) and isinstance(m["schedule"].get("name"), str),
+         "'schedule' is missing or not an object with a name")
     need(isinstance(m.get("methods"), dict) and all(isinstance(v, dict) for v in m["methods"].values()),
          "'methods' is missing or not an object of objects")
     need(isinstance(m.get("datasets"), list), "'datasets' is missing or not a list")
@@ -255,7 +270,7 @@ def cell_row(rec: dict) -> dict:
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
         "known_views": "" if not k else len(k.get("images") or {}),
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
-        "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
+        "schedule": upgrade_names(rec["config"]).get("schedule") or "", "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
         # "words": a dense checkpoint of `--checkpoints every:N`, word-crop metrics only (no OCR-CER); else "full"
         "evaluation": rec.get("evaluation", "full"),

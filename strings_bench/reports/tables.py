@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from strings_bench.reports.results import ENGINE_COLUMNS, READABILITY_COLUMNS, cer_per_script, iteration_label
+from strings_bench.reports.results import ENGINE_COLUMNS, FORMER_NAMES, READABILITY_COLUMNS, cer_per_script, iteration_label
 from strings_bench.core.io import atomic_write_text
 
 # Paper colours (preamble of the paper).
@@ -124,7 +124,7 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     p = Path(run_dir) / "results.csv"
     if not p.exists():
         return pd.DataFrame()
-    df = pd.read_csv(p, keep_default_na=True)
+    df = pd.read_csv(p, keep_default_na=True).rename(columns=FORMER_NAMES)  # a results.csv from before issue 41
     for c in ("cer", "cer_known", "psnr", "ssim", "lpips", "train_seconds", "preprocess_seconds", "total_seconds",
               "gaussians", *READABILITY_COLUMNS):
         if c in df:
@@ -329,11 +329,11 @@ def schedule_note(df: pd.DataFrame, manifest: dict | None) -> str:
         return ""
     pairs = sorted({(l, int(i)) for l, i in zip(df["label"], df["iteration"])}, key=lambda p: label_value(p[0]))
     shown = [f"{l} = {i} iterations" for l, i in pairs if str(i) != l and label_value(l) != i]
-    preset = (manifest or {}).get("preset", {})
+    schedule = (manifest or {}).get("schedule", {})
     if not shown:
         return ""
     return (f" Checkpoints are labelled by the paper iteration they stand for; this run (schedule "
-            f"{latex_escape(preset.get('name', '?'))}, steps scale {preset.get('steps_scale', '?')}) trained "
+            f"{latex_escape(schedule.get('name', '?'))}, steps scale {schedule.get('steps_scale', '?')}) trained "
             + "; ".join(shown) + ".")
 
 
