@@ -182,6 +182,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     import strings_bench.bench.runner as runner
     import strings_bench.reports.figures as figures
     import strings_bench.reports.tables as tables
+    from strings_bench.reports.aggregate import load_results
 
     rf = _fake_registry()
     scene_dir = rf.make_scene(tmp_path / "scenes" / "toyset")
@@ -202,7 +203,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
 
     # The training-time table and the scatter show total minutes at 7K: fake-pre 54 s = 0.9 min,
     # fake-a 24 s = 0.4 min (train only would give 0.4 for both).
-    df = tables.load_results(out)
+    df = load_results(out)
     t = next(t for t in tables.build_tables(df) if t.name == "training_time")
     col = next(c for c in t.columns if c.sub == "7K")
     assert col.values["fake-pre"] == pytest.approx(0.9) and col.values["fake-a"] == pytest.approx(0.4)
@@ -248,7 +249,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     (old / "results.csv").write_text("method,dataset,scene,iteration,label,cer,cer_known,psnr,ssim,lpips,"
                                      "train_seconds,gaussians,ocr_failed\n"
                                      "m,d,s,70,7K,0.5,,20,0.5,,120,10,0\n")
-    df_old = tables.load_results(old)
+    df_old = load_results(old)
     assert float(df_old["total_seconds"].iloc[0]) == 120.0
     t = next(t for t in tables.build_tables(df_old) if t.name == "training_time")
     assert t.columns[0].values["m"] == pytest.approx(2.0)

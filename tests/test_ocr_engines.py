@@ -13,7 +13,9 @@ from PIL import Image
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports.tables import build_tables, ocr_agreement, to_csv, to_markdown
+from strings_bench.reports.ocr_agreement import ocr_agreement
+from strings_bench.reports.table_model import to_csv, to_markdown
+from strings_bench.reports.tables import build_tables
 from strings_bench.reports.results import iter_cells
 from strings_bench.core.errors import OCRError, StringsBenchError
 from strings_bench.core.io import atomic_write_json

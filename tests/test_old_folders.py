@@ -16,7 +16,7 @@ import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.reports.results import cell_row, iter_cells, read_manifest, upgrade_names, write_results_csv
-from strings_bench.reports.tables import load_results
+from strings_bench.reports.aggregate import load_results
 
 OLD = Path(__file__).resolve().parent / "data" / "run_99adc95"
 

@@ -20,8 +20,8 @@ import pytest
 from PIL import Image
 
 from strings_bench.reports import html as report_html
-from strings_bench.reports import tables
-from strings_bench.reports.tables import Column, Table
+from strings_bench.reports import aggregate, tables
+from strings_bench.reports.table_model import Column, Table
 
 
 class Parsed(HTMLParser):
@@ -216,7 +216,7 @@ def test_gallery_crops_and_readings_match_the_cells(fake_run):
 
 def test_crops_are_rewritten_only_when_stale(fake_run):
     rep = fake_run / "report"
-    df = tables.load_results(fake_run)
+    df = aggregate.load_results(fake_run)
     g = report_html.collect_galleries(fake_run, df)[0]
     paths = report_html.write_crops(fake_run, rep, g)
     files = [rep / g.folder / p for p in paths.values() if p is not None]
@@ -236,7 +236,7 @@ def test_missing_renders_and_an_empty_run_still_give_a_page(fake_run, tmp_path):
     shutil.copytree(fake_run, run)
     gone = next((run / "cells" / "fake-b").glob("*/*/35"))
     shutil.rmtree(gone / "renders")
-    df = tables.load_results(run)
+    df = aggregate.load_results(run)
     report_html.write_html(run, run / "report", df, {}, [], {})
     page = next((run / "report" / "gallery").rglob("index.html"))
     n_words = sum(len(v) for v in json.loads((gone / "result.json").read_text())["readability"]["views"].values())

@@ -12,16 +12,16 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports import tables, write_report
+from strings_bench.reports import table_model, tables, write_report
 
 
 def test_rank_classes_ties_and_nan():
-    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], True) == ["third", "first", "second", None]
-    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], False) == ["second", None, "third", "first"]
+    assert table_model.rank_classes([0.3, 0.1, 0.2, 0.4], True) == ["third", "first", "second", None]
+    assert table_model.rank_classes([0.3, 0.1, 0.2, 0.4], False) == ["second", None, "third", "first"]
     # Ties share a place (the paper shades two "third" 0.392s); NaN never ranks.
-    assert tables.rank_classes([0.392, 0.392, 0.1, math.nan, 0.2], True) == ["third", "third", "first", None, "second"]
+    assert table_model.rank_classes([0.392, 0.392, 0.1, math.nan, 0.2], True) == ["third", "third", "first", None, "second"]
     # Compared as printed: 0.1234 and 0.1231 both show 0.123.
-    assert tables.rank_classes([0.1234, 0.1231, 0.2], True, decimals=3) == ["first", "first", "second"]
+    assert table_model.rank_classes([0.1234, 0.1231, 0.2], True, decimals=3) == ["first", "first", "second"]
 
 
 def _frame(cer_7k: dict, cer_30k: dict, lpips=math.nan, datasets=("synthetic",)):
@@ -120,10 +120,10 @@ def test_latex_compiles(fake_run, tmp_path):
 
 
 def test_short_venue():
-    assert tables.short_venue("Kerbl et al.: 3D Gaussian Splatting (SIGGRAPH 2023)") == "SIGGRAPH'23"
-    assert tables.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
-    assert tables.short_venue("CVPR'24") == "CVPR'24"
-    assert tables.short_venue("no venue here") == ""
+    assert table_model.short_venue("Kerbl et al.: 3D Gaussian Splatting (SIGGRAPH 2023)") == "SIGGRAPH'23"
+    assert table_model.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
+    assert table_model.short_venue("CVPR'24") == "CVPR'24"
+    assert table_model.short_venue("no venue here") == ""
 
 
 def test_paper_figures_next_to_measured_only_where_published(tmp_path):
@@ -204,13 +204,13 @@ def test_every_evaluated_checkpoint_gets_its_column_and_headings_are_titles(tmp_
 
 def test_method_titles_and_groups_come_from_the_run_folder_then_the_specs():
     """One place for a method's title and group: its spec, recorded in run.json; the reports read them there."""
-    tables.use_run_methods({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    table_model.use_run_methods({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
     try:
-        assert tables.method_title("my-splat") == "MySplat (ours)"
-        assert tables.method_title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
-        assert tables.method_title("mcmc") == "3DGS-MCMC" and tables.is_ablation("strings-pos-lr")
-        assert tables.method_title("edc") == "edc"  # no spec registers it: no invented title
-        assert tables.method_order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
+        assert table_model.method_title("my-splat") == "MySplat (ours)"
+        assert table_model.method_title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
+        assert table_model.method_title("mcmc") == "3DGS-MCMC" and table_model.is_ablation("strings-pos-lr")
+        assert table_model.method_title("edc") == "edc"  # no spec registers it: no invented title
+        assert table_model.method_order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
             ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
     finally:
-        tables.use_run_methods(None)
+        table_model.use_run_methods(None)

@@ -118,7 +118,7 @@ def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
     import pandas as pd
 
     from strings_bench.methods.registry import MethodSpec, registered
-    from strings_bench.reports.tables import ablation_table
+    from strings_bench.reports.ablations import ablation_table
 
     assert (get_method("strings-no-densify").ablation_of, get_method("strings-no-densify").ablation_at) == ("strings", 7000)
     assert (get_method("strings-pos-lr").ablation_of, get_method("strings-pos-lr").ablation_at) == ("strings", 3000)
@@ -133,4 +133,4 @@ def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
     with registered(spec):
         t = ablation_table(pd.DataFrame(rows))
     assert t.methods == ["3dgs", "3dgs-no-reset"]
-    assert t.ablation_rows == [("Effect of the opacity reset", "3dgs-no-reset", "30K", [(0.7, 0.5)])]
+    assert t.rows == [("Effect of the opacity reset", "3dgs-no-reset", "30K", [(0.7, 0.5)])]

@@ -24,7 +24,8 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     and text NLL where the run has them). Returns report.md's path."""
     from strings_bench.reports.figures import write_figures
     from strings_bench.reports.html import write_html
-    from strings_bench.reports.tables import build_tables, load_results, write_tables
+    from strings_bench.reports.aggregate import load_results
+    from strings_bench.reports.tables import build_tables, write_tables
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -37,7 +38,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
     manifest = read_manifest(run_dir) or {}
-    from strings_bench.reports.tables import use_run_methods
+    from strings_bench.reports.table_model import use_run_methods
 
     use_run_methods(manifest)  # method titles and groups as the run recorded them
     df = load_results(run_dir)

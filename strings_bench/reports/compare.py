@@ -31,8 +31,8 @@ from pathlib import Path
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.results import cell_row, iter_cells, iteration_label
-from strings_bench.reports.tables import (PREAMBLE, Column, Table, dataset_title, label_value, method_info, method_order,
-                                          method_title, to_latex, to_markdown)
+from strings_bench.reports.table_model import (PREAMBLE, Column, Table, dataset_title, label_value, method_info,
+                                               method_order, method_title)
 
 VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds")
 CER_VALUES = (("cer", "OCR-CER"), ("cer_known", "known-text CER"), ("word_cer", "word CER"))
@@ -292,7 +292,7 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
 def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
     parts = [f"# Comparison over seeds: {', '.join(str(d) for d in c.run_dirs)}", ""]
     for t in comparison_tables(c):
-        parts += [f"## {t.title}", "", to_markdown(t), t.caption, ""]
+        parts += [f"## {t.title}", "", t.markdown(), t.caption, ""]
     rows, left = _shown(decided_rows(c))
     if rows or left:
         parts += ["## Decided or not", "", _decided_markdown(rows),
@@ -354,7 +354,7 @@ def write_comparison(c: Comparison, out: str | Path, per_scene: str | None = Non
     """Write comparison.md, comparison.tex (with tables' preamble.tex), comparison.csv and index.html into `out`."""
     out = Path(out)
     tables = comparison_tables(c)
-    tex = "\n".join(to_latex(t) for t in tables)
+    tex = "\n".join(t.latex() for t in tables)
     doc = "\n".join([r"\documentclass{article}", r"\usepackage[margin=1.5cm]{geometry}", PREAMBLE,
                      r"\begin{document}", tex, r"\end{document}"]) + "\n"
     return {"md": atomic_write_text(out / "comparison.md", comparison_markdown(c, per_scene)),

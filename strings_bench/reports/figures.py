@@ -12,8 +12,8 @@ import pandas as pd
 
 from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WORDS, THRESHOLDS, cer_by_size, load_words,
                                                         pareto_front, size_label)
-from strings_bench.reports.tables import (GT_CEILING, dataset_title, is_ablation, main_labels, method_order, method_title,
-                                          with_total_seconds)
+from strings_bench.reports.aggregate import main_labels, with_total_seconds
+from strings_bench.reports.table_model import GT_CEILING, dataset_title, is_ablation, method_order, method_title
 from strings_bench.reports.results import read_cell, render_file_name
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name

@@ -41,8 +41,8 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from strings_bench.reports.tables import (GT_CEILING, Table, _fmt3, dataset_title, label_value,
-                                                method_order, method_title)
+from strings_bench.reports.ablations import AblationTable, fmt3
+from strings_bench.reports.table_model import GT_CEILING, Table, dataset_title, label_value, method_order, method_title
 from strings_bench.reports.results import RESULT_FILE, CellKey, render_file_name, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
@@ -227,7 +227,7 @@ def html_page(title: str, body: str, back: str | None = None) -> str:
 def table_html(t: Table) -> str:
     """One report table as a sortable HTML table: a row per method, a column per Column, the best three
     of each column with class first/second/third (Table.shading, as in the LaTeX), n/a never ranked."""
-    if t.name == "ablations":
+    if isinstance(t, AblationTable):
         return _ablation_html(t)
     groups: list[tuple[str, int]] = []
     for c in t.columns:
@@ -263,8 +263,8 @@ def table_html(t: Table) -> str:
     return "\n".join(out)
 
 
-def _ablation_html(t: Table) -> str:
-    datasets = t.ablation_datasets  # type: ignore[attr-defined]
+def _ablation_html(t: AblationTable) -> str:
+    datasets = t.datasets
     head = ['<th class="name" data-col="0" data-type="text">Ablation</th>', '<th data-col="1" data-type="text">Checkpoint</th>']
     col = 2
     for d in datasets:
@@ -273,7 +273,7 @@ def _ablation_html(t: Table) -> str:
             col += 1
     out = [f'<table class="data report-table" id="table-{esc(t.name)}" data-table="{esc(t.name)}">',
            "<thead><tr>" + "".join(head) + "</tr></thead>", "<tbody>"]
-    for title, _abl, label, vals in t.ablation_rows:  # type: ignore[attr-defined]
+    for title, _abl, label, vals in t.rows:
         cells = [f'<td class="name">{esc(title)}</td>', f"<td>{esc(label)}</td>"]
         for wo, ours in vals:
             better_wo = not (_is_nan(wo) or _is_nan(ours)) and round(wo, 3) < round(ours, 3)
@@ -281,7 +281,7 @@ def _ablation_html(t: Table) -> str:
             for v, best in ((wo, better_wo), (ours, better_ours)):
                 data_v = sort_key(v)
                 cells.append(f'<td{" class=" + chr(34) + "best" + chr(34) if best else ""} data-v="{esc(data_v)}">'
-                             f"{esc(_fmt3(v))}</td>")
+                             f"{esc(fmt3(v))}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
     out += ["</tbody>", "</table>"]
     return "\n".join(out)

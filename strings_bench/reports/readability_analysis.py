@@ -31,8 +31,9 @@ import pandas as pd
 from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import CellKey
 from strings_bench.reports.results import WORDS_FILE, read_words_csv
-from strings_bench.reports.tables import (GT_CEILING, RANK_NOTE, Column, Table, dataset_title, is_ablation,
-                                          main_labels, method_order, method_title, with_total_seconds)
+from strings_bench.reports.aggregate import main_labels, with_total_seconds
+from strings_bench.reports.table_model import (GT_CEILING, RANK_NOTE, Column, Table, dataset_title, is_ablation,
+                                               method_order, method_title)
 
 # Word-height bins in pixels at the evaluated resolution: [lower, upper). At 320x240 the synthetic scenes' words
 # are ~5 px high (docs/ocr.md); the recogniser's input is 48 px high; 6.5 px is the known-text CER's legibility

@@ -1,6 +1,9 @@
 """The run folder's cell schema and its `results.csv`: write a cell, read cells, turn a cell into a CSV row,
 write the CSV.
 
+Size (~470 lines): the run folder's one schema, written and read in one place (a cell's record, result.json's checks,
+results.csv's and words.csv's rows), so that the writers and the readers cannot drift apart.
+
 The runner and `strings-bench evaluate` write cells (`cells/<method>/<dataset>/<scene>/<iteration>/result.json`)
 through one `write_cell(CellRecord)`; the reports and benchmark scripts read them back through this module. It imports nothing of the runner or the
 reports, so both can depend on it (docs/architecture.md). The path and file names of a cell live in
