@@ -74,7 +74,7 @@ def run(args) -> int:
         from strings_bench.datasets.registry import resolve_scenes
 
         ref = resolve_scenes([args.scene])[0]
-        scene = Scene.load(ref.path, name=ref.scene, settings=ref.settings)
+        scene = ref.load()
 
     overrides = {}
     for item in args.set:

@@ -214,13 +214,12 @@ def _default_method(preds: Predictions, pred: Path) -> str:
 def _source(preds: Predictions, opts: EvaluateOptions, pred: Path) -> Source:
     if opts.scene:
         from strings_bench.datasets.registry import resolve_scenes
-        from strings_bench.scene.scene import Scene
 
         refs = resolve_scenes([opts.scene])
         if len(refs) != 1:
             raise PredictionsError(f"--scene {opts.scene} names {len(refs)} scenes", hint="give one scene, e.g. synthetic/books")
         ref = refs[0]
-        scene = Scene.load(ref.path, name=ref.scene, settings=dict(ref.settings))
+        scene = ref.load()
         return Source("scene", opts.dataset or ref.dataset, opts.scene_name or ref.scene, scene, dict(ref.settings))
     if opts.gt is None and not all(ck.gt for ck in preds.checkpoints):
         raise PredictionsError(f"the {preds.layout} predictions at {pred} carry no ground truth",
