@@ -203,14 +203,20 @@ def test_every_evaluated_checkpoint_gets_its_column_and_headings_are_titles(tmp_
 
 
 def test_method_titles_and_groups_come_from_the_run_folder_then_the_specs():
-    """One place for a method's title and group: its spec, recorded in run.json; the reports read them there."""
-    table_model.use_run_methods({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
-    try:
-        assert table_model.method_title("my-splat") == "MySplat (ours)"
-        assert table_model.method_title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
-        assert table_model.method_title("mcmc") == "3DGS-MCMC" and table_model.is_ablation("strings-pos-lr")
-        assert table_model.method_title("edc") == "edc"  # no spec registers it: no invented title
-        assert table_model.method_order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
-            ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
-    finally:
-        table_model.use_run_methods(None)
+    """One place for a method's title and group: its spec, recorded in run.json; the reports read them there, from
+    the MethodNames a report is built with (no module-level state: another report's names are untouched)."""
+    names = table_model.MethodNames.of({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    assert names.title("my-splat") == "MySplat (ours)"
+    assert names.title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
+    assert names.title("mcmc") == "3DGS-MCMC" and names.is_ablation("strings-pos-lr")
+    assert names.title("edc") == "edc"  # no spec registers it: no invented title
+    assert names.order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
+        ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
+    assert table_model.REGISTERED.title("my-splat") == "my-splat"  # the registry's names alone know nothing of it
+    df = pd.DataFrame([{"method": m, "dataset": "synthetic", "scene": "books", "label": "7K", "iteration": 35,
+                        "cer": c, "cer_known": math.nan, "total_seconds": 60.0, "train_seconds": 60.0, "psnr": 20.0,
+                        "ssim": 0.7, "lpips": math.nan, "gaussians": 1000, "ocr_failed": 0}
+                       for m, c in (("my-splat", 0.2), ("3dgs", 0.5))])
+    (ocr_cer, *_) = tables.build_tables(df, {"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    assert "| MySplat (ours) | 0.200 **(1)** |" in ocr_cer.markdown()
+    assert "| my-splat | 0.200 **(1)** |" in tables.build_tables(df)[0].markdown()  # built without the record

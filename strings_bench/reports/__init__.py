@@ -38,17 +38,17 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
     manifest = read_manifest(run_dir) or {}
-    from strings_bench.reports.table_model import use_run_methods
+    from strings_bench.reports.table_model import MethodNames
 
-    use_run_methods(manifest)  # method titles and groups as the run recorded them
+    names = MethodNames.of(manifest)  # method titles and groups as the run recorded them, then the specs'
     df = load_results(run_dir)
     out = run_dir / "report"
     from strings_bench.reports.readability_analysis import analyse, front_lines, write_fronts
     from strings_bench.reports.tables import schedule_note
 
-    analysis = analyse(run_dir, df, schedule_note(df, manifest))  # CER by text size, time to legibility, fronts
+    analysis = analyse(run_dir, df, schedule_note(df, manifest), names)  # CER by text size, time to legibility, fronts
     tables = write_tables(df, out / "tables", manifest, extra=analysis.tables)
-    figures = write_figures(df, run_dir, out / "figures", metrics)
+    figures = write_figures(df, run_dir, out / "figures", metrics, names)
     if analysis.fronts:
         write_fronts(analysis.fronts, out / "tables" / "pareto_front.csv")
     lines = [f"# strings-bench report: {run_dir.name}", ""]
@@ -80,7 +80,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
         lines += ["## Speed/accuracy front", "",
                   "At each checkpoint, the methods that no other method beats on both mean training time "
                   "(preprocessing + optimisation) and the mean CER over the scenes (circled in the scatter figures; "
-                  "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts), ""]
+                  "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts, names), ""]
     if figures:
         lines += ["## figures", ""]
         for name, p in figures.items():

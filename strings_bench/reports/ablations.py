@@ -10,7 +10,7 @@ import pandas as pd
 
 from strings_bench.reports.aggregate import dataset_means, main_labels
 from strings_bench.reports.results import iteration_label
-from strings_bench.reports.table_model import Table, dataset_title, latex_escape, method_info, method_order
+from strings_bench.reports.table_model import REGISTERED, MethodNames, Table, dataset_title, latex_escape
 
 
 def fmt3(x: float) -> str:
@@ -66,14 +66,14 @@ class AblationTable(Table):
         return pd.DataFrame(rows).to_csv(index=False)
 
 
-def ablation_table(df: pd.DataFrame, note: str = "") -> AblationTable | None:
+def ablation_table(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> AblationTable | None:
     """The paper's ablations: each method with `ablation_of` (its spec's, or run.json's) against that method, at
     the checkpoint its spec names (`ablation_at`: w/o text densification at 7K, a phase-1 position LR at 3K)."""
     present = set(df["method"])
     labels = set(df["label"])
     blocks = []
-    for m in method_order(present):
-        info = method_info(m)
+    for m in names.order(present):
+        info = names.info(m)
         if info["group"] != "ablation" or info["ablation_of"] not in present:
             continue
         label = iteration_label(int(info["ablation_at"]))
@@ -96,5 +96,6 @@ def ablation_table(df: pd.DataFrame, note: str = "") -> AblationTable | None:
     return AblationTable("ablations", "Dataset", "Dataset", [], [*compared, *[r[1] for r in rows]],
                          "Ablations: OCR-CER of STRinGS without text densification, and with a non-zero position learning "
                          "rate in phase 1, against full STRinGS (the better one in bold), mean over the scenes of each "
-                         "dataset." + note, shade=False, heading="Ablations of STRinGS", rows=rows, datasets=datasets)
+                         "dataset." + note, shade=False, heading="Ablations of STRinGS", rows=rows, datasets=datasets,
+                         names=names)
 

@@ -31,8 +31,8 @@ from pathlib import Path
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.results import cell_row, iter_cells, iteration_label
-from strings_bench.reports.table_model import (PREAMBLE, Column, Table, dataset_title, label_value, method_info,
-                                               method_order, method_title)
+from strings_bench.reports.results import read_manifest
+from strings_bench.reports.table_model import PREAMBLE, Column, MethodNames, Table, dataset_title, label_value
 
 VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds")
 CER_VALUES = (("cer", "OCR-CER"), ("cer_known", "known-text CER"), ("word_cer", "word CER"))
@@ -113,6 +113,7 @@ class Comparison:
     numbers: dict
     methods: list[str]
     run_dirs: list[Path]
+    names: MethodNames  # as the folders' run.json recorded the methods, then as their specs do
     paper_dataset: str = PAPER_DATASET
 
     def get(self, method: str, label: str, value: str) -> dict | None:
@@ -121,13 +122,13 @@ class Comparison:
     @property
     def reference(self) -> str | None:
         """The method the others are held against: the one of group "ours" (STRinGS)."""
-        return next((m for m in self.methods if method_info(m)["group"] == "ours"), None)
+        return next((m for m in self.methods if self.names.info(m)["group"] == "ours"), None)
 
     def ablations(self) -> list[tuple[str, str, str]]:
         """(ablation, the method it ablates, checkpoint label) for every ablation both of which are compared."""
         out = []
         for m in self.methods:
-            info = method_info(m)
+            info = self.names.info(m)
             if info["group"] == "ablation" and info["ablation_of"] in self.methods:
                 out.append((m, info["ablation_of"], iteration_label(int(info["ablation_at"]))))
         return out
@@ -144,10 +145,14 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
     if not data:
         raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),
                                 hint="give run folders with finished cells (strings-bench run or calibrate)")
-    methods = method_order(m for m, _ in data)
+    recorded: dict = {}
+    for d in run_dirs:
+        recorded.update((read_manifest(d) or {}).get("methods") or {})
+    names = MethodNames.of({"methods": recorded})
+    methods = names.order(m for m, _ in data)
     numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES} for (mm, label) in data if mm == m}
                for m in methods}
-    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], paper_dataset)
+    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset)
 
 
 # ---- tables --------------------------------------------------------------------------------------------
@@ -188,7 +193,7 @@ SEEDS_NOTE = (" Mean over the scenes of each seed, then over the seeds; the seed
 
 def comparison_tables(c: Comparison) -> list[Table]:
     """The CER table, the time and image-quality table and, where the comparison has them, the ablations."""
-    main = [m for m in c.methods if method_info(m)["group"] != "ablation"] or c.methods
+    main = [m for m in c.methods if not c.names.is_ablation(m)] or c.methods
     # the most seeds a method has at any checkpoint, and the scenes averaged there
     most = {m: max((s for lab in c.numbers[m] if (s := c.get(m, lab, "cer"))), key=lambda s: (s["seeds"], s["scenes"]),
                    default=None) for m in c.methods}
@@ -226,6 +231,8 @@ def comparison_tables(c: Comparison) -> list[Table]:
         tables.append(Table("compare_ablations", "Ablation", "Ablation", cols, rows,
                             "Each ablation beside the method it ablates (its spec's ablation_of), at the checkpoint its "
                             "spec names (ablation_at)." + SEEDS_NOTE, shade=False, heading="Ablations"))
+    for t in tables:
+        t.names = c.names
     return tables
 
 
@@ -257,11 +264,11 @@ def _shown(rows: list[dict]) -> tuple[list[dict], str]:
     return shown, (f" {n} pair(s) with a single seed on one side are not listed." if n else "")
 
 
-def _decided_markdown(rows: list[dict]) -> str:
+def _decided_markdown(c: Comparison, rows: list[dict]) -> str:
     lines = ["| method | against | CER | checkpoint | difference of means | seeds | verdict |", "|---|---|---|---|---|---|---|"]
-    names = dict(CER_VALUES)
+    cer_names = dict(CER_VALUES)
     for r in rows:
-        lines.append(f"| {method_title(r['method'])} | {method_title(r['against'])} | {names[r['value']]} | {r['label']} | "
+        lines.append(f"| {c.names.title(r['method'])} | {c.names.title(r['against'])} | {cer_names[r['value']]} | {r['label']} | "
                      f"{r['difference']:+.3f} | {r['seeds']} | {r['verdict']} |")
     return "\n".join(lines) + "\n"
 
@@ -285,7 +292,7 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
                 continue
             cells = [" / ".join(f"{per_seed[seed][sc][value]:.3f}" for seed in sorted(per_seed) if sc in per_seed[seed])
                      or "-" for sc in scenes]
-            lines.append(f"| {method_title(m)} | {label} | " + " | ".join(cells) + " |")
+            lines.append(f"| {c.names.title(m)} | {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -295,7 +302,7 @@ def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
         parts += [f"## {t.title}", "", t.markdown(), t.caption, ""]
     rows, left = _shown(decided_rows(c))
     if rows or left:
-        parts += ["## Decided or not", "", _decided_markdown(rows),
+        parts += ["## Decided or not", "", _decided_markdown(c, rows),
                   "Decided: both methods have several seeds and the ranges of their seeds' means do not overlap; not "
                   "decided: they overlap." + left, ""]
     if c.left_out():
@@ -331,13 +338,13 @@ def comparison_html(c: Comparison, tables: list[Table]) -> str:
         parts.append(f"<h2>{esc(t.title)}</h2>{table_html(t)}<p class=\"caption\">{esc(t.caption)}</p>")
     rows, left = _shown(decided_rows(c))
     if rows or left:
-        names = dict(CER_VALUES)
+        cer_names = dict(CER_VALUES)
         body = "".join(
-            f'<tr><td class="name">{esc(method_title(r["method"]))}</td><td>{esc(names[r["value"]])}</td>'
+            f'<tr><td class="name">{esc(c.names.title(r["method"]))}</td><td>{esc(cer_names[r["value"]])}</td>'
             f'<td>{esc(r["label"])}</td><td data-v="{r["difference"]!r}">{r["difference"]:+.3f}</td>'
             f'<td>{esc(r["seeds"])}</td><td class="{"decided" if r["verdict"] == "decided" else "undecided"}">'
             f'{esc(r["verdict"])}</td></tr>' for r in rows)
-        parts.append(f"<h2>Decided or not, against {esc(method_title(c.reference))}</h2>"
+        parts.append(f"<h2>Decided or not, against {esc(c.names.title(c.reference))}</h2>"
                      '<table class="data" id="table-decided"><thead><tr>'
                      '<th class="name" data-col="0" data-type="text">method</th><th data-col="1" data-type="text">CER</th>'
                      '<th data-col="2" data-type="text">checkpoint</th><th data-col="3" data-type="num">difference</th>'

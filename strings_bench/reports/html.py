@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from strings_bench.reports.ablations import AblationTable, fmt3
-from strings_bench.reports.table_model import GT_CEILING, Table, dataset_title, label_value, method_order, method_title
+from strings_bench.reports.table_model import GT_CEILING, REGISTERED, MethodNames, Table, dataset_title, label_value
 from strings_bench.reports.results import RESULT_FILE, CellKey, render_file_name, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
@@ -250,7 +250,7 @@ def table_html(t: Table) -> str:
     shades = [t.shading(c) for c in t.columns]
     for m in t.methods:
         cls = ' class="ceiling"' if m == GT_CEILING else ""
-        cells = [f'<td class="name" data-method="{esc(m)}">{esc(method_title(m))}</td>']
+        cells = [f'<td class="name" data-method="{esc(m)}">{esc(t.names.title(m))}</td>']
         for c, sh in zip(t.columns, shades):
             v = c.values.get(m, math.nan)
             rank = sh.get(m)
@@ -525,10 +525,10 @@ def _reading_cell(reading: dict | None, chars: int, crop: Path | None, alt: str)
             f'<div>{read_html}</div><div class="err">{esc(err)}</div></td>')
 
 
-def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
+def gallery_page(g: SceneGallery, paths: dict, back: str, names: MethodNames = REGISTERED) -> str:
     """The HTML of one scene's word-crop gallery: a tab per checkpoint label, a row per reference word."""
     labels = sorted({label for _m, label in g.cells}, key=label_value)
-    methods = method_order(m for m, _l in g.cells)
+    methods = names.order(m for m, _l in g.cells)
     title = f"Word crops: {dataset_title(g.dataset)} / {g.scene}"
     parts = [f"<header><h1>{esc(title)}</h1></header><main>",
              f"<p>{len(g.words)} reference word(s) over the scene's test views; for each, the ground-truth view's crop "
@@ -553,7 +553,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
         head = ['<th class="name" data-col="0" data-type="text">view</th>',
                 '<th class="name" data-col="1" data-type="text">reference word</th>',
                 '<th data-col="2" data-type="num">ground truth</th>']
-        head += [f'<th data-col="{3 + j}" data-type="num">{esc(method_title(m))}</th>' for j, m in enumerate(here)]
+        head += [f'<th data-col="{3 + j}" data-type="num">{esc(names.title(m))}</th>' for j, m in enumerate(here)]
         rows = []
         for k, w in g.words.items():
             src = esc(w.source) + ("" if w.headline else " (same word as a known one; not in the headline figures)")
@@ -572,13 +572,13 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
     return html_page(title, "\n".join(parts) + "</main>", back)
 
 
-def _fronts_html(fronts: list[dict]) -> str:
+def _fronts_html(fronts: list[dict], names: MethodNames = REGISTERED) -> str:
     """The speed/accuracy fronts as a table: one row per (checkpoint, metric), the front's methods."""
     from strings_bench.reports.readability_analysis import FRONT_METRICS
 
     rows = []
     for f in fronts:
-        members = "; ".join(f"{method_title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
+        members = "; ".join(f"{names.title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
         rows.append(f'<tr><td class="name">{esc(f["label"])}</td><td class="name">{esc(FRONT_METRICS[f["metric"]])}</td>'
                     f'<td class="name" data-front="{esc(",".join(f["front"]))}">{esc(members or "none")}</td></tr>')
     return ('<h3 id="h-pareto_front">Speed/accuracy front</h3><table class="data" id="table-pareto-front"><thead><tr>'
@@ -599,6 +599,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
     fronts (readability_analysis.fronts), listed under the figures.
     """
     run_dir, out = Path(run_dir), Path(out)
+    names = MethodNames.of(manifest)  # methods named as the run recorded them
     out.mkdir(parents=True, exist_ok=True)
     title = f"strings-bench report: {run_dir.resolve().name}"
     sections = [("config", "Configuration"), ("tables", "Tables"), ("figures", "Figures"), ("galleries", "Word crops"),
@@ -632,7 +633,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
                      f"<figcaption>{esc(name.replace('_', ' '))}</figcaption></figure>")
 
     if fronts:
-        parts.append(_fronts_html(fronts))
+        parts.append(_fronts_html(fronts, names))
 
     parts.append('<h2 id="galleries">Word crops</h2><p>Per scene, every reference word of the word-crop readability '
                  "metric: its ground-truth crop and each method's render crop side by side, per checkpoint, with what "
@@ -645,7 +646,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         paths = write_crops(run_dir, out, g)
         log.info("word crops of %s/%s: %d in %.1f s", g.dataset, g.scene, len(paths), time.perf_counter() - t0)
         back = "/".join([".."] * len(g.folder.parts)) + "/index.html"
-        atomic_write_text(out / page, gallery_page(g, paths, back))
+        atomic_write_text(out / page, gallery_page(g, paths, back, names))
         n_crops = sum(p is not None for p in paths.values())
         views = len({w.view for w in g.words.values()})
         grow.append(f'<tr><td class="name">{esc(dataset_title(g.dataset))}</td>'

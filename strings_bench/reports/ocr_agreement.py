@@ -8,8 +8,8 @@ import math
 import pandas as pd
 
 from strings_bench.reports.aggregate import dataset_means, main_labels
-from strings_bench.reports.table_model import (RANK_NOTE, Column, Table, dataset_title, is_ablation, latex_escape,
-                                               method_order)
+from strings_bench.reports.table_model import (RANK_NOTE, REGISTERED, Column, MethodNames, Table, dataset_title,
+                                               latex_escape)
 
 
 def further_engines(df: pd.DataFrame) -> list[str]:
@@ -75,7 +75,8 @@ AGREEMENT_NOTE = (" Words are text regions: the words of both engines joined whe
                   "normalised as for the CER and concatenated in reading order, are equal (docs/ocr.md).")
 
 
-def ocr_engine_tables(df: pd.DataFrame, manifest: dict | None = None, note: str = "") -> list[Table]:
+def ocr_engine_tables(df: pd.DataFrame, manifest: dict | None = None, note: str = "",
+                      names: MethodNames = REGISTERED) -> list[Table]:
     """With further OCR engines: each engine's OCR-CER per method x (dataset, checkpoint), and their
     agreement per cell group (`ocr_agreement`); [] for a single-engine run."""
     engines = further_engines(df)
@@ -83,7 +84,7 @@ def ocr_engine_tables(df: pd.DataFrame, manifest: dict | None = None, note: str 
         return []
     primary = primary_engine(df, manifest)
     labels = main_labels(df)
-    methods = method_order(m for m in df["method"] if not is_ablation(m))
+    methods = names.order(m for m in df["method"] if not names.is_ablation(m))
     cols = []
     for d in dict.fromkeys(df["dataset"]):
         for l in labels:

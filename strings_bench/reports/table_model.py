@@ -26,34 +26,59 @@ DATASET_TITLES = {"tandt": "TandT", "dl3dv": "DL3DV-10K", "strings360": "STRinGS
 # A pseudo-method row: the recogniser on the ground-truth views (the ceiling of word_cer / text_nll); never ranked.
 GT_CEILING = "gt-ceiling"
 GT_CEILING_TITLE = "GT view (ceiling)"
-_RUN_METHODS: dict[str, dict] = {}  # run.json's "methods" of the report being written: title, group, paper
 
 
-def use_run_methods(manifest: dict | None) -> None:
-    """Titles, groups and papers come from the run folder (run.json, written from the method specs when the
-    run was planned); methods it does not describe (older folders) from the registered specs."""
-    _RUN_METHODS.clear()
-    _RUN_METHODS.update({m: dict(v) for m, v in ((manifest or {}).get("methods") or {}).items() if isinstance(v, dict)})
+@dataclass(frozen=True)
+class MethodNames:
+    """How the reports name, group and order methods: a run folder's record of them (run.json's "methods": title,
+    group, ablation, written from the specs when the run was planned) over the registered specs'; methods neither
+    describes (a plug-in no longer installed) get their name. Built per report (`MethodNames.of(manifest)`) and
+    handed to whatever names a method: no module-level state."""
+
+    recorded: dict = field(default_factory=dict)  # method -> run.json's entry
+
+    @classmethod
+    def of(cls, manifest: dict | None) -> "MethodNames":
+        methods = (manifest or {}).get("methods") or {}
+        return cls({m: dict(v) for m, v in methods.items() if isinstance(v, dict)})
+
+    def info(self, method: str) -> dict:
+        """{"title", "group", "order", "ablation_of", "ablation_at", "ablation_effect"} of a method."""
+        from strings_bench.methods.registry import list_methods
+
+        specs = {s.name: (k, s) for k, s in enumerate(list_methods())}
+        k, spec = specs.get(method, (len(specs), None))
+        info = {"title": (spec.title or spec.name) if spec else method, "group": spec.group if spec else "baseline",
+                "order": k, "ablation_of": spec.ablation_of if spec else None,
+                "ablation_at": spec.ablation_at if spec else None, "ablation_effect": spec.ablation_effect if spec else ""}
+        given = self.recorded.get(method, {})
+        info.update({key: given[key] for key in ("title", "group", "ablation_of", "ablation_at", "ablation_effect")
+                     if given.get(key)})
+        return info
+
+    def is_ablation(self, method: str) -> bool:
+        return self.info(method)["group"] == "ablation"
+
+    def order(self, methods) -> list[str]:
+        """Methods in the registry's order (the paper's rows), then any other by name."""
+        ms = list(dict.fromkeys(methods))
+        return sorted(ms, key=lambda m: (self.info(m)["order"], m))
+
+    def title(self, method: str, papers: dict | None = None, latex: bool = False) -> str:
+        """The row title of a method (the GT-ceiling row's too); in LaTeX, ours in bold and the venue beside."""
+        title = GT_CEILING_TITLE if method == GT_CEILING else self.info(method)["title"]
+        if not latex:
+            return title
+        t = latex_escape(title)
+        if method != GT_CEILING and self.info(method)["group"] == "ours":
+            t = r"\textbf{" + t + "}"
+        paper = short_venue((papers or {}).get(method, ""))
+        if paper and not self.is_ablation(method):
+            t += r"~\papertable{" + latex_escape(paper) + "}"
+        return t
 
 
-def method_info(method: str) -> dict:
-    """{"title", "group", "order", "ablation_of", "ablation_at", "ablation_effect"} of a method: run.json's entry over
-    its spec's; unknown methods get their name."""
-    from strings_bench.methods.registry import list_methods
-
-    specs = {s.name: (k, s) for k, s in enumerate(list_methods())}
-    k, spec = specs.get(method, (len(specs), None))
-    info = {"title": (spec.title or spec.name) if spec else method, "group": spec.group if spec else "baseline", "order": k,
-            "ablation_of": spec.ablation_of if spec else None, "ablation_at": spec.ablation_at if spec else None,
-            "ablation_effect": spec.ablation_effect if spec else ""}
-    given = _RUN_METHODS.get(method, {})
-    info.update({key: given[key] for key in ("title", "group", "ablation_of", "ablation_at", "ablation_effect")
-                 if given.get(key)})
-    return info
-
-
-def is_ablation(method: str) -> bool:
-    return method_info(method)["group"] == "ablation"
+REGISTERED = MethodNames()  # the registered specs' names alone (no run folder's record); immutable
 
 
 RANKS = ("first", "second", "third")
@@ -74,12 +99,6 @@ def label_value(label: str) -> float:
         return math.inf
 
 
-def method_order(methods) -> list[str]:
-    """Methods in the registry's order (the paper's rows), then any other by name."""
-    ms = list(dict.fromkeys(methods))
-    return sorted(ms, key=lambda m: (method_info(m)["order"], m))
-
-
 def short_venue(paper: str) -> str:
     """'... Rendering (SIGGRAPH 2023)' -> "SIGGRAPH'23"; "CVPR'24" stays; '' when no venue/year is found."""
     import re
@@ -92,19 +111,6 @@ def short_venue(paper: str) -> str:
         return ""
     venue, year = found[-1]
     return f"{venue.strip()}'{year[2:]}"
-
-
-def method_title(method: str, papers: dict | None = None, latex: bool = False) -> str:
-    title = GT_CEILING_TITLE if method == GT_CEILING else method_info(method)["title"]
-    if not latex:
-        return title
-    t = latex_escape(title)
-    if method != GT_CEILING and method_info(method)["group"] == "ours":
-        t = r"\textbf{" + t + "}"
-    paper = short_venue((papers or {}).get(method, ""))
-    if paper and not is_ablation(method):
-        t += r"~\papertable{" + latex_escape(paper) + "}"
-    return t
 
 
 def dataset_title(dataset: str) -> str:
@@ -150,6 +156,7 @@ class Table:
     bold_best_pairs: bool = False
     row_key: str = "method"  # what a row is (the CSV's first column): a method, or e.g. a cell group
     heading: str = ""  # the title where the plain corner is not one ("Method")
+    names: MethodNames = REGISTERED  # how its rows' methods are titled
 
     def latex(self, papers: dict | None = None) -> str:
         return to_latex(self, papers)
@@ -216,7 +223,7 @@ def to_latex(t: Table, papers: dict | None = None) -> str:
     lines.append(r"\midrule")
     shades = [t.shading(c) for c in t.columns]
     for m in t.methods:
-        cells = [method_title(m, papers, latex=True)]
+        cells = [t.names.title(m, papers, latex=True)]
         for c, sh in zip(t.columns, shades):
             s = t.fmt(c, c.values.get(m, math.nan), m).replace("<=", r"$\leq$")
             cls = sh.get(m)
@@ -234,7 +241,7 @@ def to_markdown(t: Table) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     shades = [t.shading(c) for c in t.columns]
     for m in t.methods:
-        cells = [method_title(m)]
+        cells = [t.names.title(m)]
         for c, sh in zip(t.columns, shades):
             v = t.fmt(c, c.values.get(m, math.nan), m)
             cells.append((f"_{v}_" if c.greyed else v) + marks.get(sh.get(m) or "", ""))

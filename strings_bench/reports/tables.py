@@ -20,20 +20,20 @@ from strings_bench.reports.ablations import ablation_table
 from strings_bench.reports.aggregate import dataset_means, main_labels, with_total_seconds
 from strings_bench.reports.ocr_agreement import ocr_engine_tables
 from strings_bench.reports.results import cer_per_script
-from strings_bench.reports.table_model import (GT_CEILING, PREAMBLE, RANK_NOTE, Column, Table, dataset_title, is_ablation,
-                                               label_value, latex_escape, method_order, use_run_methods)
+from strings_bench.reports.table_model import (GT_CEILING, PREAMBLE, RANK_NOTE, REGISTERED, Column, MethodNames, Table,
+                                               dataset_title, label_value, latex_escape)
 
 
 # ---- the paper's tables ------------------------------------------------------------------------------
 def _checkpoint_table(df, name, value, corner, corner_plain, caption, lower, fmt, scale=1.0, methods=None,
-                      ceiling: str | None = None) -> Table:
+                      ceiling: str | None = None, names: MethodNames = REGISTERED) -> Table:
     """A value per method x (dataset, checkpoint); `ceiling` names a column whose mean becomes an
     unranked GT-ceiling row (e.g. word_cer_gt)."""
     means = dataset_means(df, value)
     ceil = dataset_means(df, ceiling) if ceiling else None
     labels = main_labels(df)
     datasets = list(dict.fromkeys(df["dataset"]))
-    methods = methods or method_order(m for m in df["method"] if not is_ablation(m))
+    methods = methods or names.order(m for m in df["method"] if not names.is_ablation(m))
     cols = []
     for d in datasets:
         for l in labels:
@@ -63,45 +63,47 @@ def schedule_note(df: pd.DataFrame, manifest: dict | None) -> str:
 
 
 def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
-    if manifest is not None:
-        use_run_methods(manifest)
+    """The report's tables; methods are named as run.json (`manifest`) recorded them, then as their specs do."""
     if df.empty:
         return []
+    names = MethodNames.of(manifest)
     df = with_total_seconds(df)
     note = schedule_note(df, manifest)
     tables = [
         _checkpoint_table(df, "ocr_cer", "cer", r"OCR-CER $\downarrow$", "OCR-CER (lower is better)",
                           "OCR-based character error rate (CER, lower is better) of rendered test views, mean over the "
-                          "scenes of each dataset." + RANK_NOTE + note, True, ".3f"),
+                          "scenes of each dataset." + RANK_NOTE + note, True, ".3f", names=names),
         _checkpoint_table(df, "training_time", "total_seconds", r"\makecell[l]{Training time\\(minutes) $\downarrow$}",
                           "Training time, minutes, preprocessing + optimisation (lower is better)",
                           "Training time in minutes, whole run: preprocessing (text masks, 3D text segmentation, "
                           "initial model and text densification where the method has them) plus optimisation "
                           "(results.csv: total_seconds = preprocess_seconds + train_seconds), mean over the scenes "
                           "of each dataset." + RANK_NOTE + note, True,
-                          ".2f" if (df["total_seconds"].max() / 60) < 10 else ".1f", 1 / 60),
+                          ".2f" if (df["total_seconds"].max() / 60) < 10 else ".1f", 1 / 60, names=names),
     ]
     if df["cer_known"].notna().any():
         tables.append(_checkpoint_table(
             df, "known_text_cer", "cer_known", r"\makecell[l]{Known-text\\CER $\downarrow$}", "Known-text CER (lower is better)",
             "CER of the OCR of rendered views against the known strings of the scene (synthetic scenes only)."
-            + RANK_NOTE + note, True, ".3f"))
+            + RANK_NOTE + note, True, ".3f", names=names))
     if "word_cer" in df and df["word_cer"].notna().any():
-        tables += readability_tables(df, note)
-    tables += ocr_engine_tables(df, manifest, note)
-    tables += script_tables(df, note)
-    tables.append(metrics_table(df, note))
-    paper = paper_comparison_table(df, note)
+        tables += readability_tables(df, note, names)
+    tables += ocr_engine_tables(df, manifest, note, names)
+    tables += script_tables(df, note, names)
+    tables.append(metrics_table(df, note, names))
+    paper = paper_comparison_table(df, note, names)
     if paper is not None:
         tables.append(paper)
-    abl = ablation_table(df, note)
+    abl = ablation_table(df, note, names)
     if abl is not None:
         tables.append(abl)
+    for t in tables:
+        t.names = names  # the rows are titled as this run names its methods
     return tables
 
 
 # ---- text in several scripts (issue 31) -------------------------------------------------------------------
-def script_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
+def script_tables(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> list[Table]:
     """When the run's scenes are in more than one script (results.csv `script`): OCR-CER, and known-text CER
     where there is one, per script x checkpoint, mean over the scenes of that script; [] otherwise."""
     if "script" not in df or df["script"].isna().all():
@@ -112,7 +114,7 @@ def script_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
         return []
     rows = df.assign(script=main).to_dict("records")
     labels = main_labels(df)
-    methods = method_order(m for m in df["method"] if not is_ablation(m))
+    methods = names.order(m for m in df["method"] if not names.is_ablation(m))
     out = []
     for value, name, corner, what in (("cer", "ocr_cer_by_script", "OCR-CER by script (lower is better)", "OCR-CER"),
                                       ("cer_known", "known_cer_by_script", "Known-text CER by script (lower is better)",
@@ -144,11 +146,11 @@ def paper_results(method: str) -> dict:
         return {}
 
 
-def paper_comparison_table(df: pd.DataFrame, note: str = "") -> Table | None:
+def paper_comparison_table(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Table | None:
     """Measured OCR-CER next to the paper's (REFERENCE §5) for the datasets the paper reports; None when
     the run has no such dataset (e.g. the synthetic scenes)."""
     means = dataset_means(df, "cer")
-    methods = method_order(m for m in df["method"] if not is_ablation(m))
+    methods = names.order(m for m in df["method"] if not names.is_ablation(m))
     published = {m: paper_results(m) for m in methods}
     cols = []
     for d in dict.fromkeys(df["dataset"]):
@@ -174,23 +176,23 @@ READ_NOTE = (" Reference words: the known words at least 6.5 px high and the wor
              "ground-truth views (the ceiling).")
 
 
-def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
+def readability_tables(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> list[Table]:
     """Word-crop readability per checkpoint (word_cer, text_nll, each with the GT ceiling row) and the
     text-region table (word_acc, text PSNR/SSIM/LPIPS inside the dilated text mask) at the last checkpoint."""
     out = [
         _checkpoint_table(df, "word_cer", "word_cer", r"Word CER $\downarrow$", "Word CER (lower is better)",
                           "Word-crop CER: edit distance of what the recogniser reads in each reference word's crop, "
                           "over the reference characters, mean over the scenes of each dataset." + READ_NOTE
-                          + RANK_NOTE + note, True, ".3f", ceiling="word_cer_gt"),
+                          + RANK_NOTE + note, True, ".3f", ceiling="word_cer_gt", names=names),
         _checkpoint_table(df, "text_nll", "text_nll", r"\makecell[l]{Text NLL\\(nats/char) $\downarrow$}",
                           "Text NLL, nats per character (lower is better)",
                           "Text likelihood: CTC negative log-likelihood of each reference word under the recogniser's "
                           "output on its crop, nats per reference character, mean over the scenes of each dataset."
-                          + READ_NOTE + RANK_NOTE + note, True, ".3f", ceiling="text_nll_gt"),
+                          + READ_NOTE + RANK_NOTE + note, True, ".3f", ceiling="text_nll_gt", names=names),
     ]
     labels = main_labels(df)
     final = labels[-1]
-    sub = df[(df["label"] == final) & ~df["method"].map(is_ablation).astype(bool)]
+    sub = df[(df["label"] == final) & ~df["method"].map(names.is_ablation).astype(bool)]
     specs = [("word_acc", r"Words$\uparrow$", "Words read", False, ".3f"),
              ("text_psnr", r"PSNR$\uparrow$", "text PSNR", False, ".2f"),
              ("text_ssim", r"SSIM$\uparrow$", "text SSIM", False, ".4f"),
@@ -202,19 +204,19 @@ def readability_tables(df: pd.DataFrame, note: str = "") -> list[Table]:
                 continue
             means = dataset_means(sub[sub["dataset"] == d], value)
             cols.append(Column(dataset_title(d), sub_l, sub_p, lower, fmt, {r.method: getattr(r, value) for r in means.itertuples()}))
-    out.append(Table("text_region", "Method", "Method", cols, method_order(sub["method"]),
+    out.append(Table("text_region", "Method", "Method", cols, names.order(sub["method"]),
                      f"Text regions at {final} iterations: fraction of reference words read exactly (Words), and PSNR "
                      "over the dilated text mask's pixels, the SSIM map's mean over them, LPIPS-VGG of the mask's "
                      "bounding crop; mean over the scenes of each dataset." + RANK_NOTE + note, heading="Text-region image metrics"))
     return out
 
 
-def metrics_table(df: pd.DataFrame, note: str = "") -> Table:
+def metrics_table(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Table:
     labels = main_labels(df)
     final = labels[-1]
-    sub = df[(df["label"] == final) & ~df["method"].map(is_ablation).astype(bool)]
+    sub = df[(df["label"] == final) & ~df["method"].map(names.is_ablation).astype(bool)]
     datasets = list(dict.fromkeys(df["dataset"]))
-    methods = method_order(sub["method"])
+    methods = names.order(sub["method"])
     specs = [("psnr", r"PSNR$\uparrow$", "PSNR", False, ".2f"), ("ssim", r"SSIM$\uparrow$", "SSIM", False, ".4f"),
              ("lpips", r"LPIPS$\downarrow$", "LPIPS", True, ".4f"), ("gaussians", r"Points$\downarrow$", "Points", True, "K")]
     cols = []
