@@ -1,12 +1,12 @@
 """Train 3DGS and the four baselines on one scene and print PSNR, training time and Gaussians.
 
     python benchmarks/baselines.py                         # synthetic/books, quick schedule
-    python benchmarks/baselines.py --methods 3dgs mcmc --preset tiny --small --json out.json
+    python benchmarks/baselines.py --methods 3dgs mcmc --schedule tiny --small --json out.json
 
 PSNR is the mean over the scene's test views of the checkpoint renders (strings_bench.eval.metrics.psnr).
 Training time is the trainer's optimisation time (no checkpoint renders); preprocess time (the
-initial model) is in the JSON. `--preset` takes the suite's schedule scales (strings_bench/schedules.py:
-quick x0.01, standard x0.05, ...), the same the methods' presets use. `--small` uses the 160x120,
+initial model) is in the JSON. `--schedule` takes the suite's run schedules (strings_bench/core/schedules.py:
+quick x0.01, standard x0.05, ...), the scale a run of that schedule trains every method with. `--small` uses the 160x120,
 24-view variant of the synthetic scene (the one the tests use).
 """
 
@@ -23,20 +23,20 @@ DEFAULT_METHODS = ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]
 
 
 def parser() -> argparse.ArgumentParser:
-    from strings_bench.core.schedules import SCHEDULE_SCALES  # the suite's one table (quick = x0.01)
+    from strings_bench.core.schedules import SCHEDULES  # the suite's one table (quick = x0.01)
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="synthetic/books", help="dataset/scene spec or a scene folder")
     ap.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
-    ap.add_argument("--preset", default="quick", choices=sorted(SCHEDULE_SCALES),
-                    help="schedule scale from strings_bench/schedules.py: " +
-                         ", ".join(f"{k} x{v:g}" for k, v in SCHEDULE_SCALES.items()))
+    ap.add_argument("--schedule", "--preset", dest="schedule", default="quick", choices=sorted(SCHEDULES),
+                    help="the run schedule whose scale every method trains with (--preset: the former name): " +
+                         ", ".join(f"{k} x{v.steps_scale:g}" for k, v in SCHEDULES.items()))
     ap.add_argument("--downscale", type=float, default=1)
     ap.add_argument("--small", action="store_true", help="synthetic scenes at 160x120 with 24 views")
     ap.add_argument("--seed", type=int, default=None, help="trainer seed (default 0; for mcmc also its sampling RNG)")
     ap.add_argument("--device", default="auto", help="auto (CUDA when torch sees a GPU; default), cpu, cuda, cuda:N")
     ap.add_argument("--paper-checkpoints", nargs="+", type=int, default=[7000, 30000],
-                    help="paper iterations to evaluate (scaled by the preset's steps_scale)")
+                    help="paper iterations to evaluate (scaled by the schedule's steps_scale)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="setting for every method, e.g. steps_scale=0.02 (values parsed as JSON when possible)")
     ap.add_argument("--json", help="also write the figures to this JSON file")
@@ -47,14 +47,13 @@ def main(argv=None) -> int:
     return run(parser().parse_args(argv))
 
 
-def build(method: str, preset: str, paper_checkpoints, **settings):
-    """(adapter, steps_scale, checkpoints): the checkpoints follow the schedule the method actually
-    trains with (its preset from strings_bench/schedules.py, or a given steps_scale)."""
+def build(method: str, schedule: str, paper_checkpoints, **settings):
+    """(adapter, steps_scale, checkpoints): the checkpoints follow the scale the method actually trains
+    with (its schedule's from strings_bench/core/schedules.py, or a given steps_scale)."""
     from strings_bench.methods.registry import get_method
-    from strings_bench.core.schedules import SCHEDULE_SCALES
 
-    adapter = get_method(method).build(schedule=preset, **settings)
-    s = float(adapter.settings.get("steps_scale", SCHEDULE_SCALES[preset]))
+    adapter = get_method(method).build(schedule=schedule, **settings)
+    s = float(adapter.settings["steps_scale"])
     return adapter, s, sorted({max(1, round(c * s)) for c in paper_checkpoints})
 
 
@@ -75,7 +74,7 @@ def run(args) -> int:
         from strings_bench.datasets.registry import resolve_scenes
 
         ref = resolve_scenes([args.scene])[0]
-        scene = Scene.load(ref.path, name=ref.scene, settings=ref.settings)
+        scene = ref.load()
 
     overrides = {}
     for item in args.set:
@@ -88,7 +87,7 @@ def run(args) -> int:
     rows = []
     seed = {} if args.seed is None else {"seed": args.seed}
     for method in args.methods:
-        adapter, s, checkpoints = build(method, args.preset, args.paper_checkpoints, **seed, **overrides)
+        adapter, s, checkpoints = build(method, args.schedule, args.paper_checkpoints, **seed, **overrides)
         t0 = time.perf_counter()
         for res in Trainer(adapter, scene, checkpoints, downscale=args.downscale, device=args.device,
                            progress=False).train():
@@ -100,13 +99,13 @@ def run(args) -> int:
             r = rows[-1]
             print(f"{method:14s} it {r['iteration']:6d}  PSNR {r['psnr']:6.2f} dB  train {r['train_seconds']:7.1f} s  "
                   f"Gaussians {r['gaussians']:7d}", flush=True)
-    print(f"\n{scene.name}, preset {args.preset} (steps x {s}), {len(gts)} test views, downscale {args.downscale}, "
+    print(f"\n{scene.name}, schedule {args.schedule} (steps x {s}), {len(gts)} test views, downscale {args.downscale}, "
           f"device {args.device}")
     print(f"{'method':14s} {'iter':>6s} {'PSNR':>7s} {'train s':>8s} {'Gaussians':>10s}")
     for r in rows:
         print(f"{r['method']:14s} {r['iteration']:6d} {r['psnr']:7.2f} {r['train_seconds']:8.1f} {r['gaussians']:10d}")
     if args.json:
-        atomic_write_json(args.json, {"scene": scene.name, "preset": args.preset, "downscale": args.downscale,
+        atomic_write_json(args.json, {"scene": scene.name, "schedule": args.schedule, "downscale": args.downscale,
                                       "device": args.device,
                                       "seed": args.seed, "rows": rows})
     return 0

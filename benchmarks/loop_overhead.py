@@ -35,14 +35,6 @@ import torch
 HUGE = 10 ** 9
 
 
-def load_scene(spec: str):
-    from strings_bench.datasets.registry import resolve_scenes
-    from strings_bench.scene.scene import Scene
-
-    ref = resolve_scenes([spec])[0]
-    return Scene.load(ref.path, settings=ref.settings)
-
-
 def make_method(steps_scale: float, densify: bool):
     from strings_bench.engine.splatting import TrainConfig
     from strings_bench.engine.strategies.default import DefaultStrategy
@@ -54,7 +46,7 @@ def make_method(steps_scale: float, densify: bool):
 
 def run_loop(scene, steps: int, steps_scale: float, densify: bool = False) -> dict:
     from strings_bench.engine.trainer import Trainer
-    from strings_bench.scene.scene import _load_rgb
+    from strings_bench.scene.scene import clear_image_cache
 
     method = make_method(steps_scale, densify)
     cpu = [0.0]
@@ -68,7 +60,7 @@ def run_loop(scene, steps: int, steps_scale: float, densify: bool = False) -> di
             finally:
                 cpu[0] += time.process_time() - c0
         setattr(method, name, timed)
-    _load_rgb.cache_clear()  # a real run decodes each training image once: do not hide that
+    clear_image_cache()  # a real run decodes each training image once: do not hide that
     t0 = time.perf_counter()
     results = list(Trainer(method, scene, [steps], progress=False).train())
     wall = time.perf_counter() - t0
@@ -132,8 +124,7 @@ def run_bare(scene, steps: int, steps_scale: float) -> dict:
 def raster_reference_step(iters: int) -> float:
     """benchmarks/raster.py's full step at 320x240x5000 (random Gaussians, SH degree 3), median ms:
     the figure the issue compared the trainer with."""
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-    from raster import run_one
+    from raster import run_one  # benchmarks/raster.py: this script's own folder is on the path when it runs
 
     return run_one(320, 240, 5000, iters, "cpu", reference=False)["step_ms"]
 
@@ -153,7 +144,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
 
-    scene = load_scene(args.scene)
+    from strings_bench.datasets.registry import resolve_scenes
+
+    scene = resolve_scenes([args.scene])[0].load()
     # Warm-up: numba kernels compiled/loaded.
     run_bare(scene, 3, args.steps_scale)
     run_loop(scene, 3, args.steps_scale)

@@ -1,7 +1,7 @@
 """Wall time of one `strings-bench run` with `--executor local` and with `--executor ray`, and whether
 their results.csv metric columns agree.
 
-    python benchmarks/ray_vs_local.py                       # synthetic, strings,3dgs, preset tiny
+    python benchmarks/ray_vs_local.py                       # synthetic, strings,3dgs, schedule tiny
     python benchmarks/ray_vs_local.py --work /tmp/rvl --datasets synthetic/books --methods 3dgs
 
 Each executor runs the same command into its own fresh run folder and its own fresh cache
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", default="runs/ray_vs_local", help="folder for the two run folders and caches (emptied)")
     ap.add_argument("--datasets", default="synthetic")
     ap.add_argument("--methods", default="strings,3dgs")
-    ap.add_argument("--preset", default="tiny")
+    ap.add_argument("--schedule", "--preset", dest="schedule", default="tiny")
     ap.add_argument("--json", default=None, help="also write the figures to this file")
     ap.add_argument("extra", nargs="*", help="more `run` arguments, after --")
     args = ap.parse_args(argv)
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
                 shutil.copytree(cache_root() / part, cache / part)
         cmd = [sys.executable, "-c", "import sys; from strings_bench.cli import main; sys.exit(main())", "run",
                "--executor", executor, "--datasets", args.datasets, "--methods", args.methods,
-               "--preset", args.preset, "--out", str(work / f"out_{executor}"), "--no-progress", *args.extra]
+               "--schedule", args.schedule, "--out", str(work / f"out_{executor}"), "--no-progress", *args.extra]
         figures["command"] = " ".join(cmd[3:])
         env = {**os.environ, "STRINGS_BENCH_CACHE": str(cache)}
         t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """Do the readability metrics tell `strings` and `3dgs` apart beyond seed-to-seed spread? (issue 14)
 
-Runs the methods through the suite's runner on the given preset and scenes once per seed (seeds 0, 1, 2
+Runs the methods through the suite's runner on the given schedule and scenes once per seed (seeds 0, 1, 2
 by default; `--set seed=N` for every method), one run folder per seed (resumable), then prints, per
 method and checkpoint, the mean +- standard deviation over seeds of each metric's mean over scenes:
 word_cer, word_acc, text_nll, text_psnr (word-crop readability and text-region PSNR, docs/ocr.md),
@@ -8,9 +8,9 @@ known-text CER and OCR-CER. Then, per metric and checkpoint, the difference of t
 and whether it exceeds the spread (|mean difference| > std_a + std_b). Last, the evaluation cost per
 cell: eval seconds, of which the word-crop recogniser, in the same runs.
 
-    python benchmarks/readability.py                                     # the default run's table (its preset and scenes)
-    python benchmarks/readability.py --preset tiny --scenes books        # a smoke check (CPU-heavy)
-    python benchmarks/readability.py --preset quick --scenes books,extinguisher,globe,chemicals,shelf
+    python benchmarks/readability.py                                     # the default run's table (its schedule and scenes)
+    python benchmarks/readability.py --schedule tiny --scenes books        # a smoke check (CPU-heavy)
+    python benchmarks/readability.py --schedule quick --scenes books,extinguisher,globe,chemicals,shelf
     python benchmarks/readability.py --seeds 0,1,2,3,4 --out runs/readability_s5
 """
 
@@ -46,9 +46,10 @@ def _ms(vals: list[float]) -> tuple[float, float, int]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", default=None, help="schedule preset (default: the default run's)")
+    ap.add_argument("--schedule", "--preset", dest="schedule", default=None,
+                    help="the run schedule (default: the default run's; --preset: the former name)")
     ap.add_argument("--scenes", default=None,
-                    help=f"synthetic scene names, comma-separated, of {','.join(SCENES)} (default: the preset's scenes)")
+                    help=f"synthetic scene names, comma-separated, of {','.join(SCENES)} (default: the schedule's scenes)")
     ap.add_argument("--datasets", default=None, help="--datasets entries instead of --scenes (e.g. synthetic/books)")
     ap.add_argument("--methods", default="strings,3dgs")
     ap.add_argument("--seeds", default="0,1,2")
@@ -63,15 +64,15 @@ def main(argv=None) -> int:
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
-    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, get_schedule
+    from strings_bench.core.schedules import DEFAULT_SCHEDULE, get_schedule
 
-    args.preset = args.preset or DEFAULT_SCHEDULE
+    args.schedule = args.schedule or DEFAULT_SCHEDULE
     if args.datasets:
         datasets = args.datasets.split(",")
     elif args.scenes:
         datasets = [f"synthetic/{s}" for s in args.scenes.split(",")]
     else:
-        datasets = get_schedule(args.preset).default_datasets()
+        datasets = get_schedule(args.schedule).default_datasets()
     # per_seed[(method, label)][metric][seed] = mean over scenes
     per_seed: dict = defaultdict(lambda: defaultdict(dict))
     costs = defaultdict(list)  # method -> [(eval seconds, recogniser seconds)]
@@ -79,7 +80,7 @@ def main(argv=None) -> int:
     for seed in seeds:
         run_dir = Path(args.out) / f"seed{seed}"
         print(f"== seed {seed}: {run_dir}", file=sys.stderr, flush=True)
-        runner.run(methods, datasets, run_dir=run_dir, schedule=args.preset, ocr=args.ocr, downscale=args.downscale,
+        runner.run(methods, datasets, run_dir=run_dir, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
                    with_lpips=not args.no_lpips, progress=False, method_overrides={runner.ALL_METHODS: {"seed": seed}})
         cells = defaultdict(lambda: defaultdict(list))
         for rec in iter_cells(run_dir):
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
                 per_seed[key][m][seed] = _ms(vals)[0]
 
     labels = sorted({l for _, l in per_seed}, key=lambda l: float(l[:-1]) * 1000 if l.endswith("K") else float(l))
-    print(f"\nPreset {args.preset}, scenes {', '.join(datasets)}, seeds {seeds}: mean +- std over seeds of the "
+    print(f"\nSchedule {args.schedule}, scenes {', '.join(datasets)}, seeds {seeds}: mean +- std over seeds of the "
           "mean over scenes")
     head = f"{'method':<10} {'ckpt':>5} {'iter':>5} " + " ".join(f"{m:>17}" for m, _ in METRICS)
     print(head)
@@ -134,7 +135,7 @@ def main(argv=None) -> int:
         ev, rc = _ms([v[0] for v in vals])[0], _ms([v[1] for v in vals])[0]
         print(f"  {meth:<10} {ev:7.2f} / {rc:6.2f}  ({rc / ev:.0%})" if ev == ev and rc == rc and ev > 0
               else f"  {meth:<10} {ev:7.2f} / n/a")
-    summary = {"preset": args.preset, "datasets": datasets, "seeds": seeds,
+    summary = {"schedule": args.schedule, "datasets": datasets, "seeds": seeds,
                "per_seed": {f"{k[0]}@{k[1]}": {m: v for m, v in d.items()} for k, d in per_seed.items()}}
     out = Path(args.out) / "readability_summary.json"
     out.write_text(json.dumps(summary, indent=1, default=str))

@@ -7,11 +7,11 @@ training time (optimisation, and total = preprocessing + optimisation) and the G
 STRinGS has lower known-text CER than 3DGS on >= 4 of 5 scenes and on their mean, and reaches 7K
 in less training time.
 
-    python benchmarks/strings_vs_3dgs.py --preset standard  # x0.05 schedule (350/1500 steps); default quick (x0.01)
-    python benchmarks/strings_vs_3dgs.py --preset paper --scenes books   # full schedule, one scene
+    python benchmarks/strings_vs_3dgs.py --schedule standard  # x0.05 schedule (350/1500 steps); default quick (x0.01)
+    python benchmarks/strings_vs_3dgs.py --schedule paper --scenes books   # full schedule, one scene
     python benchmarks/strings_vs_3dgs.py --steps-scale 0.2 --only-7k --scenes extinguisher   # own scale
     python benchmarks/strings_vs_3dgs.py --out runs/strings_vs_3dgs      # results folder (resumable)
-    python benchmarks/strings_vs_3dgs.py --preset paper --checkpoints 3000 --scenes extinguisher \
+    python benchmarks/strings_vs_3dgs.py --schedule paper --checkpoints 3000 --scenes extinguisher \
         --methods strings,strings-pos-lr,3dgs                             # the paper's phase-1 ablation
     python benchmarks/strings_vs_3dgs.py ... --set lr_means=1.6e-3 lr_means_final=1.6e-5 --out runs/lr10
 
@@ -35,7 +35,7 @@ def _f(x, fmt="{:.3f}"):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", default="quick")
+    ap.add_argument("--schedule", "--preset", dest="schedule", default="quick")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--out", default="runs/strings_vs_3dgs")
     ap.add_argument("--ocr", default="rapidocr")
@@ -43,10 +43,10 @@ def main(argv=None) -> int:
     ap.add_argument("--only-7k", action="store_true", help="train and evaluate the 7K checkpoint only (CPU budget)")
     ap.add_argument("--checkpoints", default=None,
                     help="paper iterations to evaluate, e.g. 3000 (end of STRinGS' phase 1, the paper's "
-                         "position-LR ablation) or 3000,7000; default: the preset's")
+                         "position-LR ablation) or 3000,7000; default: the schedule's")
     ap.add_argument("--downscale", type=float, default=None)
     ap.add_argument("--steps-scale", type=float, default=None,
-                    help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the preset's")
+                    help="a schedule scale of your own (e.g. 0.2: 7K = 1400 steps) instead of the schedule's")
     ap.add_argument("--set", nargs="*", default=[], metavar="[METHOD.]KEY=VALUE",
                     help="settings as `strings-bench run --set`: KEY=VALUE for every method (e.g. lr_means=8e-4), "
                          "METHOD.KEY=VALUE for one (values parsed as JSON when possible); a run folder holds one set "
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     methods = args.methods.split(",")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     # The schedule options are the runner's (`run --steps-scale/--checkpoints`); the folder is named after them.
-    name = args.preset if args.steps_scale is None else f"x{args.steps_scale:g}"
+    name = args.schedule if args.steps_scale is None else f"x{args.steps_scale:g}"
     if args.only_7k and args.checkpoints is None:
         args.checkpoints = "7000"
     paper_its = None
@@ -70,16 +70,16 @@ def main(argv=None) -> int:
         name += "-" + "-".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in paper_its)
     run_dir = Path(args.out) / name
     overrides = parse_settings(args.set)  # the CLI's --set parsing
-    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, schedule=args.preset, ocr=args.ocr,
+    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, schedule=args.schedule, ocr=args.ocr,
                with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None,
                steps_scale=args.steps_scale, checkpoints=paper_its, device=args.device)
-    preset = args.preset + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (
+    schedule = args.schedule + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (
         "" if paper_its is None else f" at {','.join(map(str, paper_its))}")
 
     rows = [cell_row(r) for r in iter_cells(run_dir)]
     rows = [r for r in rows if r["scene"] in scenes and r["method"] in methods]
     rows.sort(key=lambda r: (scenes.index(r["scene"]), int(r["iteration"]), methods.index(r["method"])))
-    print(f"\nSTRinGS vs 3DGS, preset {preset}, OCR {args.ocr} (run folder {run_dir})\n")
+    print(f"\nSTRinGS vs 3DGS, schedule {schedule}, OCR {args.ocr} (run folder {run_dir})\n")
     print("| scene | ckpt | method | known-text CER | paper CER | PSNR | train s | total s | Gaussians |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:

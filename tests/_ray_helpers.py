@@ -6,7 +6,7 @@ import os
 import time
 from pathlib import Path
 
-import strings_bench.bench.runner as runner_module
+import strings_bench.reports.results as cell_writer  # write_cell writes result.json through its atomic_write_json
 from strings_bench.bench.runner import Runner
 from strings_bench.core.results import RESULT_FILE
 
@@ -41,7 +41,7 @@ class PausingRunner(Runner):
                     time.sleep(0.05)
 
         real_step = GaussianSplatting.train_step
-        real_json = runner_module.atomic_write_json
+        real_json = cell_writer.atomic_write_json
 
         def train_step(method, step):
             if step == self.pause_step:
@@ -54,9 +54,9 @@ class PausingRunner(Runner):
             return real_json(path, obj)
 
         GaussianSplatting.train_step = train_step
-        runner_module.atomic_write_json = atomic_write_json
+        cell_writer.atomic_write_json = atomic_write_json
         try:
             return super().run_job(job)
         finally:
             GaussianSplatting.train_step = real_step
-            runner_module.atomic_write_json = real_json
+            cell_writer.atomic_write_json = real_json

@@ -120,7 +120,10 @@ class FakeAdapter(MethodAdapter):
 
 
 def register_fakes():
-    register_method(MethodSpec("fake-a", lambda **s: FakeAdapter(tag="fake-a", blur=0.2, **s), "fake method A", "Test'25",
+    register_method(MethodSpec(name="fake-a", implementation=lambda **s: FakeAdapter(tag="fake-a", blur=0.2, **s),
+                               description="fake method A", paper="Test'25",
                                presets={"tiny": {}}))
-    register_method(MethodSpec("fake-b", lambda **s: FakeAdapter(tag="fake-b", blur=0.9, **s), "fake method B", "Test'24"))
-    register_method(MethodSpec("fake-c", lambda **s: FakeAdapter(tag="fake-c", blur=0.6, floor=0.3, **s), "fake method C"))
+    register_method(MethodSpec(name="fake-b", implementation=lambda **s: FakeAdapter(tag="fake-b", blur=0.9, **s),
+                               description="fake method B", paper="Test'24"))
+    register_method(MethodSpec(name="fake-c", implementation=lambda **s: FakeAdapter(tag="fake-c", blur=0.6, floor=0.3, **s),
+                               description="fake method C"))

@@ -10,7 +10,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.bench.schedules import schedule
+from strings_bench.core.schedules import schedule
 from strings_bench.cli.run import parse_checkpoints
 from strings_bench.core.errors import StringsBenchError
 

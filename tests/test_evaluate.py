@@ -287,6 +287,10 @@ def test_run_and_evaluate_agree_to_the_last_digit(tmp_path, toy_run):
         row_ev = _rows(out)[0]
         for col in ("cer", "cer_known", "psnr", "ssim", "lpips", "word_cer", "text_nll", "text_psnr", "cer_errors"):
             assert row_ev[col] == row_run[col], col
+        # One cell record (reports.results.write_cell): the same fields and the same render file names.
+        assert set(ev) == set(cell) and set(ev["timings"]) == set(cell["timings"])
+        ev_renders = out / "cells" / ev["method"] / ev["dataset"] / ev["scene"] / str(ev["iteration"]) / "renders"
+        assert sorted(p.name for p in ev_renders.iterdir()) == sorted(p.name for p in renders.iterdir())
 
 
 def test_allow_missing_scores_unread_views(tmp_path, toy_run):

@@ -172,7 +172,8 @@ def _fake_registry():
                 yield CheckpointResult(r.iteration, r.renders, r.train_seconds, r.gaussians,
                                        preprocess_seconds=float(self.settings.get("pre", 0.0)))
 
-    register_method(MethodSpec("fake-pre", lambda **s: PreAdapter(tag="fake-pre", blur=0.2, pre=30.0, **s), "pre"))
+    register_method(MethodSpec(name="fake-pre", implementation=lambda **s: PreAdapter(tag="fake-pre", blur=0.2, pre=30.0, **s),
+                               description="pre"))
     rf.register_fakes()
     return rf
 
@@ -181,6 +182,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     import strings_bench.bench.runner as runner
     import strings_bench.reports.figures as figures
     import strings_bench.reports.tables as tables
+    from strings_bench.reports.aggregate import load_results
 
     rf = _fake_registry()
     scene_dir = rf.make_scene(tmp_path / "scenes" / "toyset")
@@ -201,7 +203,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
 
     # The training-time table and the scatter show total minutes at 7K: fake-pre 54 s = 0.9 min,
     # fake-a 24 s = 0.4 min (train only would give 0.4 for both).
-    df = tables.load_results(out)
+    df = load_results(out)
     t = next(t for t in tables.build_tables(df) if t.name == "training_time")
     col = next(c for c in t.columns if c.sub == "7K")
     assert col.values["fake-pre"] == pytest.approx(0.9) and col.values["fake-a"] == pytest.approx(0.4)
@@ -247,7 +249,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     (old / "results.csv").write_text("method,dataset,scene,iteration,label,cer,cer_known,psnr,ssim,lpips,"
                                      "train_seconds,gaussians,ocr_failed\n"
                                      "m,d,s,70,7K,0.5,,20,0.5,,120,10,0\n")
-    df_old = tables.load_results(old)
+    df_old = load_results(old)
     assert float(df_old["total_seconds"].iloc[0]) == 120.0
     t = next(t for t in tables.build_tables(df_old) if t.name == "training_time")
     assert t.columns[0].values["m"] == pytest.approx(2.0)
@@ -338,7 +340,7 @@ def test_broken_import_inside_cards_surfaces(monkeypatch):
         registry.list_datasets()
 
 
-# ---- §4 benchmarks/baselines.py presets ------------------------------------------------------------
+# ---- §4 benchmarks/baselines.py schedules ------------------------------------------------------------
 def _load_script(name):
     spec = importlib.util.spec_from_file_location(f"_bench_{name}", REPO / "benchmarks" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
@@ -347,10 +349,10 @@ def _load_script(name):
 
 
 def test_baselines_script_uses_the_suite_schedule_table():
-    from strings_bench.core.schedules import SCHEDULE_SCALES
+    from strings_bench.core.schedules import SCHEDULES
 
     mod = _load_script("baselines")
-    assert set(mod.parser()._option_string_actions["--preset"].choices) == set(SCHEDULE_SCALES)
+    assert set(mod.parser()._option_string_actions["--schedule"].choices) == set(SCHEDULES)
     # quick = x0.01 in the suite: 7K -> 70, 30K -> 300 steps (the script's own table said x0.05 -> 350).
     adapter, s, its = mod.build("3dgs", "quick", [7000, 30000])
     assert s == 0.01 and its == [70, 300] and adapter.settings["steps_scale"] == 0.01

@@ -755,11 +755,11 @@ def _run_json_cases():
             return json.dumps(obj)
         return apply
     cases += [
-        ("preset is a string", edit(lambda o: o.__setitem__("preset", "tiny"))),
+        ("schedule is a string", edit(lambda o: o.__setitem__("schedule", "tiny"))),
         ("methods is a list", edit(lambda o: o.__setitem__("methods", ["fake-a"]))),
         ("datasets is a number", edit(lambda o: o.__setitem__("datasets", 3))),
         ("method_overrides is a string", edit(lambda o: o.__setitem__("method_overrides", "x"))),
-        ("no preset", edit(lambda o: o.pop("preset"))),
+        ("no schedule", edit(lambda o: o.pop("schedule"))),
     ]
     return cases
 

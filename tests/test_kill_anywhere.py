@@ -38,14 +38,14 @@ REPO = Path(__file__).resolve().parents[1]
 SCENE = "books"
 SCENE_SETTINGS = {"width": 64, "height": 48, "n_views": 8}
 METHODS = ["3dgs"]
-CHECKPOINTS = [3000, 7000]  # tiny preset: 15 and 35 steps
-RUN_KW = dict(preset="tiny", ocr="rapidocr", with_lpips=False, progress=False, save_every="5steps",
+CHECKPOINTS = [3000, 7000]  # tiny schedule: 15 and 35 steps
+RUN_KW = dict(schedule="tiny", ocr="rapidocr", with_lpips=False, progress=False, save_every="5steps",
               method_overrides={"*": {"sh_degree": 1}}, checkpoints=CHECKPOINTS)
 # results.csv columns that must equal the uninterrupted run's (times, memory and eval time may differ)
 METRIC_COLUMNS = ["method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
                   "word_cer", "word_acc", "text_nll", "text_psnr", "text_ssim", "text_lpips", "word_cer_gt",
                   "text_nll_gt", "read_words", "read_oov_chars", "gaussians", "cer_errors", "cer_chars", "cer_views",
-                  "ocr_failed", "gt_empty_ignored", "known_views", "preset", "downscale", "ocr_backend"]
+                  "ocr_failed", "gt_empty_ignored", "known_views", "schedule", "downscale", "ocr_backend"]
 STAGES = ("prep", "train", "eval", "report")
 
 CHILD = textwrap.dedent("""

@@ -183,3 +183,35 @@ def test_size_rule_can_fail(tmp_path):
     assert oversized_without_reason({"long": long_module}) == ["long"]
     long_module.write_text('"""A module.\n\nSize (~450 lines): a reason.\n"""\n' + "x = 1\n" * (SIZE_LIMIT + 1))
     assert oversized_without_reason({"long": long_module}) == []
+
+
+BENCHMARKS = PKG.parent / "benchmarks"
+
+
+def private_imports(paths) -> list[str]:
+    """`file:line name` for every import of a private name (a module or a name starting with '_', `__future__`
+    aside) in `paths`: what a script needs from the package is public, written once there."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+                parts = (node.module or "").split(".") + [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                parts = [p for a in node.names for p in a.name.split(".")]
+            else:
+                continue
+            bad = [p for p in parts if p.startswith("_") and p != "__init__"]
+            if bad:
+                found.append(f"{Path(path).name}:{node.lineno} {', '.join(bad)}")
+    return found
+
+
+def test_benchmarks_import_no_private_name():
+    assert private_imports(sorted(BENCHMARKS.glob("*.py"))) == []
+
+
+def test_private_import_rule_can_fail(tmp_path):
+    script = tmp_path / "bench.py"
+    script.write_text("from __future__ import annotations\nfrom strings_bench.scene.scene import _load_rgb\n"
+                      "import strings_bench.raster._kernels\nfrom strings_bench.eval.protocol import to_uint8 as _u8\n")
+    assert private_imports([script]) == ["bench.py:2 _load_rgb", "bench.py:3 _kernels"]

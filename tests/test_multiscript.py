@@ -366,7 +366,7 @@ def test_cer_per_script_and_the_report_table(tmp_path):
     df = pd.DataFrame(rows)
     built = {t.name: t for t in tables.script_tables(df)}
     assert "ocr_cer_by_script" in built and "known_cer_by_script" not in built  # no known-text CER given
-    md = tables.to_markdown(built["ocr_cer_by_script"])
+    md = built["ocr_cer_by_script"].markdown()
     assert "Latin (2 scenes)" in md and "Cyrillic (1 scene)" in md
     assert "0.300" in md and "0.900" in md  # Latin strings; Arabic 3dgs
     assert tables.script_tables(df[df["script"] == "Latin"]) == []  # one script: no table

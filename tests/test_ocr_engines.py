@@ -13,7 +13,9 @@ from PIL import Image
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports.tables import build_tables, ocr_agreement, to_csv, to_markdown
+from strings_bench.reports.ocr_agreement import ocr_agreement
+from strings_bench.reports.table_model import to_csv, to_markdown
+from strings_bench.reports.tables import build_tables
 from strings_bench.reports.results import iter_cells
 from strings_bench.core.errors import OCRError, StringsBenchError
 from strings_bench.core.io import atomic_write_json
@@ -214,8 +216,9 @@ class CopyViews(MethodAdapter):
 
 @needs_tesseract
 def test_two_real_engines_end_to_end(tmp_path):
-    register_method(MethodSpec("copy-views", CopyViews, "the GT views"))
-    register_method(MethodSpec("erase-number", lambda **s: CopyViews(erase=True, **s), "the GT views without the number"))
+    register_method(MethodSpec(name="copy-views", implementation=CopyViews, description="the GT views"))
+    register_method(MethodSpec(name="erase-number", implementation=lambda **s: CopyViews(erase=True, **s),
+                               description="the GT views without the number"))
     scene = _text_scene(tmp_path)
     out = runner.run(["copy-views", "erase-number"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,tesseract",
                      with_lpips=False, progress=False, checkpoints=[1000])

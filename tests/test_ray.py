@@ -39,7 +39,7 @@ from strings_bench.core.errors import StringsBenchError  # noqa: E402
 
 SCENES = ("books", "globe")
 METHODS = ["strings", "3dgs"]
-SCHEDULE = dict(preset="tiny", steps_scale=0.002, checkpoints=[3000, 7000])  # trained as 6 and 14 steps
+SCHEDULE = dict(schedule="tiny", steps_scale=0.002, checkpoints=[3000, 7000])  # trained as 6 and 14 steps
 CHECKPOINTS = [6, 14]
 PAUSE_STEP = 10  # between the state saved at step 8 (--save-every 4steps) and checkpoint 14
 # results.csv columns that hold results; timings, memory and run settings may differ between executors.

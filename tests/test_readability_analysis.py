@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from strings_bench.reports import readability_analysis as ra
-from strings_bench.reports.tables import GT_CEILING, to_latex, to_markdown
+from strings_bench.reports.table_model import GT_CEILING, to_latex, to_markdown
 
 
 def test_time_to_threshold_interpolates_between_the_straddling_checkpoints():

@@ -20,8 +20,8 @@ import pytest
 from PIL import Image
 
 from strings_bench.reports import html as report_html
-from strings_bench.reports import tables
-from strings_bench.reports.tables import Column, Table
+from strings_bench.reports import aggregate, tables
+from strings_bench.reports.table_model import Column, Table
 
 
 class Parsed(HTMLParser):
@@ -216,7 +216,7 @@ def test_gallery_crops_and_readings_match_the_cells(fake_run):
 
 def test_crops_are_rewritten_only_when_stale(fake_run):
     rep = fake_run / "report"
-    df = tables.load_results(fake_run)
+    df = aggregate.load_results(fake_run)
     g = report_html.collect_galleries(fake_run, df)[0]
     paths = report_html.write_crops(fake_run, rep, g)
     files = [rep / g.folder / p for p in paths.values() if p is not None]
@@ -236,7 +236,7 @@ def test_missing_renders_and_an_empty_run_still_give_a_page(fake_run, tmp_path):
     shutil.copytree(fake_run, run)
     gone = next((run / "cells" / "fake-b").glob("*/*/35"))
     shutil.rmtree(gone / "renders")
-    df = tables.load_results(run)
+    df = aggregate.load_results(run)
     report_html.write_html(run, run / "report", df, {}, [], {})
     page = next((run / "report" / "gallery").rglob("index.html"))
     n_words = sum(len(v) for v in json.loads((gone / "result.json").read_text())["readability"]["views"].values())
@@ -271,7 +271,7 @@ def test_report_page_in_headless_chromium(fake_run, tmp_path):
     big = pd.concat([csv] * 7, ignore_index=True).head(60)
     big["psnr"] = np.arange(60, dtype=float)[::-1]
     paged = tmp_path / "paged.html"
-    paged.write_text(report_html._page("paged", f'<div>{report_html._cells_table(big)}</div>'), encoding="utf-8")
+    paged.write_text(report_html.html_page("paged", f'<div>{report_html._cells_table(big)}</div>'), encoding="utf-8")
 
     problems: list[str] = []
     with sync_api.sync_playwright() as pw:

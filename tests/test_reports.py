@@ -12,16 +12,16 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports import tables, write_report
+from strings_bench.reports import table_model, tables, write_report
 
 
 def test_rank_classes_ties_and_nan():
-    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], True) == ["third", "first", "second", None]
-    assert tables.rank_classes([0.3, 0.1, 0.2, 0.4], False) == ["second", None, "third", "first"]
+    assert table_model.rank_classes([0.3, 0.1, 0.2, 0.4], True) == ["third", "first", "second", None]
+    assert table_model.rank_classes([0.3, 0.1, 0.2, 0.4], False) == ["second", None, "third", "first"]
     # Ties share a place (the paper shades two "third" 0.392s); NaN never ranks.
-    assert tables.rank_classes([0.392, 0.392, 0.1, math.nan, 0.2], True) == ["third", "third", "first", None, "second"]
+    assert table_model.rank_classes([0.392, 0.392, 0.1, math.nan, 0.2], True) == ["third", "third", "first", None, "second"]
     # Compared as printed: 0.1234 and 0.1231 both show 0.123.
-    assert tables.rank_classes([0.1234, 0.1231, 0.2], True, decimals=3) == ["first", "first", "second"]
+    assert table_model.rank_classes([0.1234, 0.1231, 0.2], True, decimals=3) == ["first", "first", "second"]
 
 
 def _frame(cer_7k: dict, cer_30k: dict, lpips=math.nan, datasets=("synthetic",)):
@@ -46,7 +46,7 @@ def test_ocr_cer_latex_shades_best_three(tmp_path):
     cer7 = {"3dgs": 0.736, "mip-splatting": 0.748, "mcmc": 0.927, "absgs": 0.768, "edc-absgs": 0.328, "strings": 0.177}
     cer30 = {"3dgs": 0.148, "mip-splatting": 0.129, "mcmc": 0.110, "absgs": 0.143, "edc-absgs": 0.116, "strings": 0.106}
     df = _frame(cer7, cer30)
-    manifest = {"preset": {"name": "quick", "steps_scale": 0.05},
+    manifest = {"schedule": {"name": "quick", "steps_scale": 0.05},
                 "methods": {"3dgs": {"paper": "SIGGRAPH'23"}, "strings": {"paper": "WACV'26"}}}
     written = tables.write_tables(df, tmp_path, manifest)
     tex = written["ocr_cer"]["tex"].read_text()
@@ -120,10 +120,10 @@ def test_latex_compiles(fake_run, tmp_path):
 
 
 def test_short_venue():
-    assert tables.short_venue("Kerbl et al.: 3D Gaussian Splatting (SIGGRAPH 2023)") == "SIGGRAPH'23"
-    assert tables.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
-    assert tables.short_venue("CVPR'24") == "CVPR'24"
-    assert tables.short_venue("no venue here") == ""
+    assert table_model.short_venue("Kerbl et al.: 3D Gaussian Splatting (SIGGRAPH 2023)") == "SIGGRAPH'23"
+    assert table_model.short_venue("Deng: EDC (arXiv 2024), on AbsGS; code github.com/x") == "arXiv'24"
+    assert table_model.short_venue("CVPR'24") == "CVPR'24"
+    assert table_model.short_venue("no venue here") == ""
 
 
 def test_paper_figures_next_to_measured_only_where_published(tmp_path):
@@ -203,14 +203,20 @@ def test_every_evaluated_checkpoint_gets_its_column_and_headings_are_titles(tmp_
 
 
 def test_method_titles_and_groups_come_from_the_run_folder_then_the_specs():
-    """One place for a method's title and group: its spec, recorded in run.json; the reports read them there."""
-    tables.use_run_methods({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
-    try:
-        assert tables.method_title("my-splat") == "MySplat (ours)"
-        assert tables.method_title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
-        assert tables.method_title("mcmc") == "3DGS-MCMC" and tables.is_ablation("strings-pos-lr")
-        assert tables.method_title("edc") == "edc"  # no spec registers it: no invented title
-        assert tables.method_order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
-            ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
-    finally:
-        tables.use_run_methods(None)
+    """One place for a method's title and group: its spec, recorded in run.json; the reports read them there, from
+    the MethodNames a report is built with (no module-level state: another report's names are untouched)."""
+    names = table_model.MethodNames.of({"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    assert names.title("my-splat") == "MySplat (ours)"
+    assert names.title("my-splat", latex=True).startswith(r"\textbf{MySplat (ours)}")
+    assert names.title("mcmc") == "3DGS-MCMC" and names.is_ablation("strings-pos-lr")
+    assert names.title("edc") == "edc"  # no spec registers it: no invented title
+    assert names.order(["strings", "zzz", "mcmc", "3dgs", "strings-no-densify", "mip-splatting"]) == \
+        ["3dgs", "mip-splatting", "mcmc", "strings", "strings-no-densify", "zzz"]
+    assert table_model.REGISTERED.title("my-splat") == "my-splat"  # the registry's names alone know nothing of it
+    df = pd.DataFrame([{"method": m, "dataset": "synthetic", "scene": "books", "label": "7K", "iteration": 35,
+                        "cer": c, "cer_known": math.nan, "total_seconds": 60.0, "train_seconds": 60.0, "psnr": 20.0,
+                        "ssim": 0.7, "lpips": math.nan, "gaussians": 1000, "ocr_failed": 0}
+                       for m, c in (("my-splat", 0.2), ("3dgs", 0.5))])
+    (ocr_cer, *_) = tables.build_tables(df, {"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
+    assert "| MySplat (ours) | 0.200 **(1)** |" in ocr_cer.markdown()
+    assert "| my-splat | 0.200 **(1)** |" in tables.build_tables(df)[0].markdown()  # built without the record

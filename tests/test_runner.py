@@ -14,7 +14,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.bench.schedules import SCHEDULES
+from strings_bench.core.schedules import SCHEDULES
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
@@ -74,7 +74,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     # Cell contents: config, OCR words for GT and render, renders on disk.
     cell = runner.CellKey("fake-b", "toy", "toy", 15).path(out)
     rec = json.loads((cell / "result.json").read_text())
-    assert rec["config"]["preset"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
+    assert rec["config"]["schedule"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
     v = rec["ocr"]["views"]["view_00.png"]
     assert v["gt_words"][0]["text"] == "hello" and v["render_words"][0]["text"] == "hallo"
     assert v["mask"] == "dilated text mask"
@@ -110,7 +110,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
 def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):
     out = tmp_path / "run"
     # First run: fake-a finishes; fake-b is interrupted after its first checkpoint.
-    register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=1, **s)))
+    register_method(MethodSpec(name="fake-b", implementation=lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=1, **s)))
     with pytest.raises(KeyboardInterrupt):
         _run(out, scene_dir)
     rows = _rows(out)
@@ -151,7 +151,7 @@ import strings_bench.bench.runner as runner
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
 rf.register_fakes()
-register_method(MethodSpec("fake-b", lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
+register_method(MethodSpec(name="fake-b", implementation=lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
 runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
            with_lpips=False, progress=False)
 """
@@ -205,7 +205,7 @@ def test_bad_render_size_is_clear(tmp_path, scene_dir):
                 r.renders = {k: v[:-1] for k, v in r.renders.items()}
                 yield r
 
-    register_method(MethodSpec("fake-wrong", lambda **s: Wrong(**s)))
+    register_method(MethodSpec(name="fake-wrong", implementation=lambda **s: Wrong(**s)))
     with pytest.raises(StringsBenchError, match="render of view_00.png"):
         _run(tmp_path / "run", scene_dir, methods=["fake-wrong"], write_report=False)
 
@@ -236,7 +236,7 @@ def test_entry_point_discovery(tmp_path, monkeypatch):
         "    name = 'plugin-splat'\n"
         "    def train(self, scene, checkpoints, downscale=1):\n"
         "        return iter(())\n"
-        "SPEC = MethodSpec('plugin-splat', A, 'a plug-in method', 'Plugin\\'26')\n")
+        "SPEC = MethodSpec(name='plugin-splat', implementation=A, description='a plug-in method', paper='Plugin\\'26')\n")
     dist = tmp_path / "my_splat_plugin-0.1.dist-info"
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-splat-plugin\nVersion: 0.1\n")
@@ -351,7 +351,7 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
 
 def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
-    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+    register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"blurry": {"steps_scale": 0.005, "floor": 0.2}}))
     plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
                            steps_scale=0.02, checkpoints=[7000, 3000], method_presets={"fake-scaled": ["blurry"]})
@@ -365,7 +365,7 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     # A method without a steps_scale setting follows the run's scale.
     assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_overrides == {}
     assert plan.manifest["steps_scale"] == 0.02 and plan.manifest["checkpoints"] == [3000, 7000]
-    assert plan.manifest["preset"]["name"] == "tiny" and plan.manifest["preset"]["steps_scale"] == 0.02
+    assert plan.manifest["schedule"]["name"] == "tiny" and plan.manifest["schedule"]["steps_scale"] == 0.02
     assert SCHEDULES["tiny"].steps_scale == 0.005  # nothing global was changed
     # Each option alone; a --set steps_scale for a method wins over --steps-scale.
     only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)
@@ -486,7 +486,7 @@ def test_lpips_at_all_checkpoints(tmp_path, scene_dir):
 
 def test_schedule_scales_every_method_and_never_picks_a_preset(tmp_path, scene_dir):
     """A schedule and a method preset are different things: a preset named like the schedule is not taken."""
-    register_method(MethodSpec("fake-scaled", lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
+    register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"quick": {"steps_scale": 0.5, "floor": 0.3}}))
     tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
     assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}
@@ -562,3 +562,32 @@ def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
     _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
     with pytest.raises(StringsBenchError, match="unknown CER profile"):
         _run(tmp_path / "x", scene_dir, methods=["fake-a"], cer_profile="nope")
+
+
+def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
+    """A method spec with no defaults at all (no steps_scale in its defaults) trains the run's scaled number of
+    steps, and its internal schedules (densification, SH degree, position LR) are scaled with it."""
+    from strings_bench.engine.strategies.base import Strategy
+    from strings_bench.reports.results import read_cell
+
+    spec = MethodSpec(name="bare-3dgs", implementation="strings_bench.methods.gs3d:GS3D")
+    assert spec.defaults == {} and spec.takes_steps_scale()
+    register_method(spec)
+    plan = runner.plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+                           checkpoints=[3000, 7000])
+    job = plan.jobs[0]
+    assert job.checkpoints == (15, 35) and job.method_overrides == {"steps_scale": 0.005}
+    method = runner._build_method(job)
+    assert method.config.steps_scale == 0.005
+    # 3DGS' nominal schedules, scaled: densification stops at 15K -> 75 steps, the SH degree rises every 1K -> 50
+    # steps (the floor of a scaled interval) instead of every 1 000.
+    assert method.at(15_000) == 75 and method.every(1_000) == 50
+    assert method.sh_degree_for_step(50) == 1 and method.sh_degree_for_step(49) == 0
+    state = method.strategy.initialize_state(1.0, method.config.steps_scale)
+    assert Strategy.at(state, method.strategy.refine_stop_iter) == 75
+    runner.run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+               ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False, checkpoints=[3000, 7000],
+               method_overrides={"bare-3dgs": {"sh_degree": 0}})
+    rec = read_cell(tmp_path / "run", runner.CellKey("bare-3dgs", job.dataset, job.scene, 35))
+    assert rec["extra"]["steps_scale"] == 0.005 and rec["extra"]["paper_iteration"] == 7000
+    assert rec["config"]["method"]["settings"]["steps_scale"] == 0.005

@@ -97,3 +97,40 @@ def test_methods_show_cli(capsys):
     out = capsys.readouterr().out
     assert "grow_grad2d" in out and "0.0002" in out and "densify when" in out
     assert main(["methods", "show", "no-such-method"]) == 1
+
+
+def test_spec_is_keyword_only_and_its_paper_figures_are_named():
+    from strings_bench.methods.registry import MethodSpec
+
+    with pytest.raises(TypeError):
+        MethodSpec("x", "strings_bench.methods.gs3d:GS3D")  # positional rows are gone: every field by name
+    strings = get_method("strings")
+    assert strings.paper_figures.strings360_cer_30k == 0.106 and strings.paper_figures.tandt_cer_7k == 0.122
+    assert strings.paper_results["strings360"] == {"cer": {7000: 0.177, 30000: 0.106}, "minutes": {7000: 1.9, 30000: 12.6}}
+    assert get_method("ply").paper_results == {}
+    # the name lives on the spec only; a built method carries it
+    from strings_bench.methods.mip_splatting import MipSplatting
+
+    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(schedule="tiny").name == "mip-splatting"
+
+
+def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
+    import pandas as pd
+
+    from strings_bench.methods.registry import MethodSpec, registered
+    from strings_bench.reports.ablations import ablation_table
+
+    assert (get_method("strings-no-densify").ablation_of, get_method("strings-no-densify").ablation_at) == ("strings", 7000)
+    assert (get_method("strings-pos-lr").ablation_of, get_method("strings-pos-lr").ablation_at) == ("strings", 3000)
+    with pytest.raises(StringsBenchError, match="ablation_at"):
+        MethodSpec(name="half", implementation="strings_bench.methods.gs3d:GS3D", ablation_of="3dgs")
+    spec = MethodSpec(name="3dgs-no-reset", implementation="strings_bench.methods.gs3d:GS3D", ablation_of="3dgs",
+                      ablation_at=30000, ablation_effect="the opacity reset")
+    assert spec.group == "ablation"
+    rows = [{"method": m, "dataset": "synthetic", "scene": "books", "label": label, "iteration": it, "cer": cer}
+            for m, label, it, cer in (("3dgs", "7K", 35, 0.9), ("3dgs", "30K", 150, 0.5),
+                                      ("3dgs-no-reset", "7K", 35, 0.8), ("3dgs-no-reset", "30K", 150, 0.7))]
+    with registered(spec):
+        t = ablation_table(pd.DataFrame(rows))
+    assert t.methods == ["3dgs", "3dgs-no-reset"]
+    assert t.rows == [("Effect of the opacity reset", "3dgs-no-reset", "30K", [(0.7, 0.5)])]

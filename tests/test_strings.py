@@ -651,7 +651,7 @@ def test_phase1_masked_l1_random_against_float64(tiny_text_scene):
 def test_default_run_exercises_both_phases(tiny_text_scene, monkeypatch):
     """Issue 14: under the default run's preset, STRinGS' phase 1 densifies at least twice and both
     phases train for more than 100 steps (the old quick preset's 30-step phase 1 never densified)."""
-    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, get_schedule
+    from strings_bench.core.schedules import DEFAULT_SCHEDULE, get_schedule
     from strings_bench.engine.strategies.default import DefaultStrategy
 
     last = get_schedule(DEFAULT_SCHEDULE).checkpoints()[-1]

@@ -317,9 +317,9 @@ def test_cli_prepare_rejects_room_controls_on_synthetic_scenes(capsys):
 
 
 def _calibrate():
-    spec = importlib.util.spec_from_file_location("_bench_calibrate", REPO / "benchmarks" / "calibrate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    """`strings-bench calibrate` (strings_bench/cli/calibrate.py; benchmarks/calibrate.py passes its arguments on)."""
+    import strings_bench.cli.calibrate as mod
+
     return mod
 
 
@@ -373,10 +373,10 @@ def test_calibrate_cpu_regime_defaults_and_overrides(tmp_path, capsys):
     md = cal.tables(rows, ["pantry", "office"], "cer_known")
     assert "| s360-r1 | 7K | 2/2 | 1.000 | 0.750 |" in md and md.rstrip().endswith("| 0.736 | yes |")
     assert cal.tables(rows, ["pantry", "office"], "cer").rstrip().endswith("| 0.736 | no |")
-    assert cal.main(["--regime", "cpu", "--report-only", "--out", str(tmp_path / "none")]) == 1
+    assert cli_main(["calibrate", "--regime", "cpu", "--report-only", "--out", str(tmp_path / "none")]) == 1
     assert "no run folder" in capsys.readouterr().err
     (tmp_path / "run").mkdir()
-    assert cal.main(["--regime", "cpu", "--report-only", "--out", str(tmp_path / "run"), "--scenes", "pantry"]) == 0
+    assert cli_main(["calibrate", "--regime", "cpu", "--report-only", "--out", str(tmp_path / "run"), "--scenes", "pantry"]) == 0
     assert (tmp_path / "run" / "calibration.md").read_text().startswith("# synthetic360 calibration: 3dgs, schedule x0.05")
 
 
@@ -396,8 +396,8 @@ def test_calibrate_seed_and_dense_checkpoints_reach_the_runner(tmp_path, monkeyp
     monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append((methods, specs, kw)))
     (tmp_path / "run").mkdir()
     base = ["--regime", "cpu", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
-    assert cal.main([*base, "--seed", "2", "--checkpoints", "30K,3K,every:5K"]) == 0
-    assert cal.main(base) == 0
+    assert cli_main(["calibrate", *base, "--seed", "2", "--checkpoints", "30K,3K,every:5K"]) == 0
+    assert cli_main(["calibrate", *base]) == 0
     (m1, s1, k1), (_, _, k0) = calls
     assert m1 == ["3dgs"] and s1 == ["synthetic360-cpu/pantry"]
     assert k1["checkpoints"] == [3000, 30000] and k1["dense_every"] == 5000

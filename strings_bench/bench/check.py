@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 # method's whole check takes seconds.
 CHECK_SCENE = "books"
 CHECK_SCENE_SETTINGS = {"width": 96, "height": 72, "n_views": 8}
-CHECK_PRESET = "tiny"
+CHECK_SCHEDULE = "tiny"
 CHECK_PAPER_ITERATION = 1000  # the runner's checkpoint, a paper iteration: x0.005 (tiny) = 5 steps
 CHECK_STEPS = 5  # steps of the check's own training (= the runner's checkpoint at the tiny scale)
 RENDER_TOLERANCE = 1e-5  # save -> load -> render must reproduce the renders this closely
@@ -110,7 +110,7 @@ def resolve_spec(name: str):
         if not module or not attr:
             raise StringsBenchError(f"{name!r} is neither a method name nor module:Class",
                                     hint="e.g. `strings-bench methods check 3dgs` or `... check mypkg.mymethod:MyMethod`")
-        spec = MethodSpec(attr.lower(), name, f"{name} (checked by its implementation path)")
+        spec = MethodSpec(name=attr.lower(), implementation=name, description=f"{name} (checked by its implementation path)")
         spec.load()  # a clear error now when it does not import
         return spec
     return get_method(name)
@@ -214,7 +214,7 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
         from strings_bench.scene.scene import Scene
 
         ply = work / "stand_in" / "point_cloud.ply"
-        trainer = Trainer(get_method("3dgs").build(schedule=CHECK_PRESET), Scene.load(scene_path), [CHECK_STEPS],
+        trainer = Trainer(get_method("3dgs").build(schedule=CHECK_SCHEDULE), Scene.load(scene_path), [CHECK_STEPS],
                           device="cpu", progress=False, render_test=False, model_path=lambda step: ply)
         for _ in trainer.train():
             pass
@@ -243,7 +243,7 @@ class CheckContext:
     reloaded: Any = None
 
     def build(self) -> Any:
-        obj = self.spec.build(schedule=CHECK_PRESET, **self.settings)
+        obj = self.spec.build(schedule=CHECK_SCHEDULE, **self.settings)
         if not isinstance(obj, (Method, MethodAdapter)):
             raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
                               "(strings_bench.core.method)")
@@ -268,7 +268,7 @@ def check_settings(ctx: CheckContext) -> str:
     if no_help:
         raise CheckFailed(f"setting(s) without a meaning: {', '.join(no_help[:8])}" + (" ..." if len(no_help) > 8 else ""))
     format_settings(schema)
-    ctx.spec.check_keys(ctx.spec.resolve(schedule=CHECK_PRESET))
+    ctx.spec.check_keys(ctx.spec.resolve())
     return f"{len(schema)} settings, each with a default and a meaning"
 
 
@@ -287,7 +287,7 @@ def check_trains(ctx: CheckContext, device: str) -> str:
     """The framework's loop trains it CHECK_STEPS steps on `device` (an adapter yields its checkpoints)."""
     obj = ctx.build()
     if isinstance(obj, MethodAdapter):
-        its = [int(i) for i in (obj.fixed_checkpoints() or [CHECK_STEPS])]
+        its = [int(i) for i in (obj.fixed_checkpoints(obj.settings) or [CHECK_STEPS])]
         out = list(obj.train(ctx.scene, its, 1.0))
         got = [r.iteration for r in out]
         if got != sorted(its):
@@ -365,7 +365,7 @@ def check_runner(ctx: CheckContext, ocr: str, with_lpips: bool) -> str:
 
     spec, run_dir = ctx.spec, ctx.work / "run"
     with registered(spec):
-        plan = plan_run([spec.name], [str(ctx.scene_path)], run_dir=run_dir, schedule=CHECK_PRESET, ocr=ocr,
+        plan = plan_run([spec.name], [str(ctx.scene_path)], run_dir=run_dir, schedule=CHECK_SCHEDULE, ocr=ocr,
                         method_overrides={spec.name: ctx.settings} if ctx.settings else None,
                         checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off")
         execute(plan, progress=False, write_report=False, with_lpips=with_lpips)

@@ -33,7 +33,7 @@ import json
 import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 
@@ -113,8 +113,9 @@ def default_out(pred: Path) -> Path:
 
 def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
     """Evaluate the predictions at `pred` (see the module docstring); returns the output folder."""
-    from strings_bench.bench.records import jsonable, versions, write_png
+    from strings_bench.bench.records import versions, write_gt_pngs
     from strings_bench.bench.runner import _get_ocr
+    from strings_bench.reports.results import CellRecord, iteration_label, write_cell
     from strings_bench.eval.cer import get_profile
     from strings_bench.eval.metrics import describe as metrics_describe
     from strings_bench.eval.protocol import Evaluator, scene_views
@@ -170,34 +171,19 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
                                                     cer_profile=opts.cer_profile, mask_settings=mask_settings)
             evaluator = evaluator_cache[ev_key]
             result = evaluator.evaluate(method, renders, missing=missing)
-            cell_dir = key.path(out)
-            gt_dir = out / "gt" / safe_name(source.dataset) / safe_name(source.scene)
-            for name in evaluator.names:
-                stem = PurePosixPath(name).with_suffix("").as_posix().replace("/", "_")
-                if name in renders:
-                    write_png(cell_dir / "renders" / f"{stem}.png", renders[name])
-                if not (gt_dir / f"{stem}.png").exists():
-                    write_png(gt_dir / f"{stem}.png", evaluator.gt(name))
-            from strings_bench.reports.results import iteration_label
-
             train = opts.train_seconds
-            record = {
-                "method": method, "dataset": source.dataset, "scene": source.scene, "iteration": ck.iteration,
-                "label": ck.label or iteration_label(ck.iteration),
-                "config": {"evaluate": {**manifest, "checkpoint": ck.iteration}, "preset": None, "downscale": ds,
-                           "cer_profile": opts.cer_profile, "scene": {"settings": source.settings, "test_views": evaluator.names},
-                           "versions": versions(), "metrics": metrics_describe()},
-                "resumed_from_step": 0, "device": "", "gpu": None,
-                "timings": {"train_seconds": train, "preprocess_seconds": None if train is None else 0.0,
-                            "total_seconds": train, "eval_seconds": time.perf_counter() - t0},
-                "gaussians": None, "peak_memory_mb": None, "extra": {"layout": preds.layout},
-                **result,
-            }
+            record = CellRecord(
+                method=method, dataset=source.dataset, scene=source.scene, iteration=ck.iteration,
+                label=ck.label or iteration_label(ck.iteration),
+                config={"evaluate": {**manifest, "checkpoint": ck.iteration}, "schedule": None, "downscale": ds,
+                        "cer_profile": opts.cer_profile, "scene": {"settings": source.settings, "test_views": evaluator.names},
+                        "versions": versions(), "metrics": metrics_describe()},
+                timings={"train_seconds": train, "preprocess_seconds": None if train is None else 0.0,
+                         "total_seconds": train, "eval_seconds": time.perf_counter() - t0},
+                extra={"layout": preds.layout}, scores=result)
+            write_gt_pngs(out, source.dataset, source.scene, evaluator)
             _write_manifest(out, manifest)
-            from strings_bench.reports.results import write_words_csv
-
-            write_words_csv(cell_dir, jsonable(record))  # before result.json: a finished cell has its words.csv
-            atomic_write_json(cell_dir / RESULT_FILE, jsonable(record))
+            write_cell(key.path(out), record, {n: renders[n] for n in evaluator.names if n in renders})
             written.append(key)
             c = result["cer"]["cer"]
             say(f"  {ck.iteration}: OCR-CER {c if c is None else f'{c:.3f}'}, PSNR {result['metrics']['psnr']:.2f}"
@@ -228,13 +214,12 @@ def _default_method(preds: Predictions, pred: Path) -> str:
 def _source(preds: Predictions, opts: EvaluateOptions, pred: Path) -> Source:
     if opts.scene:
         from strings_bench.datasets.registry import resolve_scenes
-        from strings_bench.scene.scene import Scene
 
         refs = resolve_scenes([opts.scene])
         if len(refs) != 1:
             raise PredictionsError(f"--scene {opts.scene} names {len(refs)} scenes", hint="give one scene, e.g. synthetic/books")
         ref = refs[0]
-        scene = Scene.load(ref.path, name=ref.scene, settings=dict(ref.settings))
+        scene = ref.load()
         return Source("scene", opts.dataset or ref.dataset, opts.scene_name or ref.scene, scene, dict(ref.settings))
     if opts.gt is None and not all(ck.gt for ck in preds.checkpoints):
         raise PredictionsError(f"the {preds.layout} predictions at {pred} carry no ground truth",

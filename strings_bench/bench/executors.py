@@ -27,7 +27,7 @@ class Job:
     scene_settings: dict
     checkpoints: tuple[int, ...]
     labels: dict  # iteration -> paper label
-    schedule: str  # the run's schedule (bench/schedules.py); recorded as the cell's "preset"
+    schedule: str  # the run's schedule (core/schedules.py); recorded as the cell's "schedule"
     downscale: float
     ocr: str
     method_overrides: dict = field(default_factory=dict)

@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Iterable
 
 from strings_bench.bench.executors import Job
-from strings_bench.bench.records import jsonable
-from strings_bench.bench.schedules import DEFAULT_SCHEDULE, schedule
+from strings_bench.core.io import jsonable
+from strings_bench.core.schedules import DEFAULT_SCHEDULE, schedule
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey
 
@@ -39,7 +39,7 @@ class RunConfig:
     methods: method names (`--methods`).
     datasets: registry ids or scene folders (`--datasets`); None: the schedule's default scenes.
     run_dir: the run folder; the same folder resumes.
-    schedule: the run's schedule (bench/schedules.py: paper, standard, early, quick, tiny).
+    schedule: the run's schedule (core/schedules.py: paper, standard, early, quick, tiny).
     steps_scale, checkpoints: replace the schedule's scale / paper checkpoints.
     dense_every: also evaluate every that many paper iterations (`--checkpoints every:500`); dense_eval: how the
         checkpoints only it adds are evaluated: "words" (the word-crop metrics and PSNR/SSIM; no OCR of the renders,
@@ -149,40 +149,45 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         schema = spec.settings()
         mine = for_all if schema is None else {k: v for k, v in for_all.items() if k in {s.name for s in schema}}
         taken |= set(mine)
-        m_over = {**mine, **overrides.get(m, {})}
-        given_settings[m] = dict(m_over)
-        if "steps_scale" in spec.defaults and "steps_scale" not in m_over:
-            # The schedule scales every method; a --set steps_scale given for the method wins.
-            m_over["steps_scale"] = p.steps_scale
-        adapter = spec.build(chosen, **m_over)
-        m_scale = float(adapter.settings.get("steps_scale", p.steps_scale))
-        steps = p.checkpoints(m_scale)
-        fixed = adapter.fixed_checkpoints() if hasattr(adapter, "fixed_checkpoints") else None  # user factories
-        if fixed:
-            steps = sorted(int(c) for c in fixed)  # e.g. the ply adapter: the model's own iteration
-        labels = {it: p.label_of(it, m_scale) for it in steps}
-        dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(m_scale))
-        planned.append((m, chosen, m_over, steps, labels, dense))
+        given_settings[m] = {**mine, **overrides.get(m, {})}
+        # The schedule's scale reaches every method that trains (a --set steps_scale for the method wins).
+        m_over = spec.with_steps_scale(p.steps_scale, given_settings[m])
+        spec.check_keys(spec.resolve(chosen, **m_over))  # a typo in --set is refused before any scene is built
+        planned.append((m, chosen, m_over))
     if set(for_all) - taken:
         raise StringsBenchError(f"no method of this run has the setting(s) {', '.join(sorted(set(for_all) - taken))}",
                                 hint="see `strings-bench methods show METHOD` for each method's settings")
     refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
     if not refs:
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
-    jobs = [Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps), labels,
-                p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every), bool(c.keep_models),
-                tuple(specs[m].presets_for(ref.dataset, ref.scene)) + tuple(chosen), dense)
-            for m, chosen, m_over, steps, labels, dense in planned for ref in refs]
+    jobs = []
+    for m, chosen, m_over in planned:
+        for ref in refs:
+            # The presets the job gets: those that apply to the scene by themselves, then the chosen ones. Its
+            # checkpoints follow from the settings alone: the method is built once, by the job (bench/runner.py).
+            presets = tuple(specs[m].presets_for(ref.dataset, ref.scene)) + tuple(chosen)
+            settings = specs[m].resolve(presets, **m_over)
+            m_scale = float(settings.get("steps_scale", p.steps_scale))
+            fixed = specs[m].fixed_checkpoints(settings)  # e.g. the ply adapter: the model's own iteration
+            steps = fixed or p.checkpoints(m_scale)
+            labels = {it: p.label_of(it, m_scale) for it in steps}
+            dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(m_scale))
+            jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps),
+                            labels, p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every),
+                            bool(c.keep_models), presets, dense))
     manifest = {
-        "preset": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
-        # --steps-scale / --checkpoints as given (None: the schedule's); `preset` above holds the schedule in effect.
+        "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
+        # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
         "steps_scale": None if c.steps_scale is None else p.steps_scale,
         "checkpoints": None if c.checkpoints is None else list(p.paper_checkpoints),
         "dense_every": c.dense_every, "dense_eval": c.dense_eval if c.dense_every else None,
-        "method_presets": {m: chosen for m, chosen, *_ in planned},
+        "method_presets": {m: chosen for m, chosen, _ in planned},
         "method_overrides": {m: jsonable(given_settings[m]) for m in methods},
         "methods": {m: {"paper": specs[m].paper, "description": specs[m].description, "title": specs[m].title or m,
-                        "group": specs[m].group} for m in methods},
+                        "group": specs[m].group,
+                        **({"ablation_of": specs[m].ablation_of, "ablation_at": specs[m].ablation_at,
+                            "ablation_effect": specs[m].ablation_effect} if specs[m].ablation_of else {})}
+                    for m in methods},
         "datasets": datasets,
         "device": c.device,  # as asked; execute() adds where it resolved to on this machine
     }
@@ -221,9 +226,9 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
             + ("" if "cer_profile" in old else " (made before --cer-profile existed: the rules now named robust)")
             + f"; this run asks for {manifest.get('cer_profile', 'paper')!r}",
             hint="use another --out folder, or the same --cer-profile to resume")
-    if (old.get("preset") or {}).get("name") != manifest["preset"]["name"]:
+    if old["schedule"].get("name") != manifest["schedule"]["name"]:
         raise StringsBenchError(
-            f"{run_dir} holds results of schedule {(old.get('preset') or {}).get('name')!r}; this run asks for {manifest['preset']['name']!r}",
+            f"{run_dir} holds results of schedule {old['schedule'].get('name')!r}; this run asks for {manifest['schedule']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same --schedule to resume")
     # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
     # run gave the option; folders made without it keep resuming as before.
@@ -232,8 +237,8 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
                                   ("dense_every", "dense_every", "--checkpoints every:N")):
         if old.get(k) is None and manifest.get(k) is None:
             continue
-        was = (old.get("preset") or {}).get(field_name)
-        now = manifest["preset"].get(field_name)
+        was = old["schedule"].get(field_name)
+        now = manifest["schedule"].get(field_name)
         if _as_list(was) != _as_list(now):
             raise StringsBenchError(
                 f"{run_dir} holds results made with {option} {_fmt_schedule(was)}; this run asks for {_fmt_schedule(now)}",

@@ -1,61 +1,29 @@
-"""What a run writes besides the metrics: PNGs as they are scored, JSON-safe records, versions and device.
-Shared by the runner and `strings-bench evaluate`."""
+"""What a run writes besides its cells (reports/results.py: `write_cell`): the ground-truth PNGs as they are
+scored, the versions and the device. Shared by the runner and `strings-bench evaluate`."""
 
 from __future__ import annotations
 
-import math
 import platform
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from PIL import Image
 
 from strings_bench import __version__
-from strings_bench.core.io import atomic_write
 from strings_bench.core.results import safe_name
-from strings_bench.eval.protocol import to_uint8
+from strings_bench.reports.results import render_file_name, write_png
 
 if TYPE_CHECKING:
     from strings_bench.eval.protocol import Evaluator
-
-def write_png(path: Path, img: np.ndarray) -> None:
-    """`img` as the 8-bit PNG the evaluation scores (eval.protocol.to_uint8), written atomically."""
-    def write(tmp: Path) -> None:
-        Image.fromarray(to_uint8(img)).save(tmp, format="PNG")
-
-    atomic_write(path, write)
 
 
 def write_gt_pngs(run_dir: Path, dataset: str, scene_name: str, evaluator: Evaluator) -> None:
     """RUN_DIR/gt/<dataset>/<scene>/<view stem>.png: the ground truth as scored, for the report's crops."""
     folder = Path(run_dir) / "gt" / safe_name(dataset) / safe_name(scene_name)
     for name in evaluator.names:
-        path = folder / f"{Path(name).stem}.png"
+        path = folder / render_file_name(name)
         if not path.exists():
             write_png(path, evaluator.gt(name))
-
-
-def _nan_to_none(x):
-    if isinstance(x, float) and (math.isnan(x) or math.isinf(x)):
-        return None if math.isnan(x) else ("inf" if x > 0 else "-inf")
-    return x
-
-
-def jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (np.floating,)):
-        return _nan_to_none(float(obj))
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, float):
-        return _nan_to_none(obj)
-    return obj
 
 
 def versions() -> dict:

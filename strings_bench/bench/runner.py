@@ -10,7 +10,7 @@ checkpoints already evaluated are passed over (never rewritten).
 Run folder (see docs/running.md):
 
     RUN_DIR/
-      run.json                          the run's settings (preset, steps scale, checkpoints, downscale, OCR,
+      run.json                          the run's settings (schedule, steps scale, checkpoints, downscale, OCR,
                                         --set values); a re-run must match
       results.csv                       one row per cell, rebuilt after every cell
       cells/<method>/<dataset>/<scene>/<iteration>/
@@ -23,7 +23,7 @@ Run folder (see docs/running.md):
       report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
 The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`; the
-schedules are bench/schedules.py. Execution goes through an `Executor` (bench/executors.py:
+schedules are core/schedules.py. Execution goes through an `Executor` (bench/executors.py:
 `submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one after another in this process,
 `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
 are plain data) — cells are independent files, and results.csv is rebuilt from them on the driver.
@@ -40,13 +40,14 @@ from typing import Callable, Iterable, Iterator
 
 from strings_bench.bench.executors import EXECUTORS, Executor, Job, LocalExecutor, executor_factory  # noqa: F401
 from strings_bench.bench.plan import ALL_METHODS, DEFAULT_RUN_DIR, LPIPS_AT, RunConfig, RunPlan, check_manifest, plan_run  # noqa: F401
-from strings_bench.bench.records import device_info, jsonable, versions, write_gt_pngs, write_png
+from strings_bench.bench.records import device_info, versions, write_gt_pngs
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.io import atomic_write_json
+from strings_bench.core.io import atomic_write_json, jsonable
 from strings_bench.core.method import Method
 from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
+from strings_bench.eval.metrics import describe as metrics_describe
 from strings_bench.eval.protocol import Evaluator
-from strings_bench.reports.results import iteration_label, write_results_csv, write_words_csv
+from strings_bench.reports.results import CellRecord, iteration_label, write_cell, write_results_csv
 
 log = logging.getLogger(__name__)
 
@@ -175,42 +176,30 @@ class Runner:
         dense = key.iteration in set(job.dense_checkpoints)  # only `every:N` asked for it: word-crop metrics only
         ev = (evaluator.evaluate_words(job.method, result.renders) if dense
               else evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here))
-        cell_dir = key.path(Path(job.run_dir))  # the job's folder: absolute when it runs on a Ray worker
-        for name, img in result.renders.items():
-            if name in evaluator.names:
-                write_png(cell_dir / "renders" / f"{Path(name).stem}.png", img)
-        record = {
-            "method": job.method,
-            "dataset": job.dataset,
-            "scene": job.scene,
-            "iteration": key.iteration,
-            "label": job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration))),
-            "config": {
+        preprocess = _preprocess_seconds(result)
+        record = CellRecord(
+            method=job.method, dataset=job.dataset, scene=job.scene, iteration=key.iteration,
+            label=job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration))),
+            config={
                 "method": describe,
                 "scene": {"path": job.scene_path, "settings": job.scene_settings, "test_views": evaluator.names},
-                "preset": job.schedule,
+                "schedule": job.schedule,
                 "method_presets": list(job.method_presets),
                 "downscale": job.downscale,
                 "cer_profile": job.cer_profile,
                 "checkpoints": list(job.checkpoints),
                 "versions": versions(),
-                "metrics": _metrics_describe(),
+                "metrics": metrics_describe(),
             },
-            "resumed_from_step": int(getattr(result, "resumed_from_step", 0)),
-            "device": result.extra.get("device", ""),  # as resolved by the training loop ("" for adapters)
-            "gpu": device_info(result.extra["device"])["gpu"] if result.extra.get("device") else None,
-            "timings": {"train_seconds": result.train_seconds,
-                        "preprocess_seconds": _preprocess_seconds(result),
-                        "total_seconds": result.train_seconds + _preprocess_seconds(result),
-                        "eval_seconds": time.perf_counter() - t0},
-            "gaussians": int(result.gaussians),
-            "peak_memory_mb": result.peak_memory_mb,
-            "extra": result.extra,
-            "evaluation": "words" if dense else "full",
-            **ev,
-        }
-        write_words_csv(cell_dir, jsonable(record))  # before result.json: a finished cell has its words.csv
-        atomic_write_json(cell_dir / RESULT_FILE, jsonable(record))
+            resumed_from_step=int(getattr(result, "resumed_from_step", 0)),
+            device=result.extra.get("device", ""),
+            gpu=device_info(result.extra["device"])["gpu"] if result.extra.get("device") else None,
+            timings={"train_seconds": result.train_seconds, "preprocess_seconds": preprocess,
+                     "total_seconds": result.train_seconds + preprocess, "eval_seconds": time.perf_counter() - t0},
+            gaussians=int(result.gaussians), peak_memory_mb=result.peak_memory_mb, extra=result.extra,
+            evaluation="words" if dense else "full", scores=ev)
+        # the job's folder: absolute when it runs on a Ray worker
+        write_cell(key.path(Path(job.run_dir)), record, {n: img for n, img in result.renders.items() if n in evaluator.names})
         if self.results_csv:
             write_results_csv(job.run_dir)
 
@@ -218,12 +207,6 @@ class Runner:
 def _preprocess_seconds(result) -> float:
     value = getattr(result, "preprocess_seconds", 0.0)  # adapters written before the field: none
     return 0.0 if value is None else float(value)
-
-
-def _metrics_describe() -> dict:
-    import strings_bench.eval.metrics as metrics
-
-    return metrics.describe()
 
 
 EVALUATORS_KEPT = 8  # scenes whose Evaluator a runner keeps (jobs run method by method over the scenes)

@@ -38,6 +38,11 @@ class Command:
 COMMANDS: dict[str, Command] = {
     "run": Command("strings_bench.cli.run", "train and evaluate methods on scenes, write results.csv and a report"),
     "report": Command("strings_bench.cli.report", "(re)write the tables, figures and HTML page of a run folder"),
+    "compare": Command("strings_bench.cli.compare",
+                       "the paper's tables over run folders of several seeds, with the seeds' range and the paper's figures"),
+    "calibrate": Command("strings_bench.cli.calibrate",
+                         "calibrate synthetic360 against the paper (3DGS' CER over a grid of settings), or run the frozen "
+                         "configuration's comparison"),
     "evaluate": Command("strings_bench.cli.evaluate",
                         "score renders made anywhere (a folder, Inria 3DGS output, nerfbaselines predictions)"),
     "methods": Command("strings_bench.cli.methods", "methods available to `run`"),

@@ -18,7 +18,7 @@ def _split(s: str) -> list[str]:
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from strings_bench.bench.executors import EXECUTORS
     from strings_bench.bench.plan import DEFAULT_RUN_DIR
-    from strings_bench.bench.schedules import DEFAULT_SCHEDULE, SCHEDULES
+    from strings_bench.core.schedules import DEFAULT_SCHEDULE, SCHEDULES
 
     p = subparsers.add_parser("run", help=command_help("run"),
                               description="Runs every method x scene x checkpoint not already finished in the run folder "

@@ -96,8 +96,10 @@ class Method(ABC):
         """Write the current model (3DGS PLY layout for Gaussian methods)."""
         raise NotImplementedError(f"method {self.name} cannot save its model")
 
-    def fixed_checkpoints(self) -> list[int] | None:
-        """Iterations this method must be evaluated at whatever the schedule says (None: the schedule's)."""
+    @classmethod
+    def fixed_checkpoints(cls, settings: dict) -> list[int] | None:
+        """Iterations this method must be evaluated at whatever the schedule says, from its settings (None: the
+        schedule's). A class method: a run plans its checkpoints without building the method."""
         return None
 
     def describe(self) -> dict:
@@ -121,8 +123,10 @@ class MethodAdapter(ABC):
         """Yield one CheckpointResult per checkpoint, in increasing order; renders are of
         `scene.test_idx` views at `downscale`."""
 
-    def fixed_checkpoints(self) -> list[int] | None:
-        """Iterations to evaluate whatever the schedule says (the `ply` adapter: the model's own); None: the schedule's."""
+    @classmethod
+    def fixed_checkpoints(cls, settings: dict) -> list[int] | None:
+        """Iterations to evaluate whatever the schedule says, from the adapter's settings (the `ply` adapter: the
+        model's own); None: the schedule's. A class method: a run plans its checkpoints without building it."""
         return None
 
     def describe(self) -> dict:

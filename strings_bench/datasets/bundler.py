@@ -162,7 +162,8 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     """`src` (a folder with images/, a Bundler file and its image list) -> a registered scene folder."""
     import pycolmap
 
-    from strings_bench.datasets.sfm import PrepareResult, _save_like, default_scene_dir, finish_scene, publish_scene, register_scene
+    from strings_bench.datasets.sfm import (PrepareResult, _save_like, default_scene_dir, finish_scene, numbered_stages,
+                                            publish_scene, register_scene)
 
     src = Path(src)
     bundle = src / bundle_file if bundle_file else next((src / n for n in ("bundle.out", "cameras.out") if (src / n).is_file()), None)
@@ -182,11 +183,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     stages: dict[str, float] = {}
-    n_stages = 4 if masks else 3
-
-    def stage(label: str) -> float:
-        echo(f"[{len(stages) + 1}/{n_stages}] {label} ...")
-        return time.perf_counter()
+    stage = numbered_stages(4 if masks else 3, stages, echo)
 
     try:
         t = stage(f"convert the Bundler cameras of {len(names)} photos (no SfM)")

@@ -67,6 +67,12 @@ class SceneRef:
     def id(self) -> str:
         return f"{self.dataset}/{self.scene}"
 
+    def load(self):
+        """The scene itself (`scene.Scene`), named and set up as a run loads it."""
+        from strings_bench.scene.scene import Scene
+
+        return Scene.load(self.path, name=self.scene, settings=dict(self.settings))
+
 
 # ---- the user's index of local copies (`datasets add`) ---------------------------------------
 def index_path() -> Path:

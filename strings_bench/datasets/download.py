@@ -177,6 +177,50 @@ class _Budget:
             dst.write(block)
 
 
+@dataclass
+class _Member:
+    """An archive member as extraction sees it, zip or tar alike."""
+
+    name: str
+    is_dir: bool
+    size: int  # declared bytes (0 for a folder)
+    open: Callable  # () -> a readable file object of its bytes
+    refused: str = ""  # why it is not extracted (a link, a special file); "" when it is
+
+
+def _zip_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, archive: Path) -> _Member:
+    refused = f"{archive} holds a link or special file: {info.filename!r}" if _zip_is_link_or_special(info) else ""
+    return _Member(info.filename, info.is_dir(), 0 if info.is_dir() else info.file_size, lambda: zf.open(info), refused)
+
+
+def _tar_member(tf: tarfile.TarFile, m: tarfile.TarInfo, archive: Path) -> _Member:
+    refused = (f"{archive} holds a link: {m.name!r} -> {m.linkname!r}" if m.issym() or m.islnk() else
+               f"{archive} holds a special file (device/fifo): {m.name!r}" if not (m.isfile() or m.isdir()) else "")
+    return _Member(m.name, m.isdir(), m.size if m.isfile() else 0, lambda: tf.extractfile(m), refused)
+
+
+def _extract_members(members: list[_Member], declared_by: str, archive: Path, tmp: Path, budget: _Budget,
+                     progress: bool) -> None:
+    """Check every member (a path inside the folder, no link, no special file, the declared total within the
+    budget) before writing anything, then write them under `tmp`, counting the bytes actually written."""
+    for m in members:
+        _checked_member_path(m.name, archive)
+        if m.refused:
+            raise UnsafeArchiveError(m.refused, hint="refusing to extract links and special files; get the archive from "
+                                                     "the official source")
+    declared = sum(m.size for m in members)
+    if declared > budget.limit:
+        raise budget.refuse(f"{declared} bytes ({declared_by})")
+    for m in tqdm(members, desc=f"extract {archive.name}", unit="file", disable=not progress):
+        out = tmp.joinpath(*_checked_member_path(m.name, archive).parts)
+        if m.is_dir:
+            out.mkdir(parents=True, exist_ok=True)
+            continue
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with m.open() as src, open(out, "wb") as dst:
+            budget.copy(src, dst)
+
+
 def safe_extract(archive: str | Path, target: str | Path, progress: bool = True, max_bytes: int | None = None) -> Path:
     """Extract a .zip or .tar(.gz/.bz2/.xz) into `target` (which must not exist yet), writing at most
     `extract_limit(archive, max_bytes)` bytes."""
@@ -190,48 +234,12 @@ def safe_extract(archive: str | Path, target: str | Path, progress: bool = True,
     try:
         if zipfile.is_zipfile(archive):
             with zipfile.ZipFile(archive) as zf:
-                infos = zf.infolist()
-                for info in infos:  # validate everything before writing anything
-                    _checked_member_path(info.filename, archive)
-                    if _zip_is_link_or_special(info):
-                        raise UnsafeArchiveError(f"{archive} holds a link or special file: {info.filename!r}",
-                                                 hint="refusing to extract links; get the archive from the official source")
-                declared = sum(info.file_size for info in infos)
-                if declared > budget.limit:
-                    raise budget.refuse(f"{declared} bytes (as its directory says)")
-                for info in tqdm(infos, desc=f"extract {archive.name}", unit="file", disable=not progress):
-                    rel = _checked_member_path(info.filename, archive)
-                    out = tmp.joinpath(*rel.parts)
-                    if info.is_dir():
-                        out.mkdir(parents=True, exist_ok=True)
-                        continue
-                    out.parent.mkdir(parents=True, exist_ok=True)
-                    with zf.open(info) as src, open(out, "wb") as dst:
-                        budget.copy(src, dst)
+                _extract_members([_zip_member(zf, info, archive) for info in zf.infolist()], "as its directory says",
+                                 archive, tmp, budget, progress)
         elif tarfile.is_tarfile(archive):
             with tarfile.open(archive) as tf:
-                members = tf.getmembers()
-                for m in members:
-                    _checked_member_path(m.name, archive)
-                    if m.issym() or m.islnk():
-                        raise UnsafeArchiveError(f"{archive} holds a link: {m.name!r} -> {m.linkname!r}",
-                                                 hint="refusing to extract links; get the archive from the official source")
-                    if not (m.isfile() or m.isdir()):
-                        raise UnsafeArchiveError(f"{archive} holds a special file (device/fifo): {m.name!r}",
-                                                 hint="refusing to extract special files")
-                declared = sum(m.size for m in members if m.isfile())
-                if declared > budget.limit:
-                    raise budget.refuse(f"{declared} bytes (as its headers say)")
-                for m in tqdm(members, desc=f"extract {archive.name}", unit="file", disable=not progress):
-                    rel = _checked_member_path(m.name, archive)
-                    out = tmp.joinpath(*rel.parts)
-                    if m.isdir():
-                        out.mkdir(parents=True, exist_ok=True)
-                        continue
-                    out.parent.mkdir(parents=True, exist_ok=True)
-                    src = tf.extractfile(m)
-                    with src, open(out, "wb") as dst:
-                        budget.copy(src, dst)
+                _extract_members([_tar_member(tf, m, archive) for m in tf.getmembers()], "as its headers say",
+                                 archive, tmp, budget, progress)
         else:
             raise DatasetError(f"{archive} is neither a zip nor a tar archive", hint="the download may be damaged; delete it and retry")
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -149,12 +149,7 @@ def prepare_scene(
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     stages: dict[str, float] = {}
-
-    n_stages = 7 if masks else 6
-
-    def stage(label: str):
-        echo(f"[{len(stages) + 1}/{n_stages}] {label} ...")
-        return time.perf_counter()
+    stage = numbered_stages(7 if masks else 6, stages, echo)
 
     try:
         # 1. resize: upright, bounded copies that SfM and every later stage share.
@@ -261,6 +256,16 @@ def register_scene(name: str, scene_dir: Path) -> None:
     index[name] = str(scene_dir)
     write_index(index)
     register_local_copies()
+
+
+def numbered_stages(total: int, stages: dict[str, float], echo: Callable[[str], None]) -> Callable[[str], float]:
+    """`stage(label)`: prints "[k/total] label ..." (k: the stages recorded in `stages` so far, plus one) and returns
+    the start time; the caller records the stage's seconds in `stages`. Shared by SfM and datasets/bundler.py."""
+    def stage(label: str) -> float:
+        echo(f"[{len(stages) + 1}/{total}] {label} ...")
+        return time.perf_counter()
+
+    return stage
 
 
 def finish_scene(model_dir: Path, raw: Path, work: Path, max_size: int, masks: bool, ocr_backend: str, progress: bool,

@@ -218,7 +218,7 @@ class GaussianSplatting(Method):
         out += [s for s in dataclass_settings(cls.strategy_cls, f"densification ({cls.strategy_cls.__name__})")
                 if s.name not in seen]
         if cls.method_settings_cls is not None:
-            out += dataclass_settings(cls.method_settings_cls, cls.name)
+            out += dataclass_settings(cls.method_settings_cls, cls.__name__)  # the name is the spec's
         return out
 
     # ---- schedule helpers -------------------------------------------------------------------

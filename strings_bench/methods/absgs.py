@@ -13,5 +13,4 @@ from strings_bench.engine.strategies.absgs import AbsGSStrategy
 
 
 class AbsGS(GaussianSplatting):
-    name = "absgs"
     strategy_cls = AbsGSStrategy

@@ -15,5 +15,4 @@ from strings_bench.engine.strategies.edc import EDCStrategy
 
 
 class EDCAbsGS(GaussianSplatting):
-    name = "edc-absgs"
     strategy_cls = EDCStrategy

@@ -13,4 +13,4 @@ from strings_bench.engine.splatting import GaussianSplatting
 
 
 class GS3D(GaussianSplatting):
-    name = "3dgs"
+    """3DGS as registered (`methods/registry.py`, "3dgs"): the engine's reference method unchanged."""

@@ -34,7 +34,6 @@ class MCMCSettings:
 class MCMC(GaussianSplatting):
     """3DGS init with the MCMC release's opacity (config.init_opacity) and scales x init_scale_factor."""
 
-    name = "mcmc"
     strategy_cls = MCMCStrategy
     method_settings_cls = MCMCSettings
 

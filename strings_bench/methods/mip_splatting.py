@@ -18,7 +18,6 @@ from strings_bench.engine.strategies.mip import FILTER_KEY, MipStrategy, fold_3d
 
 
 class MipSplatting(GaussianSplatting):
-    name = "mip-splatting"
     strategy_cls = MipStrategy
 
     def set_model(self, model) -> None:

@@ -44,9 +44,10 @@ class PlyAdapter(MethodAdapter):
                 Setting("train_seconds", None, "training time to report (None: n/a)", g),
                 Setting("preprocess_seconds", 0.0, "preprocessing time to report", g)]
 
-    def fixed_checkpoints(self) -> list[int]:
-        """The runner evaluates these iterations instead of the preset's (nothing is trained)."""
-        its = self.settings.get("iterations") or [self.settings.get("iteration", 30000)]
+    @classmethod
+    def fixed_checkpoints(cls, settings: dict) -> list[int]:
+        """The runner evaluates these iterations instead of the schedule's (nothing is trained)."""
+        its = settings.get("iterations") or [settings.get("iteration", 30000)]
         return sorted(int(i) for i in its)
 
     def resolve_path(self, scene, iteration: int) -> Path:

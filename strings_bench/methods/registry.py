@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from importlib.metadata import entry_points
 from typing import Any, Callable
 
@@ -30,36 +30,79 @@ log = logging.getLogger(__name__)
 ENTRY_POINT_GROUP = "strings_bench.methods"
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
+class PaperFigures:
+    """A method's figures in the STRinGS paper (REFERENCE.md §5), by name: OCR-CER at 7K and 30K on Tanks and
+    Temples, DL3DV and STRinGS-360 (Google Cloud Vision OCR), and training minutes on STRinGS-360 (RTX 3090 Ti)."""
+
+    tandt_cer_7k: float
+    tandt_cer_30k: float
+    dl3dv_cer_7k: float
+    dl3dv_cer_30k: float
+    strings360_cer_7k: float
+    strings360_cer_30k: float
+    strings360_minutes_7k: float
+    strings360_minutes_30k: float
+
+    def by_dataset(self) -> dict:
+        """{dataset: {"cer": {iteration: value}, "minutes": {iteration: value}}}, as the reports look them up."""
+        out: dict = {}
+        for f in fields(self):
+            dataset, what, label = f.name.rsplit("_", 2)
+            out.setdefault(dataset, {}).setdefault(what, {})[int(label[:-1]) * 1000] = getattr(self, f.name)
+        return out
+
+
+@dataclass(kw_only=True)
 class MethodSpec:
-    """A method as data.
+    """A method as data; every field by keyword.
 
     Args:
-        name: the name used by `--methods` and `--set NAME.key=value`.
+        name: the method's one name: `--methods`, `--set NAME.key=value`, results.csv (a built method gets it).
         implementation: `"module:Class"` (imported on first use), or the class / a factory itself.
         description: one line for `methods list`.
         paper: the citation.
-        defaults: settings over the implementation's own defaults.
+        title: the name tables and figures print ("3DGS-MCMC"); default: `name`.
+        group: "baseline", "ours" (STRinGS), "ablation" (the default when `ablation_of` is given: rows of the
+            ablation tables, dashed in figures) or "adapter"; tables list methods by group, then in registry order.
+        defaults: settings over the implementation's own defaults. The run's schedule scale needs no entry here:
+            it reaches every method with a `steps_scale` setting (`with_steps_scale`).
         presets: preset name -> settings over `defaults`. A preset is chosen by name (`run --presets
             strings=release`), or applies by itself where its "@apply" conditions match the scene, as in
             nerfbaselines: {"@apply": [{"dataset": "tandt", "scene": "truck"}], "n_max": 20} (a condition
             matches when all its keys equal the scene's; any condition is enough). Keys starting with "@"
             are not settings ("@description" says what the preset is).
-        paper_results: published figures, {dataset: {"cer": {iteration: value}, "minutes": {iteration: value}}}.
-        title: the name tables and figures print ("3DGS-MCMC"); default: `name`.
-        group: "baseline", "ours" (STRinGS), "ablation" (rows of the ablation table, dashed in figures) or
-            "adapter"; tables list methods by group, then in registry order.
+        paper_figures: the method's published figures (`PaperFigures`), shown next to the measured ones.
+        ablation_of: the method this one is an ablation of ("strings"); the ablation tables and `compare` pair them.
+        ablation_at: the paper iteration the ablation is compared at (the paper: 7000 for text densification,
+            3000, the end of phase 1, for the position LR).
+        ablation_effect: what the ablation takes away, as the tables title it ("text densification").
     """
 
     name: str
     implementation: str | Callable[..., Any]
     description: str = ""
     paper: str = ""
+    title: str = ""
+    group: str = ""
     defaults: dict = field(default_factory=dict)
     presets: dict[str, dict] = field(default_factory=dict)
-    paper_results: dict = field(default_factory=dict)
-    title: str = ""
-    group: str = "baseline"
+    paper_figures: PaperFigures | None = None
+    ablation_of: str | None = None
+    ablation_at: int | None = None
+    ablation_effect: str = ""
+
+    def __post_init__(self):
+        if not self.group:
+            self.group = "ablation" if self.ablation_of else "baseline"
+        if self.ablation_of and not self.ablation_at:
+            raise StringsBenchError(f"method {self.name}: ablation_of={self.ablation_of!r} needs ablation_at",
+                                    hint="the paper iteration the ablation is compared at, e.g. ablation_at=7000")
+
+    @property
+    def paper_results(self) -> dict:
+        """The published figures by dataset ({dataset: {"cer": {iteration: value}, ...}}), {} when none."""
+        return self.paper_figures.by_dataset() if self.paper_figures else {}
 
     def load(self) -> Any:
         """The implementation class (or factory)."""
@@ -110,27 +153,48 @@ class MethodSpec:
                                          f"(`strings-bench methods show {self.name}`)")
         return names
 
-    def resolve(self, presets=None, schedule: str | None = None, **overrides) -> dict:
-        """The settings a build uses: defaults, then each preset in order, then the steps scale of `schedule`
-        (a run schedule's name: paper, standard, early, quick, tiny; for methods with a steps_scale), then the
-        overrides."""
-        from strings_bench.core.schedules import SCHEDULE_SCALES
+    def takes_steps_scale(self) -> bool:
+        """Whether the run's schedule scale reaches this method as its `steps_scale` setting: every method whose
+        implementation describes that setting (every Gaussian method: engine TrainConfig); an implementation that
+        describes no settings takes it when the spec names it (defaults or a preset). Adapters (ply, external)
+        train nothing and have no steps to scale."""
+        schema = self.settings()
+        if schema is not None:
+            return any(s.name == "steps_scale" for s in schema)
+        return "steps_scale" in self.defaults or any("steps_scale" in p for p in self.presets.values())
 
+    def with_steps_scale(self, steps_scale: float, overrides: dict | None = None) -> dict:
+        """`overrides` (`--set` values) with the run's `steps_scale` added where this method takes one
+        (`takes_steps_scale`); a `steps_scale` in `overrides` wins. The one way a schedule reaches a method."""
+        overrides = dict(overrides or {})
+        if self.takes_steps_scale():
+            overrides.setdefault("steps_scale", float(steps_scale))
+        return overrides
+
+    def resolve(self, presets=None, **overrides) -> dict:
+        """The settings a build uses: defaults, then each preset in order, then the overrides (where a run's
+        schedule scale is one: `with_steps_scale`)."""
         settings = dict(self.defaults)
         for name in self.check_presets(presets):
             settings.update({k: v for k, v in self.presets[name].items() if not k.startswith("@")})
-        if schedule is not None:
-            if schedule not in SCHEDULE_SCALES:
-                raise StringsBenchError(f"unknown schedule {schedule!r}", hint=f"schedules: {', '.join(SCHEDULE_SCALES)}")
-            if "steps_scale" in settings:
-                settings["steps_scale"] = SCHEDULE_SCALES[schedule]
         settings.update(overrides)
         return settings
 
-    def build(self, presets=None, schedule: str | None = None, **overrides):
+    def fixed_checkpoints(self, settings: dict) -> list[int] | None:
+        """The iterations this method is evaluated at whatever the schedule says, from its resolved settings
+        (the ply adapter: the model's own iteration); None: the schedule's. Read without building the method."""
+        fixed = getattr(self.load(), "fixed_checkpoints", None)
+        its = fixed(settings) if fixed is not None else None
+        return sorted(int(i) for i in its) if its else None
+
+    def build(self, presets=None, *, schedule: str | None = None, **overrides):
         """A configured method object (a `Method` or a `MethodAdapter`); `presets`: a preset name or a list;
-        `schedule`: train at that run schedule's steps scale (`build(schedule="tiny")`)."""
-        settings = self.resolve(presets, schedule, **overrides)
+        `schedule`: train at that run schedule's steps scale, as a run of it does (`build(schedule="tiny")`)."""
+        if schedule is not None:
+            from strings_bench.core.schedules import get_schedule
+
+            overrides = self.with_steps_scale(get_schedule(schedule).steps_scale, overrides)
+        settings = self.resolve(presets, **overrides)
         impl = self.load()
         self.check_keys(settings)
         from_settings = getattr(impl, "from_settings", None)
@@ -150,6 +214,9 @@ class MethodSpec:
         if self.paper:
             lines.append(f"paper: {self.paper}")
         lines.append(f"title: {self.title or self.name} (group {self.group})")
+        if self.ablation_of:
+            lines.append(f"ablation of {self.ablation_of} (without {self.ablation_effect or 'a component'}), compared at "
+                         f"{iteration_label(self.ablation_at)}")
         lines.append(f"implementation: {self.implementation if isinstance(self.implementation, str) else self.implementation!r}")
         if self.presets:
             lines.append("presets (`run --presets NAME=PRESET`; @apply: applied by itself on those scenes):")
@@ -172,15 +239,7 @@ class MethodSpec:
 
 
 # ---- the built-in methods ----------------------------------------------------------------------------
-def _paper(cer: tuple[tuple[float, float], ...], minutes: tuple[float, float]) -> dict:
-    """REFERENCE.md §5: CER on TandT, DL3DV, STRinGS-360 at 7K/30K; minutes on STRinGS-360 (RTX 3090 Ti)."""
-    out = {ds: {"cer": {7000: a, 30000: b}} for ds, (a, b) in zip(("tandt", "dl3dv", "strings360"), cer)}
-    out["strings360"]["minutes"] = {7000: minutes[0], 30000: minutes[1]}
-    return out
-
-
 STRINGS_PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 2026)"
-_SCHEDULES: dict[str, dict] = {}  # the run's schedule scales every method (bench/schedules.py), not a preset
 
 
 def _n_max(dataset: str, value: int, scenes=None) -> dict:
@@ -209,47 +268,77 @@ _STRINGS_PRESETS = {
 
 BUILTIN_SPECS: list[MethodSpec] = [
     # In the paper's row order (Table 1): the reports list methods in this order.
-    MethodSpec("3dgs", "strings_bench.methods.gs3d:GS3D",
-               "vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
-               "Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
-               "Rendering (SIGGRAPH 2023)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.209, .121), (.392, .157), (.736, .148)), (2.5, 17.2)), title='3DGS', group='baseline'),
-    MethodSpec("mip-splatting", "strings_bench.methods.mip_splatting:MipSplatting",
-               "Mip-Splatting: 3D smoothing filter from the training cameras' sampling rate + 2D mip filter",
-               "Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.222, .125), (.392, .149), (.748, .129)), (5.7, 31.7)), title='Mip-Splatting', group='baseline'),
-    MethodSpec("mcmc", "strings_bench.methods.mcmc:MCMC",
-               "3DGS-MCMC: dead-Gaussian relocation (eq. 9), 5% growth to a cap, opacity/scale L1, SGLD position noise",
-               "Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
-               "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)",
-               {"steps_scale": 1.0, "init_opacity": 0.5, "init_scale_factor": 0.1}, dict(_SCHEDULES),
-               _paper(((.272, .120), (.511, .142), (.927, .110)), (5.6, 34.0)), title='3DGS-MCMC', group='baseline'),
-    MethodSpec("absgs", "strings_bench.methods.absgs:AbsGS",
-               "AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) gradient",
-               "Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
-               {"steps_scale": 1.0}, dict(_SCHEDULES), _paper(((.249, .137), (.411, .160), (.768, .143)), (5.4, 22.5)), title='AbsGS', group='baseline'),
-    MethodSpec("edc-absgs", "strings_bench.methods.edc_absgs:EDCAbsGS",
-               "EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
-               "position LR 4e-5 -> 2e-6",
-               "Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
-               {"steps_scale": 1.0, "lr_means": 4e-5, "lr_means_final": 2e-6}, dict(_SCHEDULES),
-               _paper(((.142, .118), (.239, .162), (.328, .116)), (5.5, 23.2)), title='EDC-AbsGS', group='baseline'),
-    MethodSpec("strings", "strings_bench.methods.strings.method:Strings",
-               "STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
-               "masked phase-1 loss, region-dependent position LR)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS),
-               _paper(((.122, .099), (.187, .123), (.177, .106)), (1.9, 12.6)), title='STRinGS', group='ours'),
-    MethodSpec("strings-no-densify", "strings_bench.methods.strings.method:StringsNoDensify",
-               "STRinGS ablation: without the one-time text densification (Eq. 1)", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS w/o text densification', group='ablation'),
-    MethodSpec("strings-pos-lr", "strings_bench.methods.strings.method:StringsPosLR",
-               "STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", STRINGS_PAPER,
-               {"steps_scale": 1.0}, dict(_STRINGS_PRESETS), title='STRinGS with phase-1 position LR', group='ablation'),
-    MethodSpec("ply", "strings_bench.methods.ply_adapter:PlyAdapter",
-               "evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); no training",
-               defaults={"iteration": 30000}, title='PLY models', group='adapter'),
-    MethodSpec("external", "strings_bench.methods.external:ExternalCommandAdapter",
-               "run any training program (setting command) and evaluate the test-view renders it writes", title='External', group='adapter'),
+    MethodSpec(
+        name="3dgs", title="3DGS", implementation="strings_bench.methods.gs3d:GS3D",
+        description="vanilla 3DGS: SfM init, Adam, adaptive density control (clone/split/prune, opacity reset)",
+        paper="Kerbl, Kopanas, Leimkuehler, Drettakis: 3D Gaussian Splatting for Real-Time Radiance Field "
+              "Rendering (SIGGRAPH 2023)",
+        paper_figures=PaperFigures(tandt_cer_7k=.209, tandt_cer_30k=.121, dl3dv_cer_7k=.392, dl3dv_cer_30k=.157,
+                                   strings360_cer_7k=.736, strings360_cer_30k=.148,
+                                   strings360_minutes_7k=2.5, strings360_minutes_30k=17.2)),
+    MethodSpec(
+        name="mip-splatting", title="Mip-Splatting", implementation="strings_bench.methods.mip_splatting:MipSplatting",
+        description="Mip-Splatting: 3D smoothing filter from the training cameras' sampling rate + 2D mip filter",
+        paper="Yu, Chen, Huang, Sattler, Geiger: Mip-Splatting: Alias-free 3D Gaussian Splatting (CVPR 2024)",
+        paper_figures=PaperFigures(tandt_cer_7k=.222, tandt_cer_30k=.125, dl3dv_cer_7k=.392, dl3dv_cer_30k=.149,
+                                   strings360_cer_7k=.748, strings360_cer_30k=.129,
+                                   strings360_minutes_7k=5.7, strings360_minutes_30k=31.7)),
+    MethodSpec(
+        name="mcmc", title="3DGS-MCMC", implementation="strings_bench.methods.mcmc:MCMC",
+        description="3DGS-MCMC: dead-Gaussian relocation (eq. 9), 5% growth to a cap, opacity/scale L1, SGLD "
+                    "position noise",
+        paper="Kheradmand, Rebain, Sharma, Sun, Tseng, Isack, Kar, Tagliasacchi, Yi: "
+              "3D Gaussian Splatting as Markov Chain Monte Carlo (NeurIPS 2024)",
+        defaults={"init_opacity": 0.5, "init_scale_factor": 0.1},
+        paper_figures=PaperFigures(tandt_cer_7k=.272, tandt_cer_30k=.120, dl3dv_cer_7k=.511, dl3dv_cer_30k=.142,
+                                   strings360_cer_7k=.927, strings360_cer_30k=.110,
+                                   strings360_minutes_7k=5.6, strings360_minutes_30k=34.0)),
+    MethodSpec(
+        name="absgs", title="AbsGS", implementation="strings_bench.methods.absgs:AbsGS",
+        description="AbsGS: 3DGS densification with splits selected on the absolute (per-pixel |dL/dmean2d| summed) "
+                    "gradient",
+        paper="Ye, Li, Zhang, Huang, Ma, Zhou: AbsGS: Recovering Fine Details for 3D Gaussian Splatting (ACM MM 2024)",
+        paper_figures=PaperFigures(tandt_cer_7k=.249, tandt_cer_30k=.137, dl3dv_cer_7k=.411, dl3dv_cer_30k=.160,
+                                   strings360_cer_7k=.768, strings360_cer_30k=.143,
+                                   strings360_minutes_7k=5.4, strings360_minutes_30k=22.5)),
+    MethodSpec(
+        name="edc-absgs", title="EDC-AbsGS", implementation="strings_bench.methods.edc_absgs:EDCAbsGS",
+        description="EDC-AbsGS: long-axis split (no clone) on the absolute gradient, recovery-aware pruning, "
+                    "position LR 4e-5 -> 2e-6",
+        paper="Deng, Diao, Li, Chen, Zhang: Efficient Density Control for 3D Gaussian Splatting (arXiv 2024), on AbsGS",
+        defaults={"lr_means": 4e-5, "lr_means_final": 2e-6},
+        paper_figures=PaperFigures(tandt_cer_7k=.142, tandt_cer_30k=.118, dl3dv_cer_7k=.239, dl3dv_cer_30k=.162,
+                                   strings360_cer_7k=.328, strings360_cer_30k=.116,
+                                   strings360_minutes_7k=5.5, strings360_minutes_30k=23.2)),
+    MethodSpec(
+        name="strings", title="STRinGS", group="ours", implementation="strings_bench.methods.strings.method:Strings",
+        description="STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
+                    "masked phase-1 loss, region-dependent position LR)",
+        paper=STRINGS_PAPER, presets=dict(_STRINGS_PRESETS),
+        paper_figures=PaperFigures(tandt_cer_7k=.122, tandt_cer_30k=.099, dl3dv_cer_7k=.187, dl3dv_cer_30k=.123,
+                                   strings360_cer_7k=.177, strings360_cer_30k=.106,
+                                   strings360_minutes_7k=1.9, strings360_minutes_30k=12.6)),
+    # The paper's ablations (its Table "Ablations"): each against STRinGS at the iteration the paper reads it.
+    MethodSpec(
+        name="strings-no-densify", title="STRinGS w/o text densification",
+        implementation="strings_bench.methods.strings.method:StringsNoDensify",
+        description="STRinGS ablation: without the one-time text densification (Eq. 1)", paper=STRINGS_PAPER,
+        presets=dict(_STRINGS_PRESETS), ablation_of="strings", ablation_at=7000, ablation_effect="text densification"),
+    MethodSpec(
+        name="strings-pos-lr", title="STRinGS with phase-1 position LR",
+        implementation="strings_bench.methods.strings.method:StringsPosLR",
+        description="STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", paper=STRINGS_PAPER,
+        presets=dict(_STRINGS_PRESETS), ablation_of="strings", ablation_at=3000,
+        ablation_effect="zero position LR of Gaussians"),
+    MethodSpec(
+        name="ply", title="PLY models", group="adapter", implementation="strings_bench.methods.ply_adapter:PlyAdapter",
+        description="evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); "
+                    "no training",
+        defaults={"iteration": 30000}),
+    MethodSpec(
+        name="external", title="External", group="adapter",
+        implementation="strings_bench.methods.external:ExternalCommandAdapter",
+        description="run any training program (setting command) and evaluate the test-view renders it writes"),
 ]
 
 _METHODS: dict[str, MethodSpec] = {}

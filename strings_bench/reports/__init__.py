@@ -24,7 +24,8 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     and text NLL where the run has them). Returns report.md's path."""
     from strings_bench.reports.figures import write_figures
     from strings_bench.reports.html import write_html
-    from strings_bench.reports.tables import build_tables, load_results, write_tables
+    from strings_bench.reports.aggregate import load_results
+    from strings_bench.reports.tables import build_tables, write_tables
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -37,23 +38,23 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
     manifest = read_manifest(run_dir) or {}
-    from strings_bench.reports.tables import use_run_methods
+    from strings_bench.reports.table_model import MethodNames
 
-    use_run_methods(manifest)  # method titles and groups as the run recorded them
+    names = MethodNames.of(manifest)  # method titles and groups as the run recorded them, then the specs'
     df = load_results(run_dir)
     out = run_dir / "report"
     from strings_bench.reports.readability_analysis import analyse, front_lines, write_fronts
     from strings_bench.reports.tables import schedule_note
 
-    analysis = analyse(run_dir, df, schedule_note(df, manifest))  # CER by text size, time to legibility, fronts
+    analysis = analyse(run_dir, df, schedule_note(df, manifest), names)  # CER by text size, time to legibility, fronts
     tables = write_tables(df, out / "tables", manifest, extra=analysis.tables)
-    figures = write_figures(df, run_dir, out / "figures", metrics)
+    figures = write_figures(df, run_dir, out / "figures", metrics, names)
     if analysis.fronts:
         write_fronts(analysis.fronts, out / "tables" / "pareto_front.csv")
     lines = [f"# strings-bench report: {run_dir.name}", ""]
-    preset = manifest.get("preset") or {}
-    if preset:
-        lines.append(f"Schedule **{preset.get('name')}** (steps scale {preset.get('steps_scale')}), downscale "
+    schedule = manifest.get("schedule") or {}
+    if schedule:
+        lines.append(f"Schedule **{schedule.get('name')}** (steps scale {schedule.get('steps_scale')}), downscale "
                      f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
     lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
                  "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")
@@ -79,7 +80,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
         lines += ["## Speed/accuracy front", "",
                   "At each checkpoint, the methods that no other method beats on both mean training time "
                   "(preprocessing + optimisation) and the mean CER over the scenes (circled in the scatter figures; "
-                  "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts), ""]
+                  "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts, names), ""]
     if figures:
         lines += ["## figures", ""]
         for name, p in figures.items():

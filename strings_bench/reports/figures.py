@@ -12,9 +12,9 @@ import pandas as pd
 
 from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WORDS, THRESHOLDS, cer_by_size, load_words,
                                                         pareto_front, size_label)
-from strings_bench.reports.tables import (GT_CEILING, dataset_title, is_ablation, main_labels, method_order, method_title,
-                                          with_total_seconds)
-from strings_bench.reports.results import read_cell
+from strings_bench.reports.aggregate import main_labels, with_total_seconds
+from strings_bench.reports.table_model import GT_CEILING, REGISTERED, MethodNames, dataset_title
+from strings_bench.reports.results import read_cell, render_file_name
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
 
@@ -70,12 +70,13 @@ def _colors(methods: list[str]) -> dict[str, tuple]:
     return {m: cmap(i % 10) for i, m in enumerate(methods)}
 
 
-def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None) -> Path | None:
+def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, names: MethodNames = REGISTERED) -> Path | None:
     """Teaser scatter of OCR-CER (see `metric_vs_time`)."""
-    return metric_vs_time(df, out, label, "cer")
+    return metric_vs_time(df, out, label, "cer", names)
 
 
-def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer") -> Path | None:
+def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer",
+                   names: MethodNames = REGISTERED) -> Path | None:
     """Teaser scatter: a metric's mean over all scenes against mean whole-run training minutes
     (total_seconds = preprocessing + optimisation) at one checkpoint."""
     check_metric(metric)
@@ -92,7 +93,7 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
     if g.empty:
         return None
     plt = _plt()
-    methods = method_order(g["method"])
+    methods = names.order(g["method"])
     colors = _colors(methods)
     fig, ax = plt.subplots(figsize=(4.8, 3.6))
     # The speed/accuracy front: the methods no other beats on both training time and the metric (circled).
@@ -106,9 +107,9 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
     for r in g.itertuples():
         y = r.v if not math.isnan(r.v) else np.nan
         ax.scatter([r.minutes], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
-                   marker="*" if r.method == "strings" else "o", zorder=3, label=method_title(r.method))
+                   marker="*" if r.method == "strings" else "o", zorder=3, label=names.title(r.method))
         if not math.isnan(y):
-            ax.annotate(method_title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+            ax.annotate(names.title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
     ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
     ax.set_ylabel(f"{name} at {label} ({'lower' if lower else 'higher'} is better)", fontsize=8)
     if rate:
@@ -127,12 +128,13 @@ def _cer_axis(ax, values) -> None:
     ax.set_ylim(0.0, max(1.02, float(top) * 1.02) if np.isfinite(top) else 1.02)
 
 
-def cer_over_iterations(df: pd.DataFrame, out: Path) -> Path | None:
+def cer_over_iterations(df: pd.DataFrame, out: Path, names: MethodNames = REGISTERED) -> Path | None:
     """OCR-CER over iterations (see `metric_over_iterations`)."""
-    return metric_over_iterations(df, out, "cer")
+    return metric_over_iterations(df, out, "cer", names)
 
 
-def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> Path | None:
+def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer",
+                           names: MethodNames = REGISTERED) -> Path | None:
     """A metric against the trained iteration: one panel per scene plus the mean over scenes."""
     check_metric(metric)
     if df.empty or not _has(df, metric):
@@ -141,7 +143,7 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
     df = df.assign(**{metric: pd.to_numeric(df[metric], errors="coerce")})
     plt = _plt()
     scenes = list(dict.fromkeys(zip(df["dataset"], df["scene"])))
-    methods = method_order(df["method"])
+    methods = names.order(df["method"])
     colors = _colors(methods)
     n = len(scenes) + (1 if len(scenes) > 1 else 0)
     cols = min(3, n)
@@ -156,8 +158,8 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
             s = sub[sub["method"] == m].sort_values("iteration").dropna(subset=[metric])  # dense checkpoints have no OCR-CER
             if s.empty:
                 continue
-            ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=method_title(m),
-                    linestyle="--" if is_ablation(m) else "-")
+            ax.plot(s["iteration"], s[metric], marker="o", color=colors[m], label=names.title(m),
+                    linestyle="--" if names.is_ablation(m) else "-")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("iteration")
         ax.set_ylabel(name)
@@ -174,7 +176,7 @@ def metric_over_iterations(df: pd.DataFrame, out: Path, metric: str = "cer") -> 
 
 
 # ---- readability analysis (reports/readability_analysis.py) ---------------------------------------
-def size_figure(by_size: pd.DataFrame, label: str, out: Path) -> Path | None:
+def size_figure(by_size: pd.DataFrame, label: str, out: Path, names: MethodNames = REGISTERED) -> Path | None:
     """Word CER per height bin, one line per method and a dashed GT ceiling, one panel per dataset; greyed bins
     have a grey background."""
     if by_size.empty or not (by_size["words"] > 0).any():
@@ -189,12 +191,12 @@ def size_figure(by_size: pd.DataFrame, label: str, out: Path) -> Path | None:
         for b in bins:
             if bool(sub[sub["bin"] == b]["greyed"].iloc[0]):
                 ax.axvspan(x[b] - 0.5, x[b] + 0.5, color="0.85", zorder=0)
-        methods = [m for m in method_order(sub["method"]) if m != GT_CEILING]
+        methods = [m for m in names.order(sub["method"]) if m != GT_CEILING]
         colors = _colors(methods)
         for m in [*methods, GT_CEILING]:
             s = sub[sub["method"] == m]
             ax.plot([x[b] for b in s["bin"]], s["cer"], marker="o", color="k" if m == GT_CEILING else colors[m],
-                    linestyle="--" if m == GT_CEILING else "-", label="GT view (ceiling)" if m == GT_CEILING else method_title(m))
+                    linestyle="--" if m == GT_CEILING else "-", label="GT view (ceiling)" if m == GT_CEILING else names.title(m))
         n = {r.bin: r.words for r in sub.drop_duplicates("bin").itertuples()}
         ax.set_xticks(range(len(bins)), [f"{b}\n(n={n[b]})" for b in bins], fontsize=7)
         ax.set_xlabel("word height (px at the evaluated resolution)", fontsize=8)
@@ -208,7 +210,8 @@ def size_figure(by_size: pd.DataFrame, label: str, out: Path) -> Path | None:
     return _save(fig, out)
 
 
-def readability_vs_time(df: pd.DataFrame, out: Path, metric: str = "word_cer") -> Path | None:
+def readability_vs_time(df: pd.DataFrame, out: Path, metric: str = "word_cer",
+                        names: MethodNames = REGISTERED) -> Path | None:
     """A CER against training minutes, one line per method (a point per evaluated checkpoint), one panel per
     scene, with the THRESHOLDS as dotted lines: the paper's text-evolution figure, for any method and scene."""
     df = with_total_seconds(df)
@@ -220,15 +223,15 @@ def readability_vs_time(df: pd.DataFrame, out: Path, metric: str = "word_cer") -
     cols = min(3, len(scenes))
     rows = math.ceil(len(scenes) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
-    methods = method_order(df["method"])
+    methods = names.order(df["method"])
     colors = _colors(methods)
     for ax, (d, s) in zip(axes.flat, scenes):
         sub = df[(df["dataset"] == d) & (df["scene"] == s)]
         for m in methods:
             g = sub[sub["method"] == m].sort_values("iteration").dropna(subset=["_v", "_min"])
             if not g.empty:
-                ax.plot(g["_min"], g["_v"], marker="o", ms=3, color=colors[m], label=method_title(m),
-                        linestyle="--" if is_ablation(m) else "-")
+                ax.plot(g["_min"], g["_v"], marker="o", ms=3, color=colors[m], label=names.title(m),
+                        linestyle="--" if names.is_ablation(m) else "-")
         for thr in THRESHOLDS:
             ax.axhline(thr, color="0.5", linestyle=":", linewidth=0.8)
         ax.set_ylim(0, 1.05)
@@ -315,7 +318,8 @@ def _crop_box(words: list, shape: tuple[int, int]) -> tuple[int, int, int, int]:
     return (int(max(0, x0 - pw)), int(max(0, y0 - ph)), int(min(w, x1 + pw)), int(min(h, y1 + ph)))
 
 
-def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scenes: int = 6) -> Path | None:
+def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scenes: int = 6,
+                names: MethodNames = REGISTERED) -> Path | None:
     """Rows = scenes, columns = methods then ground truth (as the paper's comparison figures); under
     every crop, what OCR read in it and the view's OCR-CER."""
     from PIL import Image
@@ -323,7 +327,7 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     sub = df[df["label"] == label]
     if sub.empty:
         return None
-    methods = method_order(m for m in sub["method"] if not is_ablation(m)) or method_order(sub["method"])
+    methods = names.order(m for m in sub["method"] if not names.is_ablation(m)) or names.order(sub["method"])
     scenes = list(dict.fromkeys(zip(sub["dataset"], sub["scene"])))[:max_scenes]
     rows = []
     for d, s in scenes:
@@ -345,8 +349,7 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     ncols = len(methods) + 1
     fig, axes = plt.subplots(len(rows), ncols, figsize=(2.6 * ncols, 2.2 * len(rows)), squeeze=False)
     for ri, (d, s, (view, words), recs) in enumerate(rows):
-        stem = Path(view).stem
-        gt_path = run_dir / "gt" / safe_name(d) / safe_name(s) / f"{stem}.png"
+        gt_path = run_dir / "gt" / safe_name(d) / safe_name(s) / render_file_name(view)
         gt = np.asarray(Image.open(gt_path).convert("RGB")) if gt_path.exists() else None
         shape = gt.shape[:2] if gt is not None else (10**6, 10**6)
         box = _crop_box(words, shape)
@@ -365,9 +368,9 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
                 title = "Ground Truth"
             else:
                 rec = recs.get(m)
-                img, caption, title = None, "(not run)", method_title(m)
+                img, caption, title = None, "(not run)", names.title(m)
                 if rec is not None:
-                    p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / f"{stem}.png"
+                    p = CellKey(m, d, s, int(rec["iteration"])).path(run_dir) / "renders" / render_file_name(view)
                     img = np.asarray(Image.open(p).convert("RGB")) if p.exists() else None
                     v = rec["ocr"]["views"].get(view, {})
                     caption = _words_text(_in_box(v.get("render_words"), box))[:40]
@@ -391,7 +394,8 @@ def qualitative(df: pd.DataFrame, run_dir: Path, out: Path, label: str, max_scen
     return _save(fig, out)
 
 
-def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[str] | None = None) -> dict[str, Path]:
+def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[str] | None = None,
+                  names: MethodNames = REGISTERED) -> dict[str, Path]:
     """The scatter (per main checkpoint) and over-iterations plots of each metric in `metrics` (default:
     DEFAULT_METRICS that the run has; names: METRICS), and the qualitative grid. The OCR-CER files keep
     their names (cer_vs_time_<label>.png, cer_over_iterations.png); others are <metric>_vs_time_<label>.png ..."""
@@ -404,23 +408,24 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
     chosen = list(metrics) if metrics else [m for m in DEFAULT_METRICS if _has(df, m)]
     for label in main_labels(df):
         for metric in chosen:
-            p = metric_vs_time(df, out_dir / f"{metric}_vs_time_{label}.png", label, metric)
+            p = metric_vs_time(df, out_dir / f"{metric}_vs_time_{label}.png", label, metric, names)
             if p:
                 written[f"{metric}_vs_time_{label}"] = p
-        p = qualitative(df, run_dir, out_dir / f"qualitative_{label}.png", label)
+        p = qualitative(df, run_dir, out_dir / f"qualitative_{label}.png", label, names=names)
         if p:
             written[f"qualitative_{label}"] = p
     for metric in chosen:
-        p = metric_over_iterations(df, out_dir / f"{metric}_over_iterations.png", metric)
+        p = metric_over_iterations(df, out_dir / f"{metric}_over_iterations.png", metric, names)
         if p:
             written[f"{metric}_over_iterations"] = p
     # The readability analysis (issue 30): CER by text size at the last checkpoint, CER against training time.
     label = size_label(df)
-    p = size_figure(cer_by_size(load_words(run_dir, df), label), label, out_dir / f"word_cer_by_size_{label}.png")
+    p = size_figure(cer_by_size(load_words(run_dir, df), label, names=names), label,
+                    out_dir / f"word_cer_by_size_{label}.png", names)
     if p:
         written[f"word_cer_by_size_{label}"] = p
     for metric in [m for m in ("word_cer", "cer") if m in chosen]:
-        p = readability_vs_time(df, out_dir / f"{metric}_vs_training_time.png", metric)
+        p = readability_vs_time(df, out_dir / f"{metric}_vs_training_time.png", metric, names)
         if p:
             written[f"{metric}_vs_training_time"] = p
     return written

@@ -41,9 +41,9 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from strings_bench.reports.tables import (GT_CEILING, Table, _fmt3, dataset_title, label_value,
-                                                method_order, method_title)
-from strings_bench.reports.results import RESULT_FILE, CellKey, safe_name
+from strings_bench.reports.ablations import AblationTable, fmt3
+from strings_bench.reports.table_model import GT_CEILING, REGISTERED, MethodNames, Table, dataset_title, label_value
+from strings_bench.reports.results import RESULT_FILE, CellKey, render_file_name, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
 __all__ = ["write_html", "table_html", "GALLERY_PAGE_SIZE", "CELLS_PAGE_SIZE"]
@@ -73,6 +73,7 @@ th[aria-sort="descending"]::after { content: " \\25BC"; color: #333; }
 td.greyed { color: #9a9a9a; background: #f2f2f2; font-style: italic; } td.first { background: var(--first); } td.second { background: var(--second); } td.third { background: var(--third); }
 tr.ceiling td { font-style: italic; color: #555; background: #fafafa; }
 td.best { font-weight: bold; }
+td.decided { font-weight: 600; color: #1a6d1a; } td.undecided { color: #9a5b00; }
 .caption { color: #555; max-width: 1000px; font-size: 13px; }
 .legend span { padding: 1px 8px; margin-right: 6px; border: 1px solid var(--line); }
 .note { background: #fff6e0; border-left: 4px solid #e0a000; padding: 4px 10px; }
@@ -214,7 +215,7 @@ def _plain(s: str) -> str:
     return s
 
 
-def _page(title: str, body: str, back: str | None = None) -> str:
+def html_page(title: str, body: str, back: str | None = None) -> str:
     nav = f'<header><p><a href="{href(back)}">&larr; back to the report</a></p></header>' if back else ""
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
@@ -226,7 +227,7 @@ def _page(title: str, body: str, back: str | None = None) -> str:
 def table_html(t: Table) -> str:
     """One report table as a sortable HTML table: a row per method, a column per Column, the best three
     of each column with class first/second/third (Table.shading, as in the LaTeX), n/a never ranked."""
-    if t.name == "ablations":
+    if isinstance(t, AblationTable):
         return _ablation_html(t)
     groups: list[tuple[str, int]] = []
     for c in t.columns:
@@ -249,7 +250,7 @@ def table_html(t: Table) -> str:
     shades = [t.shading(c) for c in t.columns]
     for m in t.methods:
         cls = ' class="ceiling"' if m == GT_CEILING else ""
-        cells = [f'<td class="name" data-method="{esc(m)}">{esc(method_title(m))}</td>']
+        cells = [f'<td class="name" data-method="{esc(m)}">{esc(t.names.title(m))}</td>']
         for c, sh in zip(t.columns, shades):
             v = c.values.get(m, math.nan)
             rank = sh.get(m)
@@ -262,8 +263,8 @@ def table_html(t: Table) -> str:
     return "\n".join(out)
 
 
-def _ablation_html(t: Table) -> str:
-    datasets = t.ablation_datasets  # type: ignore[attr-defined]
+def _ablation_html(t: AblationTable) -> str:
+    datasets = t.datasets
     head = ['<th class="name" data-col="0" data-type="text">Ablation</th>', '<th data-col="1" data-type="text">Checkpoint</th>']
     col = 2
     for d in datasets:
@@ -272,7 +273,7 @@ def _ablation_html(t: Table) -> str:
             col += 1
     out = [f'<table class="data report-table" id="table-{esc(t.name)}" data-table="{esc(t.name)}">',
            "<thead><tr>" + "".join(head) + "</tr></thead>", "<tbody>"]
-    for title, _abl, label, vals in t.ablation_rows:  # type: ignore[attr-defined]
+    for title, _abl, label, vals in t.rows:
         cells = [f'<td class="name">{esc(title)}</td>', f"<td>{esc(label)}</td>"]
         for wo, ours in vals:
             better_wo = not (_is_nan(wo) or _is_nan(ours)) and round(wo, 3) < round(ours, 3)
@@ -280,7 +281,7 @@ def _ablation_html(t: Table) -> str:
             for v, best in ((wo, better_wo), (ours, better_ours)):
                 data_v = sort_key(v)
                 cells.append(f'<td{" class=" + chr(34) + "best" + chr(34) if best else ""} data-v="{esc(data_v)}">'
-                             f"{esc(_fmt3(v))}</td>")
+                             f"{esc(fmt3(v))}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
     out += ["</tbody>", "</table>"]
     return "\n".join(out)
@@ -313,12 +314,13 @@ def _cells_table(df: pd.DataFrame) -> str:
 def _config_html(manifest: dict, run_dir: Path, n_cells: int) -> str:
     if not manifest:
         return '<p class="note">This run folder has no run.json: its configuration is unknown.</p>'
-    preset = manifest.get("preset") or {}
+    schedule = manifest.get("schedule") or {}
     rows: list[tuple[str, str]] = [("run folder", str(run_dir.resolve())), ("cells", str(n_cells))]
-    if preset:
-        rows.append(("preset", f"{preset.get('name')} (steps scale {preset.get('steps_scale')}): {preset.get('description', '')}"))
-        if preset.get("paper_checkpoints"):
-            rows.append(("checkpoints (paper iterations)", ", ".join(str(c) for c in preset["paper_checkpoints"])))
+    if schedule:
+        rows.append(("schedule", f"{schedule.get('name')} (steps scale {schedule.get('steps_scale')}): "
+                                 f"{schedule.get('description', '')}"))
+        if schedule.get("paper_checkpoints"):
+            rows.append(("checkpoints (paper iterations)", ", ".join(str(c) for c in schedule["paper_checkpoints"])))
     for key in ("downscale", "ocr", "cer_profile", "device", "save_every"):
         if manifest.get(key) not in (None, ""):
             rows.append((key.replace("_", " "), str(manifest[key])))
@@ -481,8 +483,8 @@ def write_crops(run_dir: Path, out: Path, g: SceneGallery) -> dict:
     keep: set[Path] = set()
     gt_dir = run_dir / "gt" / safe_name(g.dataset) / safe_name(g.scene)
     for k, w in g.words.items():
-        stem = Path(w.view).stem
-        src = gt_dir / f"{stem}.png"
+        stem = Path(render_file_name(w.view)).stem
+        src = gt_dir / render_file_name(w.view)
         img = images.get(src)
         rel = Path("crops") / "gt" / safe_name(stem) / w.crop_name
         ok = img is not None and _write_crop(base / rel, img, w, src)
@@ -491,7 +493,7 @@ def write_crops(run_dir: Path, out: Path, g: SceneGallery) -> dict:
             keep.add(base / rel)
         for (method, label), reading in w.renders.items():
             it = reading["iteration"]
-            src = CellKey(method, g.dataset, g.scene, it).path(run_dir) / "renders" / f"{stem}.png"
+            src = CellKey(method, g.dataset, g.scene, it).path(run_dir) / "renders" / render_file_name(w.view)
             img = images.get(src)
             rel = Path("crops") / safe_name(method) / str(it) / safe_name(stem) / w.crop_name
             ok = img is not None and _write_crop(base / rel, img, w, src)
@@ -523,10 +525,10 @@ def _reading_cell(reading: dict | None, chars: int, crop: Path | None, alt: str)
             f'<div>{read_html}</div><div class="err">{esc(err)}</div></td>')
 
 
-def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
+def gallery_page(g: SceneGallery, paths: dict, back: str, names: MethodNames = REGISTERED) -> str:
     """The HTML of one scene's word-crop gallery: a tab per checkpoint label, a row per reference word."""
     labels = sorted({label for _m, label in g.cells}, key=label_value)
-    methods = method_order(m for m, _l in g.cells)
+    methods = names.order(m for m, _l in g.cells)
     title = f"Word crops: {dataset_title(g.dataset)} / {g.scene}"
     parts = [f"<header><h1>{esc(title)}</h1></header><main>",
              f"<p>{len(g.words)} reference word(s) over the scene's test views; for each, the ground-truth view's crop "
@@ -541,7 +543,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
     if not g.words:
         parts.append('<p class="note">This scene has no reference words (no legible known text and nothing read on '
                      "the GT views), so there is nothing to show.</p>")
-        return _page(title, "\n".join(parts) + "</main>", back)
+        return html_page(title, "\n".join(parts) + "</main>", back)
     parts.append('<div class="tabs">' + "".join(
         f'<button type="button" data-panel="ckpt-{i}"{" class=" + chr(34) + "active" + chr(34) if i == len(labels) - 1 else ""}>'
         f"{esc(label)}</button>" for i, label in enumerate(labels)) + "</div>")
@@ -551,7 +553,7 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
         head = ['<th class="name" data-col="0" data-type="text">view</th>',
                 '<th class="name" data-col="1" data-type="text">reference word</th>',
                 '<th data-col="2" data-type="num">ground truth</th>']
-        head += [f'<th data-col="{3 + j}" data-type="num">{esc(method_title(m))}</th>' for j, m in enumerate(here)]
+        head += [f'<th data-col="{3 + j}" data-type="num">{esc(names.title(m))}</th>' for j, m in enumerate(here)]
         rows = []
         for k, w in g.words.items():
             src = esc(w.source) + ("" if w.headline else " (same word as a known one; not in the headline figures)")
@@ -567,16 +569,16 @@ def gallery_page(g: SceneGallery, paths: dict, back: str) -> str:
                      f"<h2>Checkpoint {esc(label)}</h2><p class=\"muted\">iterations trained: {esc(its)}</p>"
                      f'<table class="data gallery" id="gallery-{i}" data-page-size="{GALLERY_PAGE_SIZE}"><thead><tr>{"".join(head)}</tr></thead>'
                      f"<tbody>{''.join(rows)}</tbody></table></section>")
-    return _page(title, "\n".join(parts) + "</main>", back)
+    return html_page(title, "\n".join(parts) + "</main>", back)
 
 
-def _fronts_html(fronts: list[dict]) -> str:
+def _fronts_html(fronts: list[dict], names: MethodNames = REGISTERED) -> str:
     """The speed/accuracy fronts as a table: one row per (checkpoint, metric), the front's methods."""
     from strings_bench.reports.readability_analysis import FRONT_METRICS
 
     rows = []
     for f in fronts:
-        members = "; ".join(f"{method_title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
+        members = "; ".join(f"{names.title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
         rows.append(f'<tr><td class="name">{esc(f["label"])}</td><td class="name">{esc(FRONT_METRICS[f["metric"]])}</td>'
                     f'<td class="name" data-front="{esc(",".join(f["front"]))}">{esc(members or "none")}</td></tr>')
     return ('<h3 id="h-pareto_front">Speed/accuracy front</h3><table class="data" id="table-pareto-front"><thead><tr>'
@@ -597,6 +599,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
     fronts (readability_analysis.fronts), listed under the figures.
     """
     run_dir, out = Path(run_dir), Path(out)
+    names = MethodNames.of(manifest)  # methods named as the run recorded them
     out.mkdir(parents=True, exist_ok=True)
     title = f"strings-bench report: {run_dir.resolve().name}"
     sections = [("config", "Configuration"), ("tables", "Tables"), ("figures", "Figures"), ("galleries", "Word crops"),
@@ -630,7 +633,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
                      f"<figcaption>{esc(name.replace('_', ' '))}</figcaption></figure>")
 
     if fronts:
-        parts.append(_fronts_html(fronts))
+        parts.append(_fronts_html(fronts, names))
 
     parts.append('<h2 id="galleries">Word crops</h2><p>Per scene, every reference word of the word-crop readability '
                  "metric: its ground-truth crop and each method's render crop side by side, per checkpoint, with what "
@@ -643,7 +646,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         paths = write_crops(run_dir, out, g)
         log.info("word crops of %s/%s: %d in %.1f s", g.dataset, g.scene, len(paths), time.perf_counter() - t0)
         back = "/".join([".."] * len(g.folder.parts)) + "/index.html"
-        atomic_write_text(out / page, gallery_page(g, paths, back))
+        atomic_write_text(out / page, gallery_page(g, paths, back, names))
         n_crops = sum(p is not None for p in paths.values())
         views = len({w.view for w in g.words.values()})
         grow.append(f'<tr><td class="name">{esc(dataset_title(g.dataset))}</td>'
@@ -663,4 +666,4 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
                  "one per (method, dataset, scene, checkpoint); docs/running.md lists the columns.</p>")
     if not df.empty:
         parts.append(f'<div class="scroll">{_cells_table(df)}</div>')
-    return atomic_write_text(out / "index.html", _page(title, "\n".join(parts) + "</main>"))
+    return atomic_write_text(out / "index.html", html_page(title, "\n".join(parts) + "</main>"))

@@ -31,8 +31,9 @@ import pandas as pd
 from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import CellKey
 from strings_bench.reports.results import WORDS_FILE, read_words_csv
-from strings_bench.reports.tables import (GT_CEILING, RANK_NOTE, Column, Table, dataset_title, is_ablation,
-                                          main_labels, method_order, method_title, with_total_seconds)
+from strings_bench.reports.aggregate import main_labels, with_total_seconds
+from strings_bench.reports.table_model import (GT_CEILING, RANK_NOTE, REGISTERED, Column, MethodNames, Table,
+                                               dataset_title)
 
 # Word-height bins in pixels at the evaluated resolution: [lower, upper). At 320x240 the synthetic scenes' words
 # are ~5 px high (docs/ocr.md); the recogniser's input is 48 px high; 6.5 px is the known-text CER's legibility
@@ -89,7 +90,7 @@ def size_label(df: pd.DataFrame) -> str | None:
     return [lab for lab in labels if n[lab] == best][-1]
 
 
-def cer_by_size(words: pd.DataFrame, label: str, known: bool = False) -> pd.DataFrame:
+def cer_by_size(words: pd.DataFrame, label: str, known: bool = False, names: MethodNames = REGISTERED) -> pd.DataFrame:
     """CER per (dataset, method, height bin) at checkpoint `label`, pooled over the dataset's scenes: errors over
     reference characters of the headline words (`known`: of the known-text words only), rows for the GT ceiling
     (method GT_CEILING: the same words on the GT views, which do not depend on the method; taken from the first
@@ -102,7 +103,7 @@ def cer_by_size(words: pd.DataFrame, label: str, known: bool = False) -> pd.Data
     out = []
     for d in dict.fromkeys(w["dataset"]):
         wd = w[w["dataset"] == d]
-        methods = [m for m in method_order(wd["method"]) if not is_ablation(m)]
+        methods = [m for m in names.order(wd["method"]) if not names.is_ablation(m)]
         # the GT side: one method's cells per scene (every method's cells hold the same reference words and GT reads)
         gt_parts = [wd[(wd["scene"] == s) & (wd["method"] == wd[wd["scene"] == s]["method"].iloc[0])]
                     for s in dict.fromkeys(wd["scene"])]
@@ -118,7 +119,8 @@ def cer_by_size(words: pd.DataFrame, label: str, known: bool = False) -> pd.Data
     return pd.DataFrame(out, columns=cols)
 
 
-def size_table(by_size: pd.DataFrame, label: str, known: bool, note: str = "") -> Table | None:
+def size_table(by_size: pd.DataFrame, label: str, known: bool, note: str = "",
+               names: MethodNames = REGISTERED) -> Table | None:
     if by_size.empty or not (by_size["words"] > 0).any():
         return None
     cols = []
@@ -140,7 +142,7 @@ def size_table(by_size: pd.DataFrame, label: str, known: bool, note: str = "") -
     what = "Known-text word CER" if known else "Word CER"
     name = "known_cer_by_size" if known else "word_cer_by_size"
     return Table(name, what + r" by text height $\downarrow$", f"{what} by text height (lower is better)", cols,
-                 [*method_order(methods), GT_CEILING],
+                 [*names.order(methods), GT_CEILING],
                  f"{what} at {label} iterations per word-height bin (the height of the word's box in pixels at the "
                  "evaluated resolution; bins [lower, upper) px), errors over reference characters pooled over the "
                  f"scenes of each dataset; n = reference words in the bin. "
@@ -211,7 +213,7 @@ def legibility(df: pd.DataFrame, thresholds: Iterable[float] = THRESHOLDS) -> pd
     return pd.DataFrame(rows)
 
 
-def legibility_table(leg: pd.DataFrame, note: str = "") -> Table | None:
+def legibility_table(leg: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Table | None:
     if leg.empty:
         return None
     cols = []
@@ -226,7 +228,7 @@ def legibility_table(leg: pd.DataFrame, note: str = "") -> Table | None:
                                    {r.method: r.minutes for r in sel.itertuples()}, na="not reached",
                                    prefix={r.method: "<=" for r in sel.itertuples() if r.at_first},
                                    suffix={r.method: f" ({r.step:.0f})" for r in sel.itertuples() if r.reached}))
-    methods = method_order(m for m in leg["method"] if not is_ablation(m))
+    methods = names.order(m for m in leg["method"] if not names.is_ablation(m))
     thr = ", ".join(f"{t:g}" for t in dict.fromkeys(leg["threshold"]))
     return Table("time_to_legibility", "Method", "Method", cols, methods,
                  f"Time to legibility: training minutes (preprocessing + optimisation) and, in parentheses, the trained "
@@ -248,32 +250,33 @@ def pareto_front(points: dict[str, tuple[float, float]]) -> list[str]:
     return front
 
 
-def front_points(df: pd.DataFrame, label: str, metric: str) -> dict[str, tuple[float, float]]:
+def front_points(df: pd.DataFrame, label: str, metric: str,
+                 names: MethodNames = REGISTERED) -> dict[str, tuple[float, float]]:
     """Per method at checkpoint `label`: (mean total minutes, mean `metric`) over the scenes."""
-    sub = with_total_seconds(df[(df["label"] == label) & ~df["method"].map(is_ablation).astype(bool)])
+    sub = with_total_seconds(df[(df["label"] == label) & ~df["method"].map(names.is_ablation).astype(bool)])
     if sub.empty or metric not in sub:
         return {}
     sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"))
     g = sub.groupby("method").agg(v=("_v", "mean"), m=("total_seconds", lambda s: s.mean() / 60))
-    return {m: (float(g.loc[m, "m"]), float(g.loc[m, "v"])) for m in method_order(g.index)}
+    return {m: (float(g.loc[m, "m"]), float(g.loc[m, "v"])) for m in names.order(g.index)}
 
 
-def fronts(df: pd.DataFrame) -> list[dict]:
+def fronts(df: pd.DataFrame, names: MethodNames = REGISTERED) -> list[dict]:
     """The front of every checkpoint and FRONT_METRICS metric the run has: {label, metric, points, front}."""
     out = []
     for label in main_labels(df):
         for metric in FRONT_METRICS:
-            pts = front_points(df, label, metric)
+            pts = front_points(df, label, metric, names)
             if any(not math.isnan(v) for _t, v in pts.values()):
                 out.append({"label": label, "metric": metric, "points": pts, "front": pareto_front(pts)})
     return out
 
 
-def front_lines(fr: list[dict]) -> list[str]:
+def front_lines(fr: list[dict], names: MethodNames = REGISTERED) -> list[str]:
     """The fronts as Markdown lines (the report lists them)."""
     lines = []
     for f in fr:
-        members = ", ".join(f"{method_title(m)} ({f['points'][m][0]:.2f} min, {FRONT_METRICS[f['metric']]} "
+        members = ", ".join(f"{names.title(m)} ({f['points'][m][0]:.2f} min, {FRONT_METRICS[f['metric']]} "
                             f"{f['points'][m][1]:.3f})" for m in f["front"])
         lines.append(f"- {f['label']}, {FRONT_METRICS[f['metric']]} vs training time: {members or 'none'}")
     return lines
@@ -291,23 +294,25 @@ class Analysis:
     label: str | None
 
 
-def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "") -> Analysis:
+def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Analysis:
     """The tables (CER by size and known-text CER by size at `size_label`, time to legibility) and the
     speed/accuracy fronts of a run."""
     if df.empty:
         return Analysis([], [], pd.DataFrame(), pd.DataFrame(), None)
     label = size_label(df)
     words = load_words(run_dir, df)
-    by_size = cer_by_size(words, label)
+    by_size = cer_by_size(words, label, names=names)
     tables: list[Table] = []
     for known in (False, True):
-        t = size_table(cer_by_size(words, label, known=True) if known else by_size, label, known, note)
+        t = size_table(cer_by_size(words, label, known=True, names=names) if known else by_size, label, known, note, names)
         if t is not None:
             tables.append(t)
-    t = legibility_table(legibility(df), note)
+    t = legibility_table(legibility(df), note, names)
     if t is not None:
         tables.append(t)
-    return Analysis(tables, fronts(df), by_size, size_spread(by_size), label)
+    for t in tables:
+        t.names = names
+    return Analysis(tables, fronts(df, names), by_size, size_spread(by_size), label)
 
 
 def fronts_csv(fr: list[dict]) -> str:

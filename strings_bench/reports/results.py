@@ -1,7 +1,11 @@
-"""The run folder's cell schema and its `results.csv`: read cells, turn a cell into a CSV row, write the CSV.
+"""The run folder's cell schema and its `results.csv`: write a cell, read cells, turn a cell into a CSV row,
+write the CSV.
 
-The runner writes cells (`cells/<method>/<dataset>/<scene>/<iteration>/result.json`); the reports
-and benchmark scripts read them back through this module. It imports nothing of the runner or the
+Size (~470 lines): the run folder's one schema, written and read in one place (a cell's record, result.json's checks,
+results.csv's and words.csv's rows), so that the writers and the readers cannot drift apart.
+
+The runner and `strings-bench evaluate` write cells (`cells/<method>/<dataset>/<scene>/<iteration>/result.json`)
+through one `write_cell(CellRecord)`; the reports and benchmark scripts read them back through this module. It imports nothing of the runner or the
 reports, so both can depend on it (docs/architecture.md). The path and file names of a cell live in
 `strings_bench.core.results` (CellKey, RESULT_FILE, RUN_FILE, RESULTS_CSV) and are re-exported here.
 """
@@ -11,17 +15,18 @@ from __future__ import annotations
 import csv
 import io
 import json
-from pathlib import Path
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
 from typing import Iterable
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.io import atomic_write_text
+from strings_bench.core.io import atomic_write, atomic_write_json, atomic_write_text, jsonable
 from strings_bench.core.schedules import iteration_label
 from strings_bench.core.results import RESULT_FILE, RESULTS_CSV, RUN_FILE, CellKey, is_finished, safe_name
 
 __all__ = [
-    "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV",
-    "RUN_FILE", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
+    "CellRecord", "write_cell", "render_file_name", "write_png", "CSV_COLUMNS", "ENGINE_COLUMNS", "READABILITY_COLUMNS", "engine_columns", "CellKey", "RESULT_FILE", "RESULTS_CSV",
+    "RUN_FILE", "FORMER_NAMES", "upgrade_names", "cell_row", "is_finished", "iter_cells", "iteration_label", "read_cell", "read_manifest", "check_cell",
     "safe_name", "timing_columns", "write_results_csv", "script_columns", "cer_per_script",
 ]
 
@@ -34,8 +39,93 @@ CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
     "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
-    "gt_empty_ignored", "known_views", "eval_seconds", "preset", "downscale", "ocr_backend",
+    "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]
+# Names of the run folder's fields before issue 41, when "preset" named the run's schedule (run.json, result.json's
+# config, results.csv's column): the readers of this module take such folders as today's.
+FORMER_NAMES = {"preset": "schedule"}
+
+
+def upgrade_names(d: dict) -> dict:
+    """`d` (run.json, a cell's config, a results.csv row) with its former field names as today's (FORMER_NAMES);
+    a field present under both names keeps today's."""
+    out = dict(d)
+    for old, new in FORMER_NAMES.items():
+        if old in out:
+            value = out.pop(old)
+            out.setdefault(new, value)
+    return out
+
+
+# ---- writing a cell ------------------------------------------------------------------------------------
+def render_file_name(view: str) -> str:
+    """The PNG a test view is written to, in a cell's renders/ and in gt/<dataset>/<scene>/: the view's name
+    without its suffix, sub-folders joined with '_' ("left/0001.jpg" -> "left_0001.png")."""
+    return PurePosixPath(str(view).replace("\\", "/")).with_suffix("").as_posix().replace("/", "_") + ".png"
+
+
+def write_png(path: Path, img) -> None:
+    """`img` as the 8-bit PNG the evaluation scores (eval.protocol.to_uint8), written atomically."""
+    from PIL import Image
+
+    from strings_bench.eval.protocol import to_uint8
+
+    def write(tmp: Path) -> None:
+        Image.fromarray(to_uint8(img)).save(tmp, format="PNG")
+
+    atomic_write(path, write)
+
+
+@dataclass(kw_only=True)
+class CellRecord:
+    """Everything about one cell, as result.json holds it (`check_cell` reads it back).
+
+    config: how it was made: "method" (the method's describe()), "scene", "schedule" (the run's; None for
+        `evaluate`), "downscale", "cer_profile", "versions", "metrics", and "method_presets"/"checkpoints" (a run)
+        or "evaluate" (an evaluation of given renders).
+    timings: train_seconds, preprocess_seconds, total_seconds (None where not known), eval_seconds.
+    scores: what eval.protocol.Evaluator returned: metrics, cer, cer_known, ocr, readability, text, ... (top-level
+        keys of result.json).
+    evaluation: "full", or "words" for a dense checkpoint of `--checkpoints every:N` (word-crop metrics only).
+    """
+
+    method: str
+    dataset: str
+    scene: str
+    iteration: int
+    label: str
+    config: dict
+    timings: dict
+    scores: dict
+    evaluation: str = "full"
+    gaussians: int | None = None
+    peak_memory_mb: float | None = None
+    resumed_from_step: int = 0
+    device: str = ""  # as resolved by the training loop ("" for adapters and evaluations)
+    gpu: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """result.json's object (JSON-safe)."""
+        return jsonable({
+            "method": self.method, "dataset": self.dataset, "scene": self.scene, "iteration": self.iteration,
+            "label": self.label, "config": self.config, "resumed_from_step": self.resumed_from_step,
+            "device": self.device, "gpu": self.gpu, "timings": self.timings, "gaussians": self.gaussians,
+            "peak_memory_mb": self.peak_memory_mb, "extra": self.extra, "evaluation": self.evaluation, **self.scores,
+        })
+
+
+def write_cell(cell_dir: str | Path, record: CellRecord, renders: dict | None = None) -> dict:
+    """Write a cell: its renders (renders/<render_file_name>), words.csv, then result.json, last and atomically
+    (a cell is finished when result.json exists, so a killed write leaves an unfinished cell). The record is
+    checked as a reader would check it before anything is written. Returns result.json's object."""
+    cell_dir = Path(cell_dir)
+    rec = check_cell(record.to_json(), cell_dir / RESULT_FILE)
+    for name, img in (renders or {}).items():
+        write_png(cell_dir / "renders" / render_file_name(name), img)
+    write_words_csv(cell_dir, rec)  # before result.json: a finished cell has its words.csv
+    atomic_write_json(cell_dir / RESULT_FILE, rec)
+    return rec
 
 
 _NUMBER = (int, float)
@@ -115,8 +205,9 @@ def read_manifest(run_dir: str | Path) -> dict | None:
             raise StringsBenchError(f"run settings {p} are malformed: {what}",
                                     hint="restore it from a backup, or use another --out folder (the cells are kept)")
     need(isinstance(m, dict), f"a JSON {type(m).__name__}, not an object")
-    need(isinstance(m.get("preset"), dict) and isinstance(m["preset"].get("name"), str),
-         "'preset' is missing or not an object with a name")
+    m = upgrade_names(m)  # a folder written before issue 41 names the schedule "preset"
+    need(isinstance(m.get("schedule"), dict) and isinstance(m["schedule"].get("name"), str),
+         "'schedule' is missing or not an object with a name")
     need(isinstance(m.get("methods"), dict) and all(isinstance(v, dict) for v in m["methods"].values()),
          "'methods' is missing or not an object of objects")
     need(isinstance(m.get("datasets"), list), "'datasets' is missing or not a list")
@@ -182,7 +273,7 @@ def cell_row(rec: dict) -> dict:
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
         "known_views": "" if not k else len(k.get("images") or {}),
         "eval_seconds": num(rec["timings"].get("eval_seconds")),
-        "preset": rec["config"].get("preset", ""), "downscale": rec["config"].get("downscale", ""),
+        "schedule": upgrade_names(rec["config"]).get("schedule") or "", "downscale": rec["config"].get("downscale", ""),
         "ocr_backend": (rec.get("ocr") or {}).get("backend", {}).get("name", ""),
         # "words": a dense checkpoint of `--checkpoints every:N`, word-crop metrics only (no OCR-CER); else "full"
         "evaluation": rec.get("evaluation", "full"),

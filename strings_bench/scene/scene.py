@@ -231,6 +231,12 @@ def _to_8bit(im: Image.Image, mode: str) -> Image.Image:
     return im.convert(mode)
 
 
+def clear_image_cache() -> None:
+    """Forget every decoded image: the next read of each decodes it again (a benchmark that times a run as it
+    runs, first decodes included)."""
+    _load_rgb.cache_clear()
+
+
 @lru_cache(maxsize=256)
 def _load_rgb(path: str, size: tuple[int, int]) -> np.ndarray:
     try:

@@ -124,7 +124,6 @@ class Strings(GaussianSplatting):
     """STRinGS' two phases on the engine's hooks. Settings: StringsSettings fields, plus everything
     3dgs takes (TrainConfig fields, lr_<group>, DefaultStrategy fields), flat."""
 
-    name = "strings"
     method_settings_cls = StringsSettings
 
     def __init__(self, *args, **kwargs):
@@ -356,12 +355,10 @@ class Strings(GaussianSplatting):
 class StringsNoDensify(Strings):
     """Ablation of the paper: without the one-time text densification (Eq. 1)."""
 
-    name = "strings-no-densify"
     forced_settings = {"text_densify": False}
 
 
 class StringsPosLR(Strings):
     """Ablation of the paper: the 3DGS position LR in phase 1 instead of 0."""
 
-    name = "strings-pos-lr"
     forced_settings = {"phase1_position_lr": 1.0}

@@ -1,0 +1,62 @@
+"""Aggregation of a run's results.csv for the tables: the cells read as a DataFrame, means over the scenes of a
+dataset, the checkpoints the tables show."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from strings_bench.reports.results import ENGINE_COLUMNS, FORMER_NAMES, READABILITY_COLUMNS
+from strings_bench.reports.table_model import label_value
+
+
+def load_results(run_dir: str | Path) -> pd.DataFrame:
+    p = Path(run_dir) / "results.csv"
+    if not p.exists():
+        return pd.DataFrame()
+    df = pd.read_csv(p, keep_default_na=True).rename(columns=FORMER_NAMES)  # a results.csv from before issue 41
+    for c in ("cer", "cer_known", "psnr", "ssim", "lpips", "train_seconds", "preprocess_seconds", "total_seconds",
+              "gaussians", *READABILITY_COLUMNS):
+        if c in df:
+            df[c] = pd.to_numeric(df[c], errors="coerce")
+    for c in df.columns:
+        if any(c.startswith(col.format(engine="")) for col in ENGINE_COLUMNS):
+            df[c] = pd.to_numeric(df[c], errors="coerce")
+    df["label"] = df["label"].astype(str)
+    return with_total_seconds(df)
+
+
+def with_total_seconds(df: pd.DataFrame) -> pd.DataFrame:
+    """`df` with a total_seconds column. Results from before the preprocess/total columns (a
+    results.csv with no cells/ to rebuild it from) recorded no preprocess time: total = train there."""
+    if "total_seconds" in df or "train_seconds" not in df:
+        return df
+    df = df.copy()
+    pre = df["preprocess_seconds"].fillna(0.0) if "preprocess_seconds" in df else 0.0
+    df["total_seconds"] = df["train_seconds"] + pre
+    return df
+
+
+def dataset_means(df: pd.DataFrame, value: str) -> pd.DataFrame:
+    """Mean of `value` over scenes, per (method, dataset, label); NaN scenes are skipped, all-NaN stays NaN."""
+    if df.empty:
+        return pd.DataFrame(columns=["method", "dataset", "label", value, "n_scenes"])
+    g = df.groupby(["method", "dataset", "label"], sort=False)[value]
+    out = g.mean().rename(value).to_frame()  # pandas mean skips NaN
+    out["n_scenes"] = g.count()
+    return out.reset_index()
+
+
+
+def main_labels(df: pd.DataFrame) -> list[str]:
+    """Checkpoint labels of the tables: every checkpoint the run evaluated fully, in order (the paper's layout
+    has 7K and 30K; a run that also evaluated 3K shows it too). The dense checkpoints of `--checkpoints every:N`
+    evaluated with the word-crop metrics only (results.csv `evaluation` = words) are not columns: they feed the
+    time-to-legibility table and the curves."""
+    if df.empty:
+        return []
+    full = df[df["evaluation"].fillna("full") != "words"] if "evaluation" in df else df
+    return sorted(set((full if not full.empty else df)["label"]), key=label_value)
+
+

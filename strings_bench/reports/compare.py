@@ -1,0 +1,370 @@
+"""The paper's tables over run folders of several seeds (`strings-bench compare RUN_DIR...`; issue 27).
+
+Each run folder holds one seed (`strings-bench calibrate --seed N`, or `run --set seed=N`); a cell's seed is read
+from its own settings (0 when none was given). For each method, in the registry's (the paper's) order:
+
+- CER at 7K and 30K (the paper's Table "OCR-CER"): OCR-CER, the known-text CER the CPU regime is judged by
+  (OCR-CER saturates at 320x240) and the word CER, each the mean over the scenes of one seed, then the mean over
+  the seeds with the seeds' range; the paper's own OCR-CER beside, from the method's spec (`PaperFigures`);
+- training time in minutes at 7K and 30K (the paper's Table "Training Time"), with the paper's minutes beside
+  (folders measured under different load are not comparable: say so beside the table);
+- PSNR, SSIM, LPIPS and Gaussians at 30K (the paper's appendix table);
+- the ablations (its Table "Ablations"): every method whose spec names `ablation_of`, beside that method, at the
+  checkpoint the spec names (`ablation_at`);
+- "decided / not decided": each method against STRinGS (the spec of group "ours") where both have several seeds:
+  decided when the seeds' ranges do not overlap.
+
+Only fully evaluated checkpoints count (not the word-crop-only ones of `--checkpoints every:N`). A method is
+averaged over the scenes every seed of it has; a (method, seed) with a scene the others lack is reported, not
+averaged. The same cell in two folders counts once when its figures agree and is an error when they differ.
+Written as Markdown, LaTeX, CSV and an HTML page in the run report's style (`write_comparison`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.io import atomic_write_text
+from strings_bench.reports.results import cell_row, iter_cells, iteration_label
+from strings_bench.reports.results import read_manifest
+from strings_bench.reports.table_model import PREAMBLE, Column, MethodNames, Table, dataset_title, label_value
+
+VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds")
+CER_VALUES = (("cer", "OCR-CER"), ("cer_known", "known-text CER"), ("word_cer", "word CER"))
+PAPER_DATASET = "strings360"  # the paper's dataset a synthetic360 comparison stands beside
+
+
+def cell_seed(rec: dict) -> int:
+    """The trainer seed a cell was made with (its method settings' `seed`, else the default 0)."""
+    settings = ((rec.get("config") or {}).get("method") or {}).get("settings") or {}
+    return int(settings.get("seed", 0))
+
+
+def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
+    """{(method, label): {seed: {scene: {value: float, "iteration": int}}}} from the fully evaluated cells of the
+    folders (of `dataset` only, when given)."""
+    out: dict = {}
+    seen: dict = {}
+    for run_dir in map(Path, run_dirs):
+        if not run_dir.is_dir():
+            raise StringsBenchError(f"no run folder {run_dir}", hint="give folders made by strings-bench run or calibrate")
+        for rec in iter_cells(run_dir):
+            row = cell_row(rec)
+            if row["evaluation"] != "full" or (dataset and row["dataset"] != dataset):
+                continue
+            seed = cell_seed(rec)
+            key = (row["method"], seed, row["dataset"], row["scene"], row["label"])
+            vals = {k: float(row[k]) if row[k] != "" else math.nan for k in VALUES}
+            vals["iteration"] = int(row["iteration"])
+            if key in seen:
+                # the same cell trained in two folders (a 7K-only seed run and a 30K one): the CPU engine is
+                # deterministic, so it must have the same figures; it then counts once
+                first_dir, first = seen[key]
+                same = all(first[k] == vals[k] or (math.isnan(first[k]) and math.isnan(vals[k]))
+                           for k in VALUES if k != "train_seconds")
+                if not same:
+                    raise StringsBenchError(f"{key} is in both {first_dir} and {run_dir}, with different figures",
+                                            hint="give each seed's folder once (or --dataset to pick one dataset)")
+                continue
+            seen[key] = (run_dir, vals)
+            out.setdefault((row["method"], row["label"]), {}).setdefault(seed, {})[row["scene"]] = vals
+    return out
+
+
+def summarise(per_seed: dict, value: str) -> dict | None:
+    """Mean over the scenes every seed has, per seed; then the mean, min and max over the seeds."""
+    scenes = set.intersection(*(set(s) for s in per_seed.values())) if per_seed else set()
+    if not scenes:
+        return None
+    means = []
+    for seed in sorted(per_seed):
+        vals = [per_seed[seed][s][value] for s in sorted(scenes)]
+        if any(math.isnan(v) for v in vals):
+            continue
+        means.append(sum(vals) / len(vals))
+    if not means:
+        return None
+    missing = {seed: sorted(set(sc) - scenes) for seed, sc in per_seed.items() if set(sc) - scenes}
+    return {"mean": sum(means) / len(means), "min": min(means), "max": max(means), "seeds": len(means),
+            "scenes": len(scenes), "per_seed": means, "left_out": missing}
+
+
+def decided(a: dict | None, b: dict | None) -> str:
+    """Whether two methods' seed summaries separate them: "decided" when both have several seeds and their ranges
+    do not overlap, "not decided" when they overlap, "one seed" when either has a single seed, "" when either is
+    missing."""
+    if a is None or b is None:
+        return ""
+    if a["seeds"] < 2 or b["seeds"] < 2:
+        return "one seed"
+    return "decided" if a["max"] < b["min"] or b["max"] < a["min"] else "not decided"
+
+
+@dataclass
+class Comparison:
+    """The numbers of a comparison: {method: {label: {value: summary}}}, in the registry's order."""
+
+    data: dict
+    numbers: dict
+    methods: list[str]
+    run_dirs: list[Path]
+    names: MethodNames  # as the folders' run.json recorded the methods, then as their specs do
+    paper_dataset: str = PAPER_DATASET
+
+    def get(self, method: str, label: str, value: str) -> dict | None:
+        return (self.numbers.get(method) or {}).get(label, {}).get(value)
+
+    @property
+    def reference(self) -> str | None:
+        """The method the others are held against: the one of group "ours" (STRinGS)."""
+        return next((m for m in self.methods if self.names.info(m)["group"] == "ours"), None)
+
+    def ablations(self) -> list[tuple[str, str, str]]:
+        """(ablation, the method it ablates, checkpoint label) for every ablation both of which are compared."""
+        out = []
+        for m in self.methods:
+            info = self.names.info(m)
+            if info["group"] == "ablation" and info["ablation_of"] in self.methods:
+                out.append((m, info["ablation_of"], iteration_label(int(info["ablation_at"]))))
+        return out
+
+    def left_out(self) -> list[str]:
+        return sorted({f"{m} {lab}: seed {seed} also has {', '.join(sc)} (left out of the means)"
+                       for m in self.methods for lab, vs in self.numbers[m].items()
+                       for seed, sc in ((vs.get("cer") or {}).get("left_out") or {}).items()})
+
+
+def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET) -> Comparison:
+    """The comparison of the fully evaluated cells of `run_dirs` (one seed each)."""
+    data = collect(run_dirs, dataset)
+    if not data:
+        raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),
+                                hint="give run folders with finished cells (strings-bench run or calibrate)")
+    recorded: dict = {}
+    for d in run_dirs:
+        recorded.update((read_manifest(d) or {}).get("methods") or {})
+    names = MethodNames.of({"methods": recorded})
+    methods = names.order(m for m, _ in data)
+    numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES} for (mm, label) in data if mm == m}
+               for m in methods}
+    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset)
+
+
+# ---- tables --------------------------------------------------------------------------------------------
+def _column(c: Comparison, group: str, sub: str, label: str, value: str, lower: bool, fmt: str,
+            scale: float = 1.0, methods=None) -> Column:
+    """The seeds' mean of `value` at `label` per method, with the seeds' range after it."""
+    values, suffix = {}, {}
+    for m in methods or c.methods:
+        s = c.get(m, label, value)
+        if s is None:
+            continue
+        values[m] = s["mean"] * scale
+        if s["seeds"] > 1:
+            suffix[m] = f" ({format(s['min'] * scale, fmt)}-{format(s['max'] * scale, fmt)})"
+    return Column(group, sub, sub, lower, fmt, values, suffix=suffix)
+
+
+def _paper_column(c: Comparison, what: str, label: str, sub: str, fmt: str) -> Column | None:
+    """The paper's own figure (the methods' specs) as a greyed, unranked column; None when no method has one."""
+    from strings_bench.methods.registry import get_method
+
+    values = {}
+    for m in c.methods:
+        try:
+            figures = get_method(m).paper_results.get(c.paper_dataset, {}).get(what, {})
+        except StringsBenchError:  # a method of an old folder that is no longer registered
+            continue
+        if int(label_value(label)) in figures:
+            values[m] = figures[int(label_value(label))]
+    if not values:
+        return None
+    return Column(f"paper ({dataset_title(c.paper_dataset)})", sub, sub, True, fmt, values, greyed=True)
+
+
+SEEDS_NOTE = (" Mean over the scenes of each seed, then over the seeds; the seeds' range in brackets. The paper's "
+              "figures (grey, never ranked) are from each method's spec (REFERENCE.md section 5).")
+
+
+def comparison_tables(c: Comparison) -> list[Table]:
+    """The CER table, the time and image-quality table and, where the comparison has them, the ablations."""
+    main = [m for m in c.methods if not c.names.is_ablation(m)] or c.methods
+    # the most seeds a method has at any checkpoint, and the scenes averaged there
+    most = {m: max((s for lab in c.numbers[m] if (s := c.get(m, lab, "cer"))), key=lambda s: (s["seeds"], s["scenes"]),
+                   default=None) for m in c.methods}
+    cer_cols = [Column("", what, what, True, ".0f", {m: s[what] for m, s in most.items() if s}, greyed=True)
+                for what in ("seeds", "scenes")]
+    cer_cols += [_column(c, "", f"{name} {label}", label, value, True, ".3f")
+                for value, name in CER_VALUES for label in ("7K", "30K") if (value, label) != ("word_cer", "7K")]
+    cer_cols += [p for label in ("7K", "30K") if (p := _paper_column(c, "cer", label, f"OCR-CER {label}", ".3f"))]
+    tables = [Table("compare_cer", r"Method", "Method", cer_cols, c.methods,
+                    "CER at 7K and 30K: OCR-CER (the paper's metric), known-text CER and word CER." + SEEDS_NOTE,
+                    heading="CER over seeds")]
+    time_cols = [_column(c, "", f"training time {label} (min)", label, "train_seconds", True, ".2f", 1 / 60, main)
+                 for label in ("7K", "30K")]
+    time_cols += [p for label in ("7K", "30K")
+                  if (p := _paper_column(c, "minutes", label, f"training time {label} (min)", ".1f"))]
+    time_cols += [_column(c, "", f"{name} 30K", "30K", value, lower, fmt, methods=main)
+                  for value, name, lower, fmt in (("psnr", "PSNR", False, ".2f"), ("ssim", "SSIM", False, ".4f"),
+                                                  ("lpips", "LPIPS", True, ".4f"), ("gaussians", "Gaussians", True, ".0f"))]
+    tables.append(Table("compare_time_quality", "Method", "Method", time_cols, main,
+                        "Training time (optimisation, minutes; only comparable between folders measured under the same "
+                        "load) and image quality at 30K." + SEEDS_NOTE, heading="Training time and image quality"))
+    ablations = c.ablations()
+    if ablations:
+        rows = [m for m, _, _ in ablations]
+        cols = [Column("", "checkpoint", "checkpoint", True, "K", {m: label_value(lab) for m, _, lab in ablations})]
+        for value, name in CER_VALUES[:2]:
+            wo, full = {}, {}
+            for m, of, label in ablations:
+                for target, src in ((wo, m), (full, of)):
+                    s = c.get(src, label, value)
+                    if s is not None:
+                        target[m] = s["mean"]
+            cols += [Column("", f"w/o: {name}", f"w/o: {name}", True, ".3f", wo),
+                     Column("", f"full method: {name}", f"full method: {name}", True, ".3f", full)]
+        tables.append(Table("compare_ablations", "Ablation", "Ablation", cols, rows,
+                            "Each ablation beside the method it ablates (its spec's ablation_of), at the checkpoint its "
+                            "spec names (ablation_at)." + SEEDS_NOTE, shade=False, heading="Ablations"))
+    for t in tables:
+        t.names = c.names
+    return tables
+
+
+def decided_rows(c: Comparison) -> list[dict]:
+    """Each method against the reference (STRinGS) per CER value and checkpoint: the difference of the seeds' means
+    and whether the seeds' ranges separate them."""
+    ref = c.reference
+    rows = []
+    if ref is None:
+        return rows
+    for m in c.methods:
+        if m == ref:
+            continue
+        for value, name in CER_VALUES:
+            for label in ("7K", "30K"):
+                a, b = c.get(m, label, value), c.get(ref, label, value)
+                verdict = decided(a, b)
+                if verdict:
+                    rows.append({"method": m, "against": ref, "value": value, "label": label,
+                                 "difference": a["mean"] - b["mean"], "seeds": f"{a['seeds']} / {b['seeds']}",
+                                 "verdict": verdict})
+    return rows
+
+
+def _shown(rows: list[dict]) -> tuple[list[dict], str]:
+    """The pairs both sides of which have several seeds, and a sentence on those left out."""
+    shown = [r for r in rows if r["verdict"] != "one seed"]
+    n = len(rows) - len(shown)
+    return shown, (f" {n} pair(s) with a single seed on one side are not listed." if n else "")
+
+
+def _decided_markdown(c: Comparison, rows: list[dict]) -> str:
+    lines = ["| method | against | CER | checkpoint | difference of means | seeds | verdict |", "|---|---|---|---|---|---|---|"]
+    cer_names = dict(CER_VALUES)
+    for r in rows:
+        lines.append(f"| {c.names.title(r['method'])} | {c.names.title(r['against'])} | {cer_names[r['value']]} | {r['label']} | "
+                     f"{r['difference']:+.3f} | {r['seeds']} | {r['verdict']} |")
+    return "\n".join(lines) + "\n"
+
+
+def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
+    """One row per method and checkpoint: `value` per scene, the seeds' figures joined with '/' (seed order)."""
+    if value not in VALUES:
+        raise StringsBenchError(f"--per-scene {value}: not a compared value", hint=f"one of: {', '.join(VALUES)}")
+    scenes = sorted({sc for per_seed in c.data.values() for by_scene in per_seed.values() for sc in by_scene})
+    first: dict = {}  # label -> the smallest iteration trained for it (checkpoint order)
+    for (_, label), per_seed in c.data.items():
+        for by_scene in per_seed.values():
+            for v in by_scene.values():
+                first[label] = min(first.get(label, v["iteration"]), v["iteration"])
+    lines = [f"{value} per scene; several seeds as seed0 / seed1 / ... (seeds: the cells' own)", "",
+             "| method | ckpt | " + " | ".join(scenes) + " |", "|---|---|" + "---|" * len(scenes)]
+    for label in sorted(first, key=first.get):
+        for m in c.methods:
+            per_seed = c.data.get((m, label))
+            if not per_seed:
+                continue
+            cells = [" / ".join(f"{per_seed[seed][sc][value]:.3f}" for seed in sorted(per_seed) if sc in per_seed[seed])
+                     or "-" for sc in scenes]
+            lines.append(f"| {c.names.title(m)} | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
+    parts = [f"# Comparison over seeds: {', '.join(str(d) for d in c.run_dirs)}", ""]
+    for t in comparison_tables(c):
+        parts += [f"## {t.title}", "", t.markdown(), t.caption, ""]
+    rows, left = _shown(decided_rows(c))
+    if rows or left:
+        parts += ["## Decided or not", "", _decided_markdown(c, rows),
+                  "Decided: both methods have several seeds and the ranges of their seeds' means do not overlap; not "
+                  "decided: they overlap." + left, ""]
+    if c.left_out():
+        parts += c.left_out() + [""]
+    if per_scene:
+        parts += ["## Per scene", "", per_scene_table(c, per_scene)]
+    return "\n".join(parts)
+
+
+def comparison_csv(c: Comparison) -> str:
+    """Every summary as a row: method, checkpoint, value, mean, min, max, seeds, scenes, the seeds' means."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["method", "label", "value", "mean", "min", "max", "seeds", "scenes", "per_seed"])
+    for m in c.methods:
+        for label in sorted(c.numbers[m], key=label_value):
+            for value, s in c.numbers[m][label].items():
+                if s is not None:
+                    w.writerow([m, label, value, repr(s["mean"]), repr(s["min"]), repr(s["max"]), s["seeds"], s["scenes"],
+                                " ".join(repr(x) for x in s["per_seed"])])
+    return buf.getvalue()
+
+
+def comparison_html(c: Comparison, tables: list[Table]) -> str:
+    from strings_bench.reports.html import esc, html_page, table_html
+
+    title = "strings-bench comparison over seeds"
+    parts = [f"<header><h1>{esc(title)}</h1><p>Run folders: {esc(', '.join(str(d) for d in c.run_dirs))}</p></header>"
+             "<main>", '<p class="legend"><span style="background:var(--first)">first</span><span style="background:'
+             'var(--second)">second</span><span style="background:var(--third)">third</span>best of each column by the '
+             "seeds' mean (the paper's figures, in grey, never rank). Click a header to sort.</p>"]
+    for t in tables:
+        parts.append(f"<h2>{esc(t.title)}</h2>{table_html(t)}<p class=\"caption\">{esc(t.caption)}</p>")
+    rows, left = _shown(decided_rows(c))
+    if rows or left:
+        cer_names = dict(CER_VALUES)
+        body = "".join(
+            f'<tr><td class="name">{esc(c.names.title(r["method"]))}</td><td>{esc(cer_names[r["value"]])}</td>'
+            f'<td>{esc(r["label"])}</td><td data-v="{r["difference"]!r}">{r["difference"]:+.3f}</td>'
+            f'<td>{esc(r["seeds"])}</td><td class="{"decided" if r["verdict"] == "decided" else "undecided"}">'
+            f'{esc(r["verdict"])}</td></tr>' for r in rows)
+        parts.append(f"<h2>Decided or not, against {esc(c.names.title(c.reference))}</h2>"
+                     '<table class="data" id="table-decided"><thead><tr>'
+                     '<th class="name" data-col="0" data-type="text">method</th><th data-col="1" data-type="text">CER</th>'
+                     '<th data-col="2" data-type="text">checkpoint</th><th data-col="3" data-type="num">difference</th>'
+                     '<th data-col="4" data-type="text">seeds</th><th data-col="5" data-type="text">verdict</th>'
+                     f"</tr></thead><tbody>{body}</tbody></table>"
+                     '<p class="caption">Decided: both methods have several seeds and the ranges of their seeds\' means '
+                     f"do not overlap; not decided: they overlap.{esc(left)}</p>")
+    for line in c.left_out():
+        parts.append(f'<p class="note">{esc(line)}</p>')
+    return html_page(title, "\n".join(parts) + "</main>")
+
+
+def write_comparison(c: Comparison, out: str | Path, per_scene: str | None = None) -> dict[str, Path]:
+    """Write comparison.md, comparison.tex (with tables' preamble.tex), comparison.csv and index.html into `out`."""
+    out = Path(out)
+    tables = comparison_tables(c)
+    tex = "\n".join(t.latex() for t in tables)
+    doc = "\n".join([r"\documentclass{article}", r"\usepackage[margin=1.5cm]{geometry}", PREAMBLE,
+                     r"\begin{document}", tex, r"\end{document}"]) + "\n"
+    return {"md": atomic_write_text(out / "comparison.md", comparison_markdown(c, per_scene)),
+            "tex": atomic_write_text(out / "comparison.tex", doc),
+            "csv": atomic_write_text(out / "comparison.csv", comparison_csv(c)),
+            "html": atomic_write_text(out / "index.html", comparison_html(c, tables))}
