@@ -41,7 +41,9 @@ def render(params, cam, backend, dtype=torch.float32, **kw):
             out.means2d.retain_grad()
             weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
     else:
-        out = rasterize(*leaves[:5], cam, leaves[5], backend="cpu", compute_absgrad=True, **kw)
+        # the float64 CPU kernels: the reference the tolerance was measured against (issue 37 made the
+        # float32 kernels the default "cpu"; they agree with these to ~5e-5, tests/test_raster_f32.py)
+        out = rasterize(*leaves[:5], cam, leaves[5], backend="cpu-f64", compute_absgrad=True, **kw)
         out.means2d.retain_grad()
         weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
     return out, leaves
@@ -356,7 +358,7 @@ def test_30_training_steps_through_the_gsplat_path_match_the_cpu_engine(method, 
 
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
     runs = {}
-    for backend in ("cpu", "gsplat"):
+    for backend in ("cpu-f64", "gsplat"):
         m = get_method(method).build(backend=backend, **TRAIN[method])
         losses, step = [], m.train_step
 
@@ -369,7 +371,7 @@ def test_30_training_steps_through_the_gsplat_path_match_the_cpu_engine(method, 
             (result,) = train(m, text_scene, [30])
         runs[backend] = (np.array(losses), result)
     assert_no_cuda_backend()
-    (lc, rc), (lg, rg) = runs["cpu"], runs["gsplat"]
+    (lc, rc), (lg, rg) = runs["cpu-f64"], runs["gsplat"]
     assert len(lc) == len(lg) == 30
     assert np.all(np.abs(lg - lc) <= 1e-3 * np.abs(lc)), np.abs(lg - lc) / np.abs(lc)
     assert rg.gaussians == rc.gaussians and rc.gaussians > 60  # densification ran, identically
