@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from strings_bench.core.errors import StringsBenchError, TrainingError
+from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.splatting import GaussianSplatting
 
 if TYPE_CHECKING:
@@ -221,8 +221,11 @@ class Strings(GaussianSplatting):
         if st.prune_outside_masks:
             outside = self.mask_hits(model) < st.tau
             if bool(outside.all()):
-                raise TrainingError(f"every text Gaussian of scene {scene.name} lands outside the text masks after Eq. 1",
-                                    hint="set prune_outside_masks=false, or check the masks and the SfM model")
+                # The release would be left with no Gaussian at all; keep them, say so, and record it.
+                log.warning("STRinGS: every text Gaussian of scene %s lands outside the text masks after Eq. 1; "
+                            "none is pruned (prune_outside_masks skipped)", scene.name)
+                stats["prune_outside_masks_skipped"] = True
+                outside = torch.zeros_like(outside)
             ops.remove(model, None, outside)
             stats["text_gaussians_pruned_outside_masks"] = int(outside.sum())
         self.densify_stats = {**stats, "n_max": self.n_max}
