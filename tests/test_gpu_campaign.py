@@ -112,7 +112,7 @@ def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
                 "detail": "", "dry_run": "true"} for step, status in
                (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark", "ok"), ("paper_run", "partial"))]
     mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
-    done = campaign("--dry-run", "--budget", "10", out, "verify", timeout=120)
+    done = campaign("--dry-run", "--budget", "4", out, "verify", timeout=120)
     assert done.returncode == 1  # the run is still cut by the budget
     (today,) = [p for p in out.glob("*_verify_*.csv") if not p.name.startswith("2026-12-01")]
     steps = {r["step"]: r for r in rows(today)}
