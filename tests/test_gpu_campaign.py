@@ -112,11 +112,16 @@ def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
                 "detail": "", "dry_run": "true"} for step, status in
                (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark", "ok"), ("paper_run", "partial"))]
     mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
-    done = campaign("--dry-run", "--budget", "4", out, "verify", timeout=120)
-    assert done.returncode == 1  # the run is still cut by the budget
-    (today,) = [p for p in out.glob("*_verify_*.csv") if not p.name.startswith("2026-12-01")]
+    # A budget that leaves the compile step and the scene build room on a slow clean clone (a 4 s budget
+    # cut the compile step itself there: cold imports) and may or may not cut the paper run (a stage cut
+    # by its budget: test_a_stage_cut_by_its_budget_is_partial_and_not_banked).
+    done = campaign("--dry-run", "--budget", "45", out, "verify", timeout=180)
+    (today,) = [p for p in out.glob("*_verify_cpu-dry-run.csv") if not p.name.startswith("2026-12-01")]
     steps = {r["step"]: r for r in rows(today)}
+    assert steps["compile"]["status"] == "ok", steps["compile"]
     assert steps["compile"]["detail"] != "" and "banked" not in steps["compile"]["detail"]  # a fresh machine compiles
     for name in ("pytest_gpu", "benchmark"):
         assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith("banked in 2026-12-01"), steps[name]
-    assert "partial" in {r["status"] for r in steps.values()}
+    # the earlier sitting's partial paper run is not banked: it runs again (to the end, or cut: partial)
+    assert steps["paper_run"]["status"] in ("ok", "partial") and "banked" not in steps["paper_run"]["detail"]
+    assert done.returncode == (0 if steps["paper_run"]["status"] == "ok" else 1)

@@ -11,6 +11,7 @@ float64, bit-identical results at any thread count, and the tight boxes still ch
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -250,6 +251,39 @@ def test_float32_blend_is_bit_identical_at_any_thread_count():
     for other in runs[1:]:
         for a, b in zip(runs[0], other):
             assert torch.equal(a, b)
+
+
+_COMPILED_VS_CACHED = r"""
+import hashlib, json, sys
+import numba
+from strings_bench.raster import cpu_kernels_f32
+from test_raster_f32 import run
+from test_raster import make_camera, random_scene
+out, leaves = run(random_scene(n=1500, seed=3), make_camera(W=128, H=96), "cpu")
+digest = hashlib.sha256()
+for t in [out.color, out.alpha, out.depth, out.absgrad, out.means2d.grad] + [x.grad for x in leaves]:
+    digest.update(t.detach().numpy().tobytes())
+hits = sum(sum(getattr(cpu_kernels_f32, k).stats.cache_hits.values()) for k in ("forward", "backward", "pack"))
+print(json.dumps({"digest": digest.hexdigest(), "cache_hits": hits}))
+"""
+
+
+def test_float32_kernels_compiled_here_and_loaded_from_the_cache_give_the_same_bits(tmp_path):
+    """A clean clone's first process compiles the kernels (numba's JIT); every later one loads the object
+    code numba cached. Both must give the same bits, or a run depends on whether it came first (the
+    reason the kernels have no `contract`: LLVM fused multiply-adds differently on the two paths)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])}
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _COMPILED_VS_CACHED], env=env, check=True,
+                                      capture_output=True, text=True, timeout=600).stdout.splitlines()[-1])
+            for _ in range(2)]
+    assert runs[0]["cache_hits"] == 0 and runs[1]["cache_hits"] == 3  # compiled, then loaded
+    assert runs[0]["digest"] == runs[1]["digest"]
 
 
 def test_float32_tight_boxes_change_no_pixel():
