@@ -21,6 +21,18 @@ Gaussian count, then the mean over the scenes next to the paper's figures (withi
     strings-bench calibrate --regime cpu --dataset synthetic360-cpu --out runs/s360cpu-compare \
         --methods strings,3dgs,strings-no-densify,strings-pos-lr,absgs,mip-splatting,mcmc,edc-absgs
 
+Draws (issue 40): `--draws 0,1,2` trains every room of `--scenes` at each generator seed (scene draws
+ROOM@N, docs/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
+A grid axis `seed=0,1,2` is read the same way: its points are draws of one setting in the tables.
+
+    # 3DGS on the three rooms of synthetic360-cpu at draws 0, 1, 2, schedule x0.1, checkpoints 3K and 7K
+    strings-bench calibrate --regime cpu --dataset synthetic360-cpu --draws 0,1,2 --steps-scale 0.1 \
+        --checkpoints 3K,7K --out runs/cal40-x0.1-draws
+
+The tables give, per setting and checkpoint, the mean over the rooms of each draw, then the mean over the
+draws with the draws' range (min-max), and per room the mean over its draws with their range, beside the
+per-scene rows; every row carries the scene's SfM points and those on text (its scene_meta.json).
+
 Grid: `KEY=V1,V2,...` per generator setting (any field of SyntheticSettings; text_px values as
 LO:HI); the grid is their product, each point on top of `--base` (default: the synthetic360 card's
 photometric settings) and `--width/--height/--views`. Each point becomes a dataset `s360-<label>`
@@ -28,8 +40,9 @@ in one run folder (resumable: run the same command again). Calibrate on 3DGS alo
 choose the settings before looking at STRinGS, then measure STRinGS once with `--methods strings`.
 
 `--regime` picks the defaults of the size, views, schedule scale, device, grid and run folder:
-`paper` (1600x1200, 150 views, the paper's schedule, CUDA) or `cpu` (REGIMES["cpu"]); an option
-given explicitly wins over its regime's value. `--report-only` rebuilds the tables from the cells
+`paper` (1600x1200, 150 views, the paper's schedule, CUDA) or `cpu` (REGIMES["cpu"]); every other named
+schedule of core/schedules.py (SCHEDULES) is a regime too: the cpu regime at that schedule's scale, run
+folder runs/calibrate-<name> (`regimes()`). An option given explicitly wins over its regime's value. `--report-only` rebuilds the tables from the cells
 already in the run folder (same arguments as the run) and trains nothing.
 
 Writes calibration.csv and calibration.md into the run folder and prints the markdown.
@@ -60,8 +73,10 @@ REGIMES = {
             # OCR-CER saturates at 320x240 (docs/synthetic.md): the CPU target is the known-text CER (issue 27)
             "target": "cer_known"},
 }
-COLUMNS = ["setting", "scene", "label", "iteration", "cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
-           "gaussians", "train_seconds"]
+COLUMNS = ["setting", "scene", "room", "draw", "label", "iteration", "cer", "cer_known", "word_cer", "word_cer_gt",
+           "text_nll", "psnr", "gaussians", "train_seconds", "sfm_points", "text_points"]
+# The metrics averaged over rooms and draws in the tables (text_points: SfM points on the text, a scene's own).
+MEAN_KEYS = ("cer", "cer_known", "word_cer", "text_nll", "text_points")
 ABBREVIATIONS = {"room_scale": "r", "text_px": "t", "bg_frequency": "f", "clutter": "c", "exposure_sd": "e",
                  "white_balance_sd": "wb", "vignetting": "v", "noise_sigma": "n", "defocus_px": "d",
                  "motion_blur_px": "m", "n_views": "views"}
@@ -110,6 +125,44 @@ def point_label(point: dict) -> str:
     return "s360-" + ("-".join(parts) if parts else "base")
 
 
+def regimes() -> dict[str, dict]:
+    """REGIMES, and a regime for every other named schedule (core/schedules.py SCHEDULES, e.g. a frozen `cpu-long`):
+    the cpu regime (the paper regime for a scale >= 1) at that schedule's scale, run folder runs/calibrate-<name>. So
+    freezing a schedule is one line in SCHEDULES, and `calibrate --regime NAME` trains at its scale."""
+    from strings_bench.core.schedules import SCHEDULES
+
+    out = {name: dict(r) for name, r in REGIMES.items()}
+    for name, sched in SCHEDULES.items():
+        if name not in out:
+            base = REGIMES["cpu"] if sched.steps_scale < 1 else REGIMES["paper"]
+            out[name] = {**base, "steps_scale": None if sched.steps_scale == 1 else sched.steps_scale,
+                         "out": f"runs/calibrate-{name}"}
+    return out
+
+
+def expand_scenes(scenes: str, draws: str = "0") -> list[str]:
+    """The scene names of `--scenes` at `--draws`, draw by draw (every room of draw 0, then of draw 1, ...: a draw
+    is complete before the next starts); an entry ROOM@N is taken as it is. StringsBenchError for an unknown room
+    or a malformed draw."""
+    from strings_bench.core.draws import draw_name, parse_draws, split_draw
+    from strings_bench.core.errors import StringsBenchError
+    from strings_bench.datasets.synthetic import SCENE_NAMES_360
+
+    entries = [s.strip() for s in scenes.split(",") if s.strip()]
+    split = [split_draw(e) for e in entries]
+    unknown = [room for room, _ in split if room not in SCENE_NAMES_360]
+    if unknown or not entries:
+        raise StringsBenchError(f"unknown synthetic360 scene(s) {', '.join(unknown) or '(none given)'}",
+                                hint=f"scenes: {', '.join(SCENE_NAMES_360)} (ROOM@N: draw N of a room)")
+    out: list[str] = []
+    for n in parse_draws(draws):
+        for e, (room, d) in zip(entries, split):
+            name = draw_name(room, d) if "@" in e else draw_name(room, n)
+            if name not in out:
+                out.append(name)
+    return out
+
+
 def check_regime(device: str, width: int, steps_scale: float | None) -> str:
     """The device to train on; refuses the calibration without CUDA unless a small CPU smoke run is asked for."""
     import torch
@@ -146,45 +199,121 @@ def _fmt(x, spec="{:.3f}") -> str:
 TARGET_NAMES = {"cer": "OCR-CER", "cer_known": "known-text CER"}
 
 
-def tables(rows: list[dict], scenes: list[str], target: str = "cer") -> str:
+def _with_draw(r: dict) -> dict:
+    """A row with its room, draw and group (the setting its draws share): from the row when given (run() sets them:
+    a grid's seed axis makes draws of one setting), else from the scene name (ROOM@N)."""
+    from strings_bench.core.draws import split_draw
+
+    room, draw = split_draw(r["scene"])
+    return {"room": room, "draw": draw, "group": r["setting"], **r}
+
+
+def _mean(vals) -> float:
+    vals = [v for v in vals if not (isinstance(v, float) and math.isnan(v))]
+    return sum(vals) / len(vals) if vals else math.nan
+
+
+def over_draws(rs: list[dict], key: str) -> dict:
+    """The mean of `key` over the rooms of each draw, then over the draws: {"mean", "min", "max", "draws",
+    "per_draw"}; a draw whose rows have no value is left out (NaN when none has one)."""
+    by_draw: dict[int, list[float]] = {}
+    for r in rs:
+        by_draw.setdefault(r["draw"], []).append(_num(r.get(key)))
+    per = {d: m for d, vals in sorted(by_draw.items()) if not math.isnan(m := _mean(vals))}
+    if not per:
+        return {"mean": math.nan, "min": math.nan, "max": math.nan, "draws": 0, "per_draw": {}}
+    return {"mean": _mean(per.values()), "min": min(per.values()), "max": max(per.values()), "draws": len(per),
+            "per_draw": per}
+
+
+def _fmt_range(s: dict, spec: str = "{:.3f}") -> str:
+    """'mean (min-max)' over draws; the mean alone for one draw."""
+    if s["draws"] < 2:
+        return _fmt(s["mean"], spec)
+    return f"{_fmt(s['mean'], spec)} ({_fmt(s['min'], spec)}-{_fmt(s['max'], spec)})"
+
+
+def tables(rows: list[dict], scenes: list[str], target: str = "cer", expected: dict | None = None) -> str:
     """The markdown: one row per setting, scene and checkpoint, then the means over scenes against the paper
-    (`target`: the metric held against the paper's 3DGS figures, cer or cer_known)."""
+    (`target`: the metric held against the paper's 3DGS figures, cer or cer_known). With several draws, the means
+    are over the rooms of each draw, then over the draws, with the draws' range, and a table per room follows.
+    `expected`: the scenes each group should have (default: len(scenes))."""
+    rows = [_with_draw(r) for r in rows]
     out = io.StringIO()
     out.write("| setting | scene | ckpt | OCR-CER | known-text CER | word_cer | GT word_cer | text_nll | PSNR | Gaussians "
-              "| train s |\n")
-    out.write("|---|---|---|---|---|---|---|---|---|---|---|\n")
+              "| train s | SfM text pts |\n")
+    out.write("|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     for r in rows:
         out.write(f"| {r['setting']} | {r['scene']} | {r['label']} | {_fmt(r['cer'])} | {_fmt(r['cer_known'])} | "
                   f"{_fmt(r['word_cer'])} | {_fmt(r.get('word_cer_gt', math.nan))} | {_fmt(r['text_nll'], '{:.2f}')} | "
                   f"{_fmt(r['psnr'], '{:.2f}')} | "
-                  f"{r['gaussians']} | {_fmt(r['train_seconds'], '{:.0f}')} |\n")
-    out.write("\nMean over scenes (3DGS on STRinGS-360 in the paper: OCR-CER 0.736 at 7K, 0.148 at 30K; "
-              f"calibrated = the mean {TARGET_NAMES[target]} within +-{TOLERANCE} of those):\n\n")
-    out.write("| setting | ckpt | scenes | OCR-CER | known-text CER | word_cer | text_nll | paper | within |\n")
-    out.write("|---|---|---|---|---|---|---|---|---|\n")
+                  f"{r['gaussians']} | {_fmt(r['train_seconds'], '{:.0f}')} | "
+                  f"{_fmt(_num(r.get('text_points')), '{:.0f}')} |\n")
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["setting"], r["label"], r["iteration"]), []).append(r)
-    for (setting, label, _), rs in groups.items():
-        def mean(key):
-            vals = [v for v in (r[key] for r in rs) if not math.isnan(v)]
-            return sum(vals) / len(vals) if vals else math.nan
-        cer = mean(target)
+        groups.setdefault((r["group"], r["label"], r["iteration"]), []).append(r)
+    several = any(len({r["draw"] for r in rs}) > 1 for rs in groups.values())
+    what = ("Mean over the rooms of each draw, then over the draws, the draws' range in brackets"
+            if several else "Mean over scenes")
+    out.write(f"\n{what} (3DGS on STRinGS-360 in the paper: OCR-CER 0.736 at 7K, 0.148 at 30K; "
+              f"calibrated = the mean {TARGET_NAMES[target]} within +-{TOLERANCE} of those):\n\n")
+    out.write("| setting | ckpt | scenes |" + (" draws |" if several else "")
+              + " OCR-CER | known-text CER | word_cer | text_nll | SfM text pts | paper | within |\n")
+    out.write("|---|---|---|" + ("---|" if several else "") + "---|---|---|---|---|---|---|\n")
+    for (group, label, _), rs in groups.items():
+        s = {k: over_draws(rs, k) for k in MEAN_KEYS}
+        cer = s[target]["mean"]
         paper = PAPER_3DGS.get(label)
         within = "-" if paper is None or math.isnan(cer) else ("yes" if abs(cer - paper) <= TOLERANCE else "no")
-        out.write(f"| {setting} | {label} | {len(rs)}/{len(scenes)} | {_fmt(mean('cer'))} | {_fmt(mean('cer_known'))} | "
-                  f"{_fmt(mean('word_cer'))} | {_fmt(mean('text_nll'), '{:.2f}')} | "
+        n = (expected or {}).get(group, len(scenes))
+        out.write(f"| {group} | {label} | {len(rs)}/{n} |" + (f" {s['cer']['draws']} |" if several else "")
+                  + f" {_fmt_range(s['cer'])} | {_fmt_range(s['cer_known'])} | {_fmt_range(s['word_cer'])} | "
+                  f"{_fmt_range(s['text_nll'], '{:.2f}')} | {_fmt_range(s['text_points'], '{:.0f}')} | "
                   f"{'-' if paper is None else paper} | {within} |\n")
+    if several:
+        out.write("\nPer room: the mean over its draws, the draws' range in brackets:\n\n")
+        out.write("| setting | ckpt | room | draws | OCR-CER | known-text CER | word_cer | text_nll | SfM text pts |\n")
+        out.write("|---|---|---|---|---|---|---|---|---|\n")
+        for (group, label, _), rs in groups.items():
+            for room in dict.fromkeys(r["room"] for r in rs):
+                s = {k: over_draws([r for r in rs if r["room"] == room], k) for k in MEAN_KEYS}
+                out.write(f"| {group} | {label} | {room} | {s['cer']['draws']} | {_fmt_range(s['cer'])} | "
+                          f"{_fmt_range(s['cer_known'])} | {_fmt_range(s['word_cer'])} | "
+                          f"{_fmt_range(s['text_nll'], '{:.2f}')} | {_fmt_range(s['text_points'], '{:.0f}')} |\n")
     return out.getvalue()
+
+
+def scene_points(rec: dict, cache: dict) -> tuple[float, float]:
+    """(SfM points, SfM points on text) of the scene a cell trained on, from its scene_meta.json (NaN when the
+    cell's scene folder or its meta is gone)."""
+    path = ((rec.get("config") or {}).get("scene") or {}).get("path")
+    if not path:
+        return math.nan, math.nan
+    if path not in cache:
+        from strings_bench.core.errors import DatasetError
+        from strings_bench.datasets.synthetic import read_meta
+
+        try:
+            meta = read_meta(path)
+            cache[path] = (_num(meta.get("points")), _num(meta.get("text_points")))
+        except DatasetError:
+            cache[path] = (math.nan, math.nan)
+    return cache[path]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     ap = subparsers.add_parser("calibrate", help=command_help("calibrate"), description=__doc__,
                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--regime", choices=sorted(REGIMES), default="paper",
-                    help="defaults for device, size, views, schedule scale, grid and run folder (default: paper)")
+    ap.add_argument("--regime", choices=sorted(regimes()), default="paper",
+                    help="defaults for device, size, views, schedule scale, grid and run folder (default: paper; "
+                         "cpu: REGIMES['cpu']; any other named schedule: the cpu regime at its scale)")
     ap.add_argument("--device", default=None, help="cuda (default when torch sees one), cuda:N, or cpu (small scale only)")
-    ap.add_argument("--scenes", default="pantry,office,storeroom")
+    ap.add_argument("--scenes", default="pantry,office,storeroom",
+                    help="synthetic360 rooms (default all three); ROOM@N names one draw of a room")
+    ap.add_argument("--draws", default="0",
+                    help="scene draws (generator seeds) of every room, e.g. 0,1,2 (default 0: the rooms themselves); "
+                         "applied at every grid point and to --dataset; the tables give the mean over draws with "
+                         "their range")
     ap.add_argument("--grid", nargs="*", default=None, metavar="KEY=V1,V2",
                     help=f"difficulty grid (default: the regime's; paper: {' '.join(DEFAULT_GRID)}, "
                          f"cpu: {' '.join(REGIMES['cpu']['grid'])}); text_px values as LO:HI")
@@ -225,15 +354,12 @@ def run(args: argparse.Namespace) -> int:
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.core.io import atomic_write_text
     from strings_bench.datasets.registry import register_dataset
-    from strings_bench.datasets.synthetic import SCENE_NAMES_360, SYNTHETIC360_DEFAULTS, settings_with, synthetic360_card
+    from strings_bench.core.draws import split_draw
+    from strings_bench.datasets.synthetic import SYNTHETIC360_DEFAULTS, settings_with, synthetic360_card
 
     try:
         device = args.device if args.report_only else check_regime(args.device, args.width, args.steps_scale)
-        scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-        unknown = [s for s in scenes if s not in SCENE_NAMES_360]
-        if unknown:
-            raise StringsBenchError(f"unknown synthetic360 scene(s) {', '.join(unknown)}",
-                                    hint=f"scenes: {', '.join(SCENE_NAMES_360)}")
+        scenes = expand_scenes(args.scenes, args.draws)
         base = dict(SYNTHETIC360_DEFAULTS)
         if args.base is not None:
             base = {}
@@ -241,6 +367,10 @@ def run(args: argparse.Namespace) -> int:
                 key, _, value = item.partition("=")
                 base[key] = parse_value(key, value)
         points = [] if args.dataset else parse_grid(args.grid)
+        drawn = any(split_draw(s)[1] for s in scenes)
+        if drawn and (base.get("seed") or any("seed" in p for p in points)):
+            raise StringsBenchError("scene draws set the generator seed, and --base or --grid sets it too",
+                                    hint="give the seeds once: --draws 0,1,2, or a grid axis seed=0,1,2")
         checkpoints, dense_every = split_checkpoints(parse_checkpoints(args.checkpoints))
         checkpoints = sorted(set(checkpoints)) if checkpoints else None
         # seed 0 is every method's default: recorded as no override, so folders made before --seed resume
@@ -271,19 +401,29 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
 
-    rows = []
+    rows, metas = [], {}
+    # a grid axis seed=0,1,2 makes draws of one setting: its points are grouped under the label without the seed
+    groups = {label: point_label({k: v for k, v in point.items() if k != "seed"}) if "seed" in point else label
+              for label, point in labels.items()}
     for rec in iter_cells(run_dir):
         r = cell_row(rec)
         if r["dataset"] not in labels or r["scene"] not in scenes or r["method"] not in methods:
             continue
         if r["evaluation"] != "full":  # every:N's word-crop-only checkpoints: docs/readability.md's analysis reads them
             continue
-        rows.append({"setting": r["dataset"], "scene": r["scene"], "label": r["label"], "iteration": int(r["iteration"]),
+        room, draw = split_draw(r["scene"])
+        sfm, text = scene_points(rec, metas)
+        rows.append({"setting": r["dataset"], "scene": r["scene"], "room": room,
+                     "draw": int(labels[r["dataset"]].get("seed", draw)), "group": groups[r["dataset"]],
+                     "label": r["label"], "iteration": int(r["iteration"]),
                      **{k: _num(r[k]) for k in ("cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
                                                 "train_seconds")},
-                     "gaussians": r["gaussians"], "method": r["method"]})
+                     "gaussians": r["gaussians"], "method": r["method"], "sfm_points": sfm, "text_points": text})
     order = list(labels)
     rows.sort(key=lambda r: (r["method"], order.index(r["setting"]), r["iteration"], scenes.index(r["scene"])))
+    expected: dict[str, int] = {}
+    for label in labels:
+        expected[groups[label]] = expected.get(groups[label], 0) + len(scenes)
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=["method", *COLUMNS, *labels_keys(labels)], extrasaction="ignore")
     writer.writeheader()
@@ -291,14 +431,17 @@ def run(args: argparse.Namespace) -> int:
         writer.writerow({**r, **{k: labels[r["setting"]].get(k, "") for k in labels_keys(labels)}})
     atomic_write_text(run_dir / "calibration.csv", buf.getvalue())
     schedule = "paper schedule" if args.steps_scale is None else f"schedule x{args.steps_scale:g}"
+    draws = sorted({split_draw(s)[1] for s in scenes} | {int(p["seed"]) for p in labels.values() if "seed" in p})
+    drawn_note = f"Draws (generator seeds): {', '.join(map(str, draws))}\n\n" if len(draws) > 1 else ""
     if args.dataset:
-        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, device {device}\n\n"
-              f"Dataset: {args.dataset} (its registered settings)\n\n")
+        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, device {device}, regime {args.regime}\n\n"
+              f"Dataset: {args.dataset} (its registered settings)\n\n{drawn_note}")
     else:
         md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, {args.width}x{args.height}, "
-              f"{args.views} views, device {device}\n\nBase settings: {base}\n\n")
+              f"{args.views} views, device {device}, regime {args.regime}\n\nBase settings: {base}\n\n{drawn_note}")
     for method in methods:
-        md += f"## {method}\n\n" + tables([r for r in rows if r["method"] == method], scenes, args.target) + "\n"
+        md += (f"## {method}\n\n" + tables([r for r in rows if r["method"] == method], scenes, args.target, expected)
+               + "\n")
     atomic_write_text(run_dir / "calibration.md", md)
     print(md)
     print(f"written: {run_dir / 'calibration.csv'}, {run_dir / 'calibration.md'}")
@@ -308,7 +451,7 @@ def run(args: argparse.Namespace) -> int:
 def apply_regime(args) -> None:
     """Fill the options left unset (None) from --regime's defaults, in place (the default run folder of a
     seed other than 0 gets a -seed<N> suffix: a folder holds one seed)."""
-    for key, value in REGIMES[args.regime].items():
+    for key, value in regimes()[args.regime].items():
         if getattr(args, key) is None:
             if key == "out" and getattr(args, "seed", 0):
                 value = f"{value}-seed{args.seed}"
