@@ -1,5 +1,8 @@
 """The paper's tables over run folders of several seeds (`strings-bench compare RUN_DIR...`; issue 27).
 
+Size (~480 lines): one comparison from its cells to its numbers (seeds and scene draws), its tables and its four
+renderings (Markdown, LaTeX, CSV, HTML); the renderings share the numbers and the decided rows, so they stay together.
+
 Each run folder holds one seed (`strings-bench calibrate --seed N`, or `run --set seed=N`); a cell's seed is read
 from its own settings (0 when none was given). For each method, in the registry's (the paper's) order:
 
@@ -328,7 +331,7 @@ def draws_tables(c: Comparison, labels=("7K", "30K")) -> list[Table]:
                     values[m] = _mean(per)
                     suffix[m] = f" ({min(per):.3f}-{max(per):.3f}, {len(per)} draws)" if len(per) > 1 else " (1 draw)"
                 sub = f"{room or 'all rooms'}"
-                cols.append(Column(f"{name} {label}", sub, f"{name} {label} {sub}", True, ".3f", values, suffix=suffix))
+                cols.append(Column(f"{name} {label}", sub, sub, True, ".3f", values, suffix=suffix))
         if cols:
             tables.append(Table(f"compare_draws_{value}", "Method", "Method", cols, c.methods,
                                 f"{name} over scene draws: per room, the mean over its draws of the mean over the seeds "
