@@ -28,7 +28,7 @@ from strings_bench.datasets.synthetic import (SCENE_NAMES_360, SYNTHETIC360_CPU,
 # builds (the same settings), which the issue-40 calibration trains on. Draw 0 keeps the keys pinned in
 # test_synthetic360.py (44d5d74a835b, fa06cf581d7a, 040f396a0077).
 CPU_DRAW_KEYS = {1: {"pantry": "026e6996ce1b", "office": "479eaba3407a", "storeroom": "0ed574b3667d"},
-                 2: {"pantry": "03a785a1128f", "office": "ef8ff5f0bda5"}}
+                 2: {"pantry": "03a785a1128f", "office": "ef8ff5f0bda5", "storeroom": "d76d33b1d9d1"}}
 
 
 def test_draw_names_parse_and_refuse_what_is_no_draw():
@@ -206,6 +206,10 @@ def test_calibrate_tables_give_the_mean_over_draws_with_the_draws_range():
     assert "| 2.00 (2.00-2.00) | 150 (100-200) |" in md
     assert "| s360-base | 7K | office | 3 | 1.000 (1.000-1.000) | 0.800 (0.700-0.900) |" in md
     assert "| s360-base | office@2 | 7K | 1.000 | 0.700 |" in md and md.count("| s360-base | pantry") == 3
+    # draw 2 still training (office@2 not done): every draw is averaged over pantry only, 0.6, 0.7, 0.5
+    part = cal.tables(rows[:-1], scenes, "cer_known")
+    assert "| s360-base | 7K | 5/6 | 3 | 1.000 (1.000-1.000) | 0.600 (0.500-0.700) |" in part
+    assert "| s360-base | 7K | office | 2 | 1.000 (1.000-1.000) | 0.850 (0.800-0.900) |" in part
     # one draw: today's table, no draws column and no per-room table
     one = cal.tables(rows[:2], ["pantry", "office"], "cer_known")
     assert "| s360-base | 7K | 2/2 | 1.000 | 0.700 | 0.500 | 2.00 | 200 | 0.736 | yes |" in one and "Per room" not in one
@@ -247,7 +251,7 @@ def test_calibrate_report_reads_draws_of_a_seed_grid_and_the_text_points_of_each
     assert [(r["scene"], r["text_points"]) for r in rows] == [("pantry", "120.0"), ("office", "nan")]
 
 
-def test_a_named_schedule_is_one_table_entry_for_run_and_calibrate(monkeypatch):
+def test_a_named_schedule_is_one_table_entry_for_run_and_calibrate(monkeypatch, tmp_path):
     """Freezing a schedule (issue 40's `cpu-long`) is one line in core/schedules.py SCHEDULES: `run --schedule NAME`
     and `calibrate --regime NAME` (the cpu regime at its scale, its own run folder) accept it."""
     from strings_bench.cli import build_parser
@@ -263,3 +267,12 @@ def test_a_named_schedule_is_one_table_entry_for_run_and_calibrate(monkeypatch):
     assert (args.device, args.width, args.views, args.steps_scale, args.target) == ("cpu", 320, 48, 0.2, "cer_known")
     assert args.out == "runs/calibrate-cpu-test"
     assert cal.regimes()["cpu"] == cal.REGIMES["cpu"] and cal.regimes()["paper"] == cal.REGIMES["paper"]
+    # the runner gets what `--regime cpu --steps-scale 0.2` gives it: a folder started so resumes under the name
+    import strings_bench.bench.runner as runner
+
+    calls = []
+    monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append(kw))
+    (tmp_path / "run").mkdir()
+    base = ["calibrate", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
+    assert cli_main([*base, "--regime", "cpu-test"]) == 0 and cli_main([*base, "--regime", "cpu", "--steps-scale", "0.2"]) == 0
+    assert calls[0] == calls[1] and (calls[0]["schedule"], calls[0]["steps_scale"]) == ("paper", 0.2)
