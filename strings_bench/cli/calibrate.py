@@ -42,8 +42,9 @@ choose the settings before looking at STRinGS, then measure STRinGS once with `-
 `--regime` picks the defaults of the size, views, schedule scale, device, grid and run folder:
 `paper` (1600x1200, 150 views, the paper's schedule, CUDA) or `cpu` (REGIMES["cpu"]); every other named
 schedule of core/schedules.py (SCHEDULES) is a regime too: the cpu regime at that schedule's scale, run
-folder runs/calibrate-<name> (`regimes()`). An option given explicitly wins over its regime's value. `--report-only` rebuilds the tables from the cells
-already in the run folder (same arguments as the run) and trains nothing.
+folder runs/calibrate-<name> (`regimes()`). An option given explicitly wins over its regime's value.
+`--report-only` rebuilds the tables from the cells already in the run folder (same arguments as the run)
+and trains nothing.
 
 Writes calibration.csv and calibration.md into the run folder and prints the markdown.
 """
@@ -59,9 +60,8 @@ import sys
 from pathlib import Path
 
 from strings_bench.cli import command_help
-# the tables (reports/calibration.py); re-exported: benchmarks and tests read them here
-from strings_bench.reports.calibration import (PAPER_3DGS, TARGET_NAMES, TOLERANCE, _num, over_draws,  # noqa: F401
-                                               tables)
+# the tables (reports/calibration.py); `tables` and the paper's figures are re-exported: tests read them here
+from strings_bench.reports.calibration import PAPER_3DGS, TARGET_NAMES, TOLERANCE, _num, tables  # noqa: F401
 
 DEFAULT_GRID = ["room_scale=1,2,3"]
 # Defaults per regime (--regime); an option given on the command line wins. "cpu": one (3DGS, scene)

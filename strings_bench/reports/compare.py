@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from strings_bench.core.draws import draw_name, split_draw
+from strings_bench.core.draws import split_draw
 from strings_bench.core.errors import DatasetError, StringsBenchError
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.results import cell_row, iter_cells, iteration_label
