@@ -3,6 +3,8 @@ tables over run folders of one seed each (issue 27)."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 from pathlib import Path
 
@@ -11,6 +13,7 @@ import pytest
 import strings_bench.reports.compare as cmp
 from strings_bench.cli import main as cli_main
 from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.results import safe_name
 
 
 def _compare(*args) -> int:
@@ -24,7 +27,7 @@ def _cell(run: Path, method: str, scene: str, label: str, iteration: int, cer: f
            "metrics": {"psnr": 20.0, "ssim": 0.7, "lpips": 0.3}, "timings": {"train_seconds": seconds},
            "config": {"method": {"name": method, "settings": settings}}, "evaluation": evaluation,
            "cer": {"cer": cer}, "cer_known": {"cer": known}, "gaussians": 1000}
-    folder = run / "cells" / method / "synthetic360-cpu" / scene / str(iteration)
+    folder = run / "cells" / method / "synthetic360-cpu" / safe_name(scene) / str(iteration)  # pantry@1: pantry_1
     folder.mkdir(parents=True)
     (folder / "result.json").write_text(json.dumps(rec))
 
@@ -153,3 +156,86 @@ def test_rebuilds_the_doc_synthetic360_cpu_known_text_tables(tmp_path, capsys):
     # the doc: "STRinGS against 3DGS ... at 7K it is not [decided] in known-text CER (the seeds' ranges overlap)"
     verdict = {(r["value"], r["label"]): r["verdict"] for r in cmp.decided_rows(c) if r["method"] == "3dgs"}
     assert verdict[("cer_known", "7K")] == "not decided"
+
+
+# ---- scene draws (issue 40): a draw ROOM@N counts like a seed ---------------------------------------------------
+# known-text CER at 7K per (seed, draw) and room (pantry, office), chosen by hand; OCR-CER the same for both rooms
+DRAW_KNOWN = {"strings": {(0, 0): (0.2, 0.4), (0, 1): (0.6, 0.8), (1, 0): (0.3, 0.5), (1, 1): (0.5, 0.7)},
+              "3dgs": {(0, 0): (0.8, 0.9), (0, 1): (0.75, 0.85), (1, 0): (0.9, 1.0), (1, 1): (0.7, 0.8)}}
+DRAW_OCR = {"strings": {(0, 0): 0.3, (1, 0): 0.35, (0, 1): 0.8, (1, 1): 0.85},
+            "3dgs": {(0, 0): 0.6, (1, 0): 0.65, (0, 1): 0.7, (1, 1): 0.75}}
+
+
+def _draw_folders(tmp_path: Path, draws=(0, 1)) -> list[Path]:
+    runs = []
+    for seed in (0, 1):
+        run = tmp_path / f"seed{seed}"
+        for method, table in DRAW_KNOWN.items():
+            for (s, d), known in table.items():
+                if s != seed or d not in draws:
+                    continue
+                for room, k in zip(("pantry", "office"), known):
+                    _cell(run, method, room if d == 0 else f"{room}@{d}", "7K", 350, DRAW_OCR[method][(s, d)], k,
+                          seed=seed or None)
+        runs.append(run)
+    return runs
+
+
+def test_draws_count_like_seeds_in_means_ranges_and_decided(tmp_path, capsys):
+    runs = _draw_folders(tmp_path)
+    c = cmp.compare(runs)
+    st = c.get("strings", "7K", "cer_known")
+    # replicate means (mean of the two rooms): s0d0 0.3, s0d1 0.7, s1d0 0.4, s1d1 0.6
+    # per draw (mean over seeds): d0 0.35, d1 0.65; mean over draws 0.5; range over replicates 0.3-0.7
+    assert st["mean"] == pytest.approx(0.5) and (st["min"], st["max"]) == (pytest.approx(0.3), pytest.approx(0.7))
+    assert (st["seeds"], st["draws"], st["replicates"], st["scenes"]) == (2, 2, 4, 2)
+    assert st["per_draw"] == {0: pytest.approx(0.35), 1: pytest.approx(0.65)}
+    assert st["per_seed"] == pytest.approx([0.5, 0.5]) and st["left_out"] == {}
+    gs = c.get("3dgs", "7K", "cer_known")  # replicates 0.85, 0.8, 0.95, 0.75: mean (0.9 + 0.775) / 2 = 0.8375
+    assert gs["mean"] == pytest.approx(0.8375) and (gs["min"], gs["max"]) == (pytest.approx(0.75), pytest.approx(0.95))
+    verdict = {(r["value"], r["label"]): r for r in cmp.decided_rows(c) if r["method"] == "3dgs"}
+    # known-text: STRinGS 0.3-0.7 against 3DGS 0.75-0.95: decided; OCR-CER: 0.3-0.85 against 0.6-0.75: not decided
+    assert verdict[("cer_known", "7K")]["verdict"] == "decided"
+    assert verdict[("cer", "7K")]["verdict"] == "not decided" and verdict[("cer", "7K")]["seeds"] == "2x2 draws / 2x2 draws"
+    # draw 0 alone: the seeds (0.3, 0.35 against 0.6, 0.65) decide OCR-CER; the draws undo that
+    only0 = cmp.compare(_draw_folders(tmp_path / "d0", draws=(0,)))
+    assert {r["verdict"] for r in cmp.decided_rows(only0) if (r["method"], r["value"]) == ("3dgs", "cer")} == {"decided"}
+    assert only0.get("strings", "7K", "cer")["draws"] == 1 and not cmp.has_draws(only0)
+    # the draws tables: per room the mean over its draws of the seeds' mean, with the draws' range
+    tables = {t.name: t for t in cmp.comparison_tables(c)}
+    known = {(col.group, col.sub_plain): col for col in tables["compare_draws_cer_known"].columns}
+    pantry, office, every = (known[("known-text CER 7K", r)] for r in ("pantry", "office", "all rooms"))
+    # pantry: d0 (0.2 + 0.3) / 2 = 0.25, d1 (0.6 + 0.5) / 2 = 0.55; office: d0 0.45, d1 0.75
+    assert pantry.values["strings"] == pytest.approx(0.4) and pantry.suffix["strings"] == " (0.250-0.550, 2 draws)"
+    assert office.values["strings"] == pytest.approx(0.6) and office.suffix["strings"] == " (0.450-0.750, 2 draws)"
+    assert every.values["strings"] == pytest.approx(0.5) and every.suffix["strings"] == " (0.350-0.650, 2 draws)"
+    assert _compare(*runs, "--per-scene", "cer_known", "--out", tmp_path / "cmp") == 0
+    md = capsys.readouterr().out
+    assert md.startswith("# Comparison over seeds and scene draws")
+    # seeds, draws, scenes (rooms), then OCR-CER 7K and known-text CER 7K with the range over seeds and draws
+    assert "| STRinGS | _2_ | _2_ | _2_ | 0.575 (0.300-0.850) **(1)** | n/a | 0.500 (0.300-0.700) **(1)** |" in md
+    assert "| STRinGS | 0.600 (0.450-0.750, 2 draws) **(1)** | 0.400 (0.250-0.550, 2 draws) **(1)** | 0.500 " in md
+    assert "| method | ckpt | office | office@1 | pantry | pantry@1 |" in md  # a room's draws side by side
+    assert "| STRinGS | 7K | 0.400 / 0.500 | 0.800 / 0.700 | 0.200 / 0.300 | 0.600 / 0.500 |" in md
+    row = next(r for r in csv.DictReader(io.StringIO((tmp_path / "cmp" / "comparison.csv").read_text()))
+               if (r["method"], r["label"], r["value"]) == ("strings", "7K", "cer_known"))
+    assert [float(row[k]) for k in ("mean", "min", "max", "draw_min", "draw_max")] == pytest.approx([0.5, 0.3, 0.7, 0.35, 0.65])
+    assert (row["seeds"], row["draws"], row["scenes"]) == ("2", "2", "2") and row["per_draw"].startswith("0:0.35")
+
+
+def test_a_room_missing_at_one_draw_is_left_out_and_two_datasets_scene_names_collide(tmp_path):
+    run = tmp_path / "run"
+    for scene, k in (("pantry", 0.2), ("office", 0.4), ("pantry@1", 0.6)):  # office@1 not trained
+        _cell(run, "3dgs", scene, "7K", 350, 1.0, k)
+    s = cmp.compare([run]).get("3dgs", "7K", "cer_known")
+    # the rooms every (seed, draw) has: pantry only; draws 0.2 and 0.6
+    assert (s["scenes"], s["draws"], s["mean"]) == (1, 2, pytest.approx(0.4)) and s["left_out"] == {0: ["office"]}
+    other = tmp_path / "other"
+    rec = json.loads((run / "cells" / "3dgs" / "synthetic360-cpu" / "pantry" / "350" / "result.json").read_text())
+    assert (run / "cells" / "3dgs" / "synthetic360-cpu" / "pantry_1").is_dir()  # the runner's folder name of pantry@1
+    folder = other / "cells" / "3dgs" / "s360-seed1" / "pantry" / "350"
+    folder.mkdir(parents=True)
+    (folder / "result.json").write_text(json.dumps({**rec, "dataset": "s360-seed1"}))
+    with pytest.raises(StringsBenchError, match="is in datasets synthetic360-cpu and s360-seed1"):
+        cmp.collect([run, other])
+    assert set(cmp.collect([run, other], "s360-seed1")) == {("3dgs", "7K")}

@@ -21,6 +21,18 @@ Gaussian count, then the mean over the scenes next to the paper's figures (withi
     strings-bench calibrate --regime cpu --dataset synthetic360-cpu --out runs/s360cpu-compare \
         --methods strings,3dgs,strings-no-densify,strings-pos-lr,absgs,mip-splatting,mcmc,edc-absgs
 
+Draws (issue 40): `--draws 0,1,2` trains every room of `--scenes` at each generator seed (scene draws
+ROOM@N, docs/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
+A grid axis `seed=0,1,2` is read the same way: its points are draws of one setting in the tables.
+
+    # 3DGS on the three rooms of synthetic360-cpu at draws 0, 1, 2, schedule x0.1, checkpoints 3K and 7K
+    strings-bench calibrate --regime cpu --dataset synthetic360-cpu --draws 0,1,2 --steps-scale 0.1 \
+        --checkpoints 3K,7K --out runs/cal40-x0.1-draws
+
+The tables give, per setting and checkpoint, the mean over the rooms of each draw, then the mean over the
+draws with the draws' range (min-max), and per room the mean over its draws with their range, beside the
+per-scene rows; every row carries the scene's SfM points and those on text (its scene_meta.json).
+
 Grid: `KEY=V1,V2,...` per generator setting (any field of SyntheticSettings; text_px values as
 LO:HI); the grid is their product, each point on top of `--base` (default: the synthetic360 card's
 photometric settings) and `--width/--height/--views`. Each point becomes a dataset `s360-<label>`
@@ -28,9 +40,11 @@ in one run folder (resumable: run the same command again). Calibrate on 3DGS alo
 choose the settings before looking at STRinGS, then measure STRinGS once with `--methods strings`.
 
 `--regime` picks the defaults of the size, views, schedule scale, device, grid and run folder:
-`paper` (1600x1200, 150 views, the paper's schedule, CUDA) or `cpu` (REGIMES["cpu"]); an option
-given explicitly wins over its regime's value. `--report-only` rebuilds the tables from the cells
-already in the run folder (same arguments as the run) and trains nothing.
+`paper` (1600x1200, 150 views, the paper's schedule, CUDA) or `cpu` (REGIMES["cpu"]); every other named
+schedule of core/schedules.py (SCHEDULES) is a regime too: the cpu regime at that schedule's scale, run
+folder runs/calibrate-<name> (`regimes()`). An option given explicitly wins over its regime's value.
+`--report-only` rebuilds the tables from the cells already in the run folder (same arguments as the run)
+and trains nothing.
 
 Writes calibration.csv and calibration.md into the run folder and prints the markdown.
 """
@@ -46,9 +60,9 @@ import sys
 from pathlib import Path
 
 from strings_bench.cli import command_help
+# the tables (reports/calibration.py); `tables` and the paper's figures are re-exported: tests read them here
+from strings_bench.reports.calibration import PAPER_3DGS, TARGET_NAMES, TOLERANCE, _num, tables  # noqa: F401
 
-PAPER_3DGS = {"7K": 0.736, "30K": 0.148}  # 3DGS's OCR-CER on STRinGS-360 (the paper's Table 1)
-TOLERANCE = 0.1
 DEFAULT_GRID = ["room_scale=1,2,3"]
 # Defaults per regime (--regime); an option given on the command line wins. "cpu": one (3DGS, scene)
 # cell to 30K-equivalent (1500 steps) costs ~15 min or less on 2 cores (docs/synthetic.md).
@@ -60,8 +74,8 @@ REGIMES = {
             # OCR-CER saturates at 320x240 (docs/synthetic.md): the CPU target is the known-text CER (issue 27)
             "target": "cer_known"},
 }
-COLUMNS = ["setting", "scene", "label", "iteration", "cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
-           "gaussians", "train_seconds"]
+COLUMNS = ["setting", "scene", "room", "draw", "label", "iteration", "cer", "cer_known", "word_cer", "word_cer_gt",
+           "text_nll", "psnr", "gaussians", "train_seconds", "sfm_points", "text_points"]
 ABBREVIATIONS = {"room_scale": "r", "text_px": "t", "bg_frequency": "f", "clutter": "c", "exposure_sd": "e",
                  "white_balance_sd": "wb", "vignetting": "v", "noise_sigma": "n", "defocus_px": "d",
                  "motion_blur_px": "m", "n_views": "views"}
@@ -110,6 +124,44 @@ def point_label(point: dict) -> str:
     return "s360-" + ("-".join(parts) if parts else "base")
 
 
+def regimes() -> dict[str, dict]:
+    """REGIMES, and a regime for every other named schedule (core/schedules.py SCHEDULES, e.g. a frozen `cpu-long`):
+    the cpu regime (the paper regime for a scale >= 1) at that schedule's scale, run folder runs/calibrate-<name>. So
+    freezing a schedule is one line in SCHEDULES, and `calibrate --regime NAME` trains at its scale."""
+    from strings_bench.core.schedules import SCHEDULES
+
+    out = {name: dict(r) for name, r in REGIMES.items()}
+    for name, sched in SCHEDULES.items():
+        if name not in out:
+            base = REGIMES["cpu"] if sched.steps_scale < 1 else REGIMES["paper"]
+            out[name] = {**base, "steps_scale": None if sched.steps_scale == 1 else sched.steps_scale,
+                         "out": f"runs/calibrate-{name}"}
+    return out
+
+
+def expand_scenes(scenes: str, draws: str = "0") -> list[str]:
+    """The scene names of `--scenes` at `--draws`, draw by draw (every room of draw 0, then of draw 1, ...: a draw
+    is complete before the next starts); an entry ROOM@N is taken as it is. StringsBenchError for an unknown room
+    or a malformed draw."""
+    from strings_bench.core.draws import draw_name, parse_draws, split_draw
+    from strings_bench.core.errors import StringsBenchError
+    from strings_bench.datasets.synthetic import SCENE_NAMES_360
+
+    entries = [s.strip() for s in scenes.split(",") if s.strip()]
+    split = [split_draw(e) for e in entries]
+    unknown = [room for room, _ in split if room not in SCENE_NAMES_360]
+    if unknown or not entries:
+        raise StringsBenchError(f"unknown synthetic360 scene(s) {', '.join(unknown) or '(none given)'}",
+                                hint=f"scenes: {', '.join(SCENE_NAMES_360)} (ROOM@N: draw N of a room)")
+    out: list[str] = []
+    for n in parse_draws(draws):
+        for e, (room, d) in zip(entries, split):
+            name = draw_name(room, d) if "@" in e else draw_name(room, n)
+            if name not in out:
+                out.append(name)
+    return out
+
+
 def check_regime(device: str, width: int, steps_scale: float | None) -> str:
     """The device to train on; refuses the calibration without CUDA unless a small CPU smoke run is asked for."""
     import torch
@@ -132,59 +184,37 @@ def check_regime(device: str, width: int, steps_scale: float | None) -> str:
     raise StringsBenchError(f"unknown device {device!r}", hint="use cuda, cuda:N or cpu")
 
 
-def _num(x) -> float:
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return math.nan
+def scene_points(rec: dict, cache: dict) -> tuple[float, float]:
+    """(SfM points, SfM points on text) of the scene a cell trained on, from its scene_meta.json (NaN when the
+    cell's scene folder or its meta is gone)."""
+    path = ((rec.get("config") or {}).get("scene") or {}).get("path")
+    if not path:
+        return math.nan, math.nan
+    if path not in cache:
+        from strings_bench.core.errors import DatasetError
+        from strings_bench.datasets.synthetic import read_meta
 
-
-def _fmt(x, spec="{:.3f}") -> str:
-    return "-" if isinstance(x, float) and math.isnan(x) else spec.format(x)
-
-
-TARGET_NAMES = {"cer": "OCR-CER", "cer_known": "known-text CER"}
-
-
-def tables(rows: list[dict], scenes: list[str], target: str = "cer") -> str:
-    """The markdown: one row per setting, scene and checkpoint, then the means over scenes against the paper
-    (`target`: the metric held against the paper's 3DGS figures, cer or cer_known)."""
-    out = io.StringIO()
-    out.write("| setting | scene | ckpt | OCR-CER | known-text CER | word_cer | GT word_cer | text_nll | PSNR | Gaussians "
-              "| train s |\n")
-    out.write("|---|---|---|---|---|---|---|---|---|---|---|\n")
-    for r in rows:
-        out.write(f"| {r['setting']} | {r['scene']} | {r['label']} | {_fmt(r['cer'])} | {_fmt(r['cer_known'])} | "
-                  f"{_fmt(r['word_cer'])} | {_fmt(r.get('word_cer_gt', math.nan))} | {_fmt(r['text_nll'], '{:.2f}')} | "
-                  f"{_fmt(r['psnr'], '{:.2f}')} | "
-                  f"{r['gaussians']} | {_fmt(r['train_seconds'], '{:.0f}')} |\n")
-    out.write("\nMean over scenes (3DGS on STRinGS-360 in the paper: OCR-CER 0.736 at 7K, 0.148 at 30K; "
-              f"calibrated = the mean {TARGET_NAMES[target]} within +-{TOLERANCE} of those):\n\n")
-    out.write("| setting | ckpt | scenes | OCR-CER | known-text CER | word_cer | text_nll | paper | within |\n")
-    out.write("|---|---|---|---|---|---|---|---|---|\n")
-    groups: dict[tuple, list[dict]] = {}
-    for r in rows:
-        groups.setdefault((r["setting"], r["label"], r["iteration"]), []).append(r)
-    for (setting, label, _), rs in groups.items():
-        def mean(key):
-            vals = [v for v in (r[key] for r in rs) if not math.isnan(v)]
-            return sum(vals) / len(vals) if vals else math.nan
-        cer = mean(target)
-        paper = PAPER_3DGS.get(label)
-        within = "-" if paper is None or math.isnan(cer) else ("yes" if abs(cer - paper) <= TOLERANCE else "no")
-        out.write(f"| {setting} | {label} | {len(rs)}/{len(scenes)} | {_fmt(mean('cer'))} | {_fmt(mean('cer_known'))} | "
-                  f"{_fmt(mean('word_cer'))} | {_fmt(mean('text_nll'), '{:.2f}')} | "
-                  f"{'-' if paper is None else paper} | {within} |\n")
-    return out.getvalue()
+        try:
+            meta = read_meta(path)
+            cache[path] = (_num(meta.get("points")), _num(meta.get("text_points")))
+        except DatasetError:
+            cache[path] = (math.nan, math.nan)
+    return cache[path]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     ap = subparsers.add_parser("calibrate", help=command_help("calibrate"), description=__doc__,
                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--regime", choices=sorted(REGIMES), default="paper",
-                    help="defaults for device, size, views, schedule scale, grid and run folder (default: paper)")
+    ap.add_argument("--regime", choices=sorted(regimes()), default="paper",
+                    help="defaults for device, size, views, schedule scale, grid and run folder (default: paper; "
+                         "cpu: REGIMES['cpu']; any other named schedule: the cpu regime at its scale)")
     ap.add_argument("--device", default=None, help="cuda (default when torch sees one), cuda:N, or cpu (small scale only)")
-    ap.add_argument("--scenes", default="pantry,office,storeroom")
+    ap.add_argument("--scenes", default="pantry,office,storeroom",
+                    help="synthetic360 rooms (default all three); ROOM@N names one draw of a room")
+    ap.add_argument("--draws", default="0",
+                    help="scene draws (generator seeds) of every room, e.g. 0,1,2 (default 0: the rooms themselves); "
+                         "applied at every grid point and to --dataset; the tables give the mean over draws with "
+                         "their range")
     ap.add_argument("--grid", nargs="*", default=None, metavar="KEY=V1,V2",
                     help=f"difficulty grid (default: the regime's; paper: {' '.join(DEFAULT_GRID)}, "
                          f"cpu: {' '.join(REGIMES['cpu']['grid'])}); text_px values as LO:HI")
@@ -225,15 +255,12 @@ def run(args: argparse.Namespace) -> int:
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.core.io import atomic_write_text
     from strings_bench.datasets.registry import register_dataset
-    from strings_bench.datasets.synthetic import SCENE_NAMES_360, SYNTHETIC360_DEFAULTS, settings_with, synthetic360_card
+    from strings_bench.core.draws import split_draw
+    from strings_bench.datasets.synthetic import SYNTHETIC360_DEFAULTS, settings_with, synthetic360_card
 
     try:
         device = args.device if args.report_only else check_regime(args.device, args.width, args.steps_scale)
-        scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-        unknown = [s for s in scenes if s not in SCENE_NAMES_360]
-        if unknown:
-            raise StringsBenchError(f"unknown synthetic360 scene(s) {', '.join(unknown)}",
-                                    hint=f"scenes: {', '.join(SCENE_NAMES_360)}")
+        scenes = expand_scenes(args.scenes, args.draws)
         base = dict(SYNTHETIC360_DEFAULTS)
         if args.base is not None:
             base = {}
@@ -241,6 +268,10 @@ def run(args: argparse.Namespace) -> int:
                 key, _, value = item.partition("=")
                 base[key] = parse_value(key, value)
         points = [] if args.dataset else parse_grid(args.grid)
+        drawn = any(split_draw(s)[1] for s in scenes)
+        if drawn and (base.get("seed") or any("seed" in p for p in points)):
+            raise StringsBenchError("scene draws set the generator seed, and --base or --grid sets it too",
+                                    hint="give the seeds once: --draws 0,1,2, or a grid axis seed=0,1,2")
         checkpoints, dense_every = split_checkpoints(parse_checkpoints(args.checkpoints))
         checkpoints = sorted(set(checkpoints)) if checkpoints else None
         # seed 0 is every method's default: recorded as no override, so folders made before --seed resume
@@ -271,19 +302,29 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
 
-    rows = []
+    rows, metas = [], {}
+    # a grid axis seed=0,1,2 makes draws of one setting: its points are grouped under the label without the seed
+    groups = {label: point_label({k: v for k, v in point.items() if k != "seed"}) if "seed" in point else label
+              for label, point in labels.items()}
     for rec in iter_cells(run_dir):
         r = cell_row(rec)
         if r["dataset"] not in labels or r["scene"] not in scenes or r["method"] not in methods:
             continue
         if r["evaluation"] != "full":  # every:N's word-crop-only checkpoints: docs/readability.md's analysis reads them
             continue
-        rows.append({"setting": r["dataset"], "scene": r["scene"], "label": r["label"], "iteration": int(r["iteration"]),
+        room, draw = split_draw(r["scene"])
+        sfm, text = scene_points(rec, metas)
+        rows.append({"setting": r["dataset"], "scene": r["scene"], "room": room,
+                     "draw": int(labels[r["dataset"]].get("seed", draw)), "group": groups[r["dataset"]],
+                     "label": r["label"], "iteration": int(r["iteration"]),
                      **{k: _num(r[k]) for k in ("cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
                                                 "train_seconds")},
-                     "gaussians": r["gaussians"], "method": r["method"]})
+                     "gaussians": r["gaussians"], "method": r["method"], "sfm_points": sfm, "text_points": text})
     order = list(labels)
     rows.sort(key=lambda r: (r["method"], order.index(r["setting"]), r["iteration"], scenes.index(r["scene"])))
+    expected: dict[str, int] = {}
+    for label in labels:
+        expected[groups[label]] = expected.get(groups[label], 0) + len(scenes)
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=["method", *COLUMNS, *labels_keys(labels)], extrasaction="ignore")
     writer.writeheader()
@@ -291,14 +332,17 @@ def run(args: argparse.Namespace) -> int:
         writer.writerow({**r, **{k: labels[r["setting"]].get(k, "") for k in labels_keys(labels)}})
     atomic_write_text(run_dir / "calibration.csv", buf.getvalue())
     schedule = "paper schedule" if args.steps_scale is None else f"schedule x{args.steps_scale:g}"
+    draws = sorted({split_draw(s)[1] for s in scenes} | {int(p["seed"]) for p in labels.values() if "seed" in p})
+    drawn_note = f"Draws (generator seeds): {', '.join(map(str, draws))}\n\n" if len(draws) > 1 else ""
     if args.dataset:
-        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, device {device}\n\n"
-              f"Dataset: {args.dataset} (its registered settings)\n\n")
+        md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, device {device}, regime {args.regime}\n\n"
+              f"Dataset: {args.dataset} (its registered settings)\n\n{drawn_note}")
     else:
         md = (f"# synthetic360 calibration: {', '.join(methods)}, {schedule}, {args.width}x{args.height}, "
-              f"{args.views} views, device {device}\n\nBase settings: {base}\n\n")
+              f"{args.views} views, device {device}, regime {args.regime}\n\nBase settings: {base}\n\n{drawn_note}")
     for method in methods:
-        md += f"## {method}\n\n" + tables([r for r in rows if r["method"] == method], scenes, args.target) + "\n"
+        md += (f"## {method}\n\n" + tables([r for r in rows if r["method"] == method], scenes, args.target, expected)
+               + "\n")
     atomic_write_text(run_dir / "calibration.md", md)
     print(md)
     print(f"written: {run_dir / 'calibration.csv'}, {run_dir / 'calibration.md'}")
@@ -308,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
 def apply_regime(args) -> None:
     """Fill the options left unset (None) from --regime's defaults, in place (the default run folder of a
     seed other than 0 gets a -seed<N> suffix: a folder holds one seed)."""
-    for key, value in REGIMES[args.regime].items():
+    for key, value in regimes()[args.regime].items():
         if getattr(args, key) is None:
             if key == "out" and getattr(args, "seed", 0):
                 value = f"{value}-seed{args.seed}"

@@ -57,15 +57,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     lp.set_defaults(func=cmd_list)
 
     pp = sub.add_parser("prepare", help="build (synthetic) or locate scenes and print their statistics",
-                        description="SPEC is a dataset id (all its scenes) or DATASET/SCENE, e.g. synthetic/books.")
-    pp.add_argument("specs", nargs="*", metavar="SPEC", help="e.g. synthetic/books or synthetic")
+                        description="SPEC is a dataset id (all its scenes) or DATASET/SCENE, e.g. synthetic/books; on "
+                                    "the synthetic360 datasets DATASET/SCENE@N is draw N of a room (generator seed N) "
+                                    "and DATASET@N every room at draw N (docs/datasets.md, 'Scene draws').")
+    pp.add_argument("specs", nargs="*", metavar="SPEC",
+                    help="e.g. synthetic/books, synthetic, synthetic360-cpu/pantry@1 or synthetic360-cpu@2")
     pp.add_argument("--all", action="store_true", help="every scene of the synthetic benchmark")
     pp.add_argument("--force", action="store_true", help="rebuild synthetic scenes even when cached")
     g = pp.add_argument_group("synthetic scenes (non-default settings build a separate cache entry)")
     g.add_argument("--width", type=int, help="image width (default 320)")
     g.add_argument("--height", type=int, help="image height (default 240)")
     g.add_argument("--views", type=int, dest="n_views", help="views on the orbit (default 48)")
-    g.add_argument("--seed", type=int, help="generator seed (default 0)")
+    g.add_argument("--seed", type=int, help="generator seed (default 0; on synthetic360 scenes a draw, SCENE@N, "
+                                            "names the same thing)")
     g.add_argument("--supersample", type=int, help="s x s rays per pixel (default 2)")
     d = pp.add_argument_group("difficulty controls (docs/synthetic.md; the first four: synthetic360 scenes only)")
     d.add_argument("--room-scale", type=float, help="multiplies the room, the clutter ring and the orbit radius (default 1)")
@@ -112,10 +116,14 @@ def _scene_status(card, scene: str) -> str:
     from strings_bench.datasets.registry import local_root
 
     if card.id in SYNTHETIC_IDS:
+        from strings_bench.core.draws import draw_name, split_draw
         from strings_bench.datasets.synthetic import default_settings, is_built, scene_dir
 
+        room = split_draw(scene)[0]
         settings = default_settings(scene, card.id)
-        return f"cached at {scene_dir(scene, settings)}" if is_built(scene, settings) else "not built (built on first use)"
+        status = f"cached at {scene_dir(room, settings)}" if is_built(room, settings) else "not built (built on first use)"
+        others = [f"@{d}" for d in card.draws if d and is_built(room, default_settings(draw_name(room, d), card.id))]
+        return status + (f"; draws cached: {', '.join(others)}" if others else "")
     if card.locate is not None:
         return "located on demand"
     try:
@@ -133,6 +141,9 @@ def cmd_list(args) -> int:
         for sc in card.scenes:
             settings = ", ".join(f"{k}={v}" for k, v in sorted(sc.settings.items()))
             print(f"  {card.id}/{sc.name:<14} [{settings}] {_scene_status(card, sc.name)}")
+        if card.draws:
+            print(f"  draws: registered {', '.join(f'@{d}' for d in card.draws)}; any N >= 0 works: "
+                  f"{card.id}/SCENE@N is the scene at generator seed N (SCENE@0 = SCENE), {card.id}@N every scene at draw N")
     return 0
 
 
@@ -141,10 +152,11 @@ def cmd_prepare(args) -> int:
     from tqdm.auto import tqdm
 
     from strings_bench.core.errors import DatasetError
-    from strings_bench.datasets.registry import get_dataset, locate_scene
+    from strings_bench.datasets.registry import locate_scene, select_scenes
     from dataclasses import replace
 
-    from strings_bench.datasets.synthetic import SCENE_NAMES, build_scene, default_settings
+    from strings_bench.core.draws import split_draw
+    from strings_bench.datasets.synthetic import SCENE_NAMES, build_scene, default_settings, with_draw
 
     specs = list(args.specs)
     if args.all:
@@ -154,17 +166,20 @@ def cmd_prepare(args) -> int:
     overrides = {k: getattr(args, k) for k in OVERRIDE_FIELDS if getattr(args, k, None) is not None}
     todo = []
     for spec in specs:
-        dataset_id, _, scene = spec.partition("/")
-        card = get_dataset(dataset_id)
-        for sc in ([card.scene(scene)] if scene else card.scenes):
+        card, scenes = select_scenes(spec)
+        dataset_id = card.id
+        for sc in scenes:
             if (dataset_id, sc.name) not in [(d, s) for d, s, _ in todo]:
                 todo.append((dataset_id, sc.name, card))
     rows = []
     for dataset_id, scene, card in tqdm(todo, desc="scenes", unit="scene", disable=len(todo) < 2):
         t0 = time.perf_counter()
         if dataset_id in SYNTHETIC_IDS:
-            # Each scene's defaults (synthetic360 has camera variation on), with the options given.
-            path = build_scene(scene, replace(default_settings(scene, dataset_id), **overrides), force=args.force, progress=True)
+            # Each scene's defaults (synthetic360 has camera variation on), with the options given; a draw
+            # (pantry@N) then sets the generator seed.
+            room = split_draw(scene)[0]
+            room, settings = with_draw(scene, replace(default_settings(room, dataset_id), **overrides))
+            path = build_scene(room, settings, force=args.force, progress=True)
         else:
             path = locate_scene(card, scene)
         rows.append(_stats(f"{dataset_id}/{scene}", path, time.perf_counter() - t0))

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from strings_bench.core.draws import draw_name, parse_draw, split_draw
 from strings_bench.core.errors import DatasetError
 from strings_bench.core.io import atomic_write_json, cache_root
 
@@ -44,14 +45,39 @@ class DatasetCard:
     locate: Callable[[str], Path] | None = None
     notes: str = ""
     download: dict | None = None  # optional: how to obtain the data (urls, sha256, steps)
+    # Scene draws (core/draws.py): the draws this card registers (listed by `datasets list` and the card's notes);
+    # () when its scenes have no draws. A card with draws accepts SCENE@N for every N >= 0 and its `locate`
+    # builds it; `scenes` stays the draw-0 scenes.
+    draws: tuple[int, ...] = ()
 
     def scene(self, name: str) -> SceneCard:
-        """The scene card called `name`; DatasetError naming the card's scenes when there is none."""
+        """The scene card called `name` (ROOM@N: draw N of a room, where the card has draws; ROOM@0 is ROOM);
+        DatasetError naming the card's scenes when there is none."""
+        room, draw = split_draw(name) if self.draws else (name, 0)
         for s in self.scenes:
-            if s.name == name:
-                return s
-        raise DatasetError(f"dataset {self.id} has no scene {name!r}",
-                           hint=f"its scenes: {', '.join(s.name for s in self.scenes)}")
+            if s.name == room:
+                if draw == 0:
+                    return s
+                desc = f"{s.description} [draw {draw}: generator seed {draw}]" if s.description else f"draw {draw}"
+                return SceneCard(draw_name(room, draw), settings=dict(s.settings), description=desc)
+        hint = f"its scenes: {', '.join(s.name for s in self.scenes)}"
+        if "@" in str(name) and not self.draws:
+            raise DatasetError(f"dataset {self.id} has no scene draws ({name!r})", hint=hint + "; draws (SCENE@N) are "
+                               "scenes of the synthetic360 datasets (docs/datasets.md, 'Scene draws')")
+        raise DatasetError(f"dataset {self.id} has no scene {name!r}", hint=hint)
+
+    def select(self, part: str = "", draw: str | None = None) -> list[SceneCard]:
+        """The scenes a spec names: `part` '' (every scene) or a scene name, `draw` the N of a DATASET@N spec
+        (every scene at draw N) or None."""
+        if draw is not None:
+            if not self.draws:
+                raise DatasetError(f"dataset {self.id} has no scene draws ({self.id}@{draw})",
+                                   hint="draws (DATASET@N, SCENE@N) are scenes of the synthetic360 datasets")
+            if part:
+                raise DatasetError(f"{self.id}@{draw}/{part}: put the draw on the scene", hint=f"{self.id}/{part}@{draw}")
+            n = parse_draw(draw, f"the draw of {self.id}@{draw},")
+            return [self.scene(draw_name(s.name, n)) for s in self.scenes]
+        return [self.scene(part)] if part else list(self.scenes)
 
 
 @dataclass(frozen=True)

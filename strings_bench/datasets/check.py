@@ -326,7 +326,7 @@ def check_card_copy(dataset_id: str, root: str | Path) -> list[SceneReport]:
 def check_target(target: str) -> list[SceneReport]:
     """`datasets check` argument: a path, or the name of a registered dataset."""
     from strings_bench.datasets.cards import BUILTIN_REAL_CARDS
-    from strings_bench.datasets.registry import get_dataset, locate_scene, read_index
+    from strings_bench.datasets.registry import locate_scene, read_index, select_scenes
 
     if Path(target).exists():
         return check_path(target)
@@ -339,8 +339,7 @@ def check_target(target: str) -> list[SceneReport]:
                                f"`strings-bench datasets add {dataset_id} PATH`")
         reports = check_card_copy(dataset_id, index[dataset_id])
         return [r for r in reports if not scene or r.name == f"{dataset_id}/{scene}"]
-    card = get_dataset(dataset_id)
-    scenes = [card.scene(scene)] if scene else card.scenes
+    card, scenes = select_scenes(target)
     if not scenes and dataset_id in index:
         return check_path(index[dataset_id])
     return [check_scene(locate_scene(card, sc.name), name=f"{card.id}/{sc.name}") for sc in scenes]

@@ -1,7 +1,8 @@
 """Registry of dataset cards and resolution of `--datasets` specs to scene folders.
 
 A spec is a registry id (`synthetic`, `synthetic/books`, `synthetic360/office`, `strings360/globe`) or a path to a scene
-folder in the COLMAP layout. Cards describe scenes and their per-scene settings; where a card's
+folder in the COLMAP layout. On a card with scene draws (core/draws.py) `synthetic360-cpu/pantry@1` is draw 1 of a
+room and `synthetic360-cpu@1` every room at draw 1. Cards describe scenes and their per-scene settings; where a card's
 data lives on disk is either built in (synthetic scenes are generated into the cache) or recorded
 by `strings-bench datasets add NAME PATH` in the user's dataset index.
 
@@ -19,7 +20,8 @@ from strings_bench.datasets.card import (LOCAL_CARD_NOTES, DatasetCard, SceneCar
                                          locate_scene, read_index, write_index)
 
 __all__ = ["DatasetCard", "SceneCard", "SceneRef", "get_dataset", "index_path", "list_datasets", "local_root",
-           "locate_scene", "read_index", "register_dataset", "register_local_copies", "resolve_scenes", "write_index"]
+           "locate_scene", "read_index", "register_dataset", "register_local_copies", "resolve_scenes", "select_scenes",
+           "write_index"]
 
 _REGISTRY: dict[str, DatasetCard] = {}
 _BUILTINS_REGISTERED = False
@@ -81,6 +83,15 @@ def get_dataset(dataset_id: str) -> DatasetCard:
     return _REGISTRY[dataset_id]
 
 
+def select_scenes(spec: str) -> tuple[DatasetCard, list[SceneCard]]:
+    """The card and scenes a registry spec names: DATASET, DATASET/SCENE, DATASET/SCENE@N (draw N of a scene) or
+    DATASET@N (every scene at draw N); DatasetError for an unknown dataset, scene or a malformed draw."""
+    dataset_id, _, scene = spec.partition("/")
+    dataset_id, sep, draw = dataset_id.partition("@")
+    card = get_dataset(dataset_id)
+    return card, card.select(scene, draw if sep else None)
+
+
 def resolve_scenes(specs: list[str]) -> list[SceneRef]:
     """Turn `--datasets` entries into scene references (building synthetic scenes if needed)."""
     refs: list[SceneRef] = []
@@ -99,9 +110,7 @@ def resolve_scenes(specs: list[str]) -> list[SceneRef]:
                                        hint="a scene folder holds images/ and sparse/0/")
                 refs.extend(SceneRef(dataset=path.name, scene=p.name, path=p.resolve()) for p in subs)
             continue
-        dataset_id, _, scene = spec.partition("/")
-        card = get_dataset(dataset_id)
-        scenes = [card.scene(scene)] if scene else card.scenes
+        card, scenes = select_scenes(spec)
         for sc in scenes:
             refs.append(SceneRef(dataset=card.id, scene=sc.name, path=locate_scene(card, sc.name), settings=dict(sc.settings)))
     return refs

@@ -1,5 +1,8 @@
 """The paper's tables over run folders of several seeds (`strings-bench compare RUN_DIR...`; issue 27).
 
+Size (~480 lines): one comparison from its cells to its numbers (seeds and scene draws), its tables and its four
+renderings (Markdown, LaTeX, CSV, HTML); the renderings share the numbers and the decided rows, so they stay together.
+
 Each run folder holds one seed (`strings-bench calibrate --seed N`, or `run --set seed=N`); a cell's seed is read
 from its own settings (0 when none was given). For each method, in the registry's (the paper's) order:
 
@@ -13,6 +16,13 @@ from its own settings (0 when none was given). For each method, in the registry'
   checkpoint the spec names (`ablation_at`);
 - "decided / not decided": each method against STRinGS (the spec of group "ours") where both have several seeds:
   decided when the seeds' ranges do not overlap.
+
+Scene draws (core/draws.py, issue 40) count like seeds: a cell of scene `pantry@1` is room pantry at draw 1, and
+a (seed, draw) pair is one *replicate*. Each replicate's figure is the mean over the rooms every replicate has; a
+method's mean is the mean over the draws of the mean over the seeds of each draw (= the mean over seeds when there
+is one draw, today's figure), and its range, the one "decided" reads, is over every replicate (seeds and draws).
+With several draws the comparison adds, per CER value, the mean over draws with the draws' range per room and
+over all rooms (`draws_tables`); the per-scene rows stay (`per_scene_table`).
 
 Only fully evaluated checkpoints count (not the word-crop-only ones of `--checkpoints every:N`). A method is
 averaged over the scenes every seed of it has; a (method, seed) with a scene the others lack is reported, not
@@ -28,7 +38,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.draws import split_draw
+from strings_bench.core.errors import DatasetError, StringsBenchError
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.results import cell_row, iter_cells, iteration_label
 from strings_bench.reports.results import read_manifest
@@ -50,6 +61,7 @@ def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
     folders (of `dataset` only, when given)."""
     out: dict = {}
     seen: dict = {}
+    datasets: dict = {}  # (method, seed, scene, label) -> the dataset it came from
     for run_dir in map(Path, run_dirs):
         if not run_dir.is_dir():
             raise StringsBenchError(f"no run folder {run_dir}", hint="give folders made by strings-bench run or calibrate")
@@ -72,35 +84,70 @@ def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
                                             hint="give each seed's folder once (or --dataset to pick one dataset)")
                 continue
             seen[key] = (run_dir, vals)
+            other = datasets.setdefault((row["method"], seed, row["scene"], row["label"]), row["dataset"])
+            if other != row["dataset"]:
+                # cells are keyed by scene name: two datasets' "pantry" would overwrite each other
+                raise StringsBenchError(f"{row['method']} {row['label']} seed {seed}: scene {row['scene']!r} is in "
+                                        f"datasets {other} and {row['dataset']}",
+                                        hint="compare one dataset at a time (--dataset); draws of a room are scenes "
+                                             "ROOM@N of one dataset (docs/datasets.md, 'Scene draws')")
             out.setdefault((row["method"], row["label"]), {}).setdefault(seed, {})[row["scene"]] = vals
     return out
 
 
+def room_draw(scene: str) -> tuple[str, int]:
+    """(room, draw) of a cell's scene name ('pantry@2' -> ('pantry', 2)); a name that is no draw is draw 0 of itself."""
+    try:
+        return split_draw(scene)
+    except DatasetError:
+        return scene, 0
+
+
+def _mean(xs) -> float:
+    xs = list(xs)
+    return sum(xs) / len(xs)
+
+
 def summarise(per_seed: dict, value: str) -> dict | None:
-    """Mean over the scenes every seed has, per seed; then the mean, min and max over the seeds."""
-    scenes = set.intersection(*(set(s) for s in per_seed.values())) if per_seed else set()
-    if not scenes:
+    """Per replicate (seed, draw): the mean over the rooms every replicate has; then the mean over the seeds of each
+    draw, and over the draws ("mean"), with the range over the replicates ("min", "max"). One draw: the mean over
+    the scenes every seed has, per seed, then the mean, min and max over the seeds."""
+    reps: dict = {}
+    for seed, by_scene in per_seed.items():
+        for scene, vals in by_scene.items():
+            room, draw = room_draw(scene)
+            reps.setdefault((seed, draw), {})[room] = vals
+    rooms = set.intersection(*(set(r) for r in reps.values())) if reps else set()
+    if not rooms:
         return None
-    means = []
-    for seed in sorted(per_seed):
-        vals = [per_seed[seed][s][value] for s in sorted(scenes)]
+    means = {}
+    for rep in sorted(reps):
+        vals = [reps[rep][room][value] for room in sorted(rooms)]
         if any(math.isnan(v) for v in vals):
             continue
-        means.append(sum(vals) / len(vals))
+        means[rep] = sum(vals) / len(vals)
     if not means:
         return None
-    missing = {seed: sorted(set(sc) - scenes) for seed, sc in per_seed.items() if set(sc) - scenes}
-    return {"mean": sum(means) / len(means), "min": min(means), "max": max(means), "seeds": len(means),
-            "scenes": len(scenes), "per_seed": means, "left_out": missing}
+    seeds = sorted({seed for seed, _ in means})
+    draws = sorted({draw for _, draw in means})
+    per_draw = {d: _mean(m for (_, dd), m in means.items() if dd == d) for d in draws}
+    # the scenes a seed has beyond the rooms every replicate has (reported, not averaged)
+    missing = {seed: sorted(sc for sc in by_scene if room_draw(sc)[0] not in rooms)
+               for seed, by_scene in per_seed.items() if any(room_draw(sc)[0] not in rooms for sc in by_scene)}
+    return {"mean": _mean(per_draw.values()), "min": min(means.values()), "max": max(means.values()),
+            "seeds": len(seeds), "draws": len(draws), "replicates": len(means), "scenes": len(rooms),
+            "per_seed": [_mean(m for (s, _), m in means.items() if s == seed) for seed in seeds],
+            "per_draw": per_draw, "per_replicate": [[s, d, m] for (s, d), m in sorted(means.items())],
+            "left_out": missing}
 
 
 def decided(a: dict | None, b: dict | None) -> str:
-    """Whether two methods' seed summaries separate them: "decided" when both have several seeds and their ranges
-    do not overlap, "not decided" when they overlap, "one seed" when either has a single seed, "" when either is
-    missing."""
+    """Whether two methods' summaries separate them: "decided" when both have several replicates (seeds x draws)
+    and their ranges do not overlap, "not decided" when they overlap, "one seed" when either has a single seed of a
+    single draw, "" when either is missing."""
     if a is None or b is None:
         return ""
-    if a["seeds"] < 2 or b["seeds"] < 2:
+    if a["replicates"] < 2 or b["replicates"] < 2:
         return "one seed"
     return "decided" if a["max"] < b["min"] or b["max"] < a["min"] else "not decided"
 
@@ -165,7 +212,7 @@ def _column(c: Comparison, group: str, sub: str, label: str, value: str, lower: 
         if s is None:
             continue
         values[m] = s["mean"] * scale
-        if s["seeds"] > 1:
+        if s["replicates"] > 1:
             suffix[m] = f" ({format(s['min'] * scale, fmt)}-{format(s['max'] * scale, fmt)})"
     return Column(group, sub, sub, lower, fmt, values, suffix=suffix)
 
@@ -189,22 +236,32 @@ def _paper_column(c: Comparison, what: str, label: str, sub: str, fmt: str) -> C
 
 SEEDS_NOTE = (" Mean over the scenes of each seed, then over the seeds; the seeds' range in brackets. The paper's "
               "figures (grey, never ranked) are from each method's spec (REFERENCE.md section 5).")
+DRAWS_NOTE = (" Mean over the rooms of each seed and scene draw, then over the seeds of each draw, then over the draws; "
+              "the range over every seed and draw in brackets. The paper's figures (grey, never ranked) are from each "
+              "method's spec (REFERENCE.md section 5).")
+
+
+def has_draws(c: "Comparison") -> bool:
+    """Whether any method of the comparison has several scene draws."""
+    return any(s["draws"] > 1 for m in c.methods for lab in c.numbers[m] for s in c.numbers[m][lab].values() if s)
 
 
 def comparison_tables(c: Comparison) -> list[Table]:
     """The CER table, the time and image-quality table and, where the comparison has them, the ablations."""
     main = [m for m in c.methods if not c.names.is_ablation(m)] or c.methods
-    # the most seeds a method has at any checkpoint, and the scenes averaged there
-    most = {m: max((s for lab in c.numbers[m] if (s := c.get(m, lab, "cer"))), key=lambda s: (s["seeds"], s["scenes"]),
-                   default=None) for m in c.methods}
+    drawn = has_draws(c)
+    note = DRAWS_NOTE if drawn else SEEDS_NOTE
+    # the most seeds (x draws) a method has at any checkpoint, and the scenes (rooms) averaged there
+    most = {m: max((s for lab in c.numbers[m] if (s := c.get(m, lab, "cer"))),
+                   key=lambda s: (s["replicates"], s["scenes"]), default=None) for m in c.methods}
     cer_cols = [Column("", what, what, True, ".0f", {m: s[what] for m, s in most.items() if s}, greyed=True)
-                for what in ("seeds", "scenes")]
+                for what in (("seeds", "draws", "scenes") if drawn else ("seeds", "scenes"))]
     cer_cols += [_column(c, "", f"{name} {label}", label, value, True, ".3f")
                 for value, name in CER_VALUES for label in ("7K", "30K") if (value, label) != ("word_cer", "7K")]
     cer_cols += [p for label in ("7K", "30K") if (p := _paper_column(c, "cer", label, f"OCR-CER {label}", ".3f"))]
     tables = [Table("compare_cer", r"Method", "Method", cer_cols, c.methods,
-                    "CER at 7K and 30K: OCR-CER (the paper's metric), known-text CER and word CER." + SEEDS_NOTE,
-                    heading="CER over seeds")]
+                    "CER at 7K and 30K: OCR-CER (the paper's metric), known-text CER and word CER." + note,
+                    heading="CER over seeds and draws" if drawn else "CER over seeds")]
     time_cols = [_column(c, "", f"training time {label} (min)", label, "train_seconds", True, ".2f", 1 / 60, main)
                  for label in ("7K", "30K")]
     time_cols += [p for label in ("7K", "30K")
@@ -214,7 +271,7 @@ def comparison_tables(c: Comparison) -> list[Table]:
                                                   ("lpips", "LPIPS", True, ".4f"), ("gaussians", "Gaussians", True, ".0f"))]
     tables.append(Table("compare_time_quality", "Method", "Method", time_cols, main,
                         "Training time (optimisation, minutes; only comparable between folders measured under the same "
-                        "load) and image quality at 30K." + SEEDS_NOTE, heading="Training time and image quality"))
+                        "load) and image quality at 30K." + note, heading="Training time and image quality"))
     ablations = c.ablations()
     if ablations:
         rows = [m for m, _, _ in ablations]
@@ -230,9 +287,56 @@ def comparison_tables(c: Comparison) -> list[Table]:
                      Column("", f"full method: {name}", f"full method: {name}", True, ".3f", full)]
         tables.append(Table("compare_ablations", "Ablation", "Ablation", cols, rows,
                             "Each ablation beside the method it ablates (its spec's ablation_of), at the checkpoint its "
-                            "spec names (ablation_at)." + SEEDS_NOTE, shade=False, heading="Ablations"))
+                            "spec names (ablation_at)." + note, shade=False, heading="Ablations"))
+    if drawn:
+        tables += draws_tables(c)
     for t in tables:
         t.names = c.names
+    return tables
+
+
+def _room_draw_means(c: Comparison, method: str, label: str, value: str) -> dict:
+    """{room: {draw: the mean over the seeds of that draw}} of one method and checkpoint (NaN figures left out)."""
+    out: dict = {}
+    for by_scene in (c.data.get((method, label)) or {}).values():
+        for scene, vals in by_scene.items():
+            if not math.isnan(vals[value]):
+                room, draw = room_draw(scene)
+                out.setdefault(room, {}).setdefault(draw, []).append(vals[value])
+    return {room: {d: _mean(v) for d, v in sorted(by_draw.items())} for room, by_draw in out.items()}
+
+
+def draws_tables(c: Comparison, labels=("7K", "30K")) -> list[Table]:
+    """Per CER value: each method's mean over the scene draws with the draws' range, per room (each draw's figure
+    the mean over its seeds) and over all rooms (each draw's figure the mean over its seeds of the mean over the
+    rooms every replicate has: the summary's per_draw)."""
+    tables = []
+    for value, name in CER_VALUES:
+        cols = []
+        for label in labels:
+            per_room = {m: _room_draw_means(c, m, label, value) for m in c.methods}
+            rooms = sorted({room for rs in per_room.values() for room in rs})
+            if not rooms:
+                continue
+            for room in [*rooms, None]:
+                values, suffix = {}, {}
+                for m in c.methods:
+                    if room is None:
+                        s = c.get(m, label, value)
+                        per = list(s["per_draw"].values()) if s else []
+                    else:
+                        per = list(per_room[m].get(room, {}).values())
+                    if not per:
+                        continue
+                    values[m] = _mean(per)
+                    suffix[m] = f" ({min(per):.3f}-{max(per):.3f}, {len(per)} draws)" if len(per) > 1 else " (1 draw)"
+                sub = f"{room or 'all rooms'}"
+                cols.append(Column(f"{name} {label}", sub, sub, True, ".3f", values, suffix=suffix))
+        if cols:
+            tables.append(Table(f"compare_draws_{value}", "Method", "Method", cols, c.methods,
+                                f"{name} over scene draws: per room, the mean over its draws of the mean over the seeds "
+                                "of each draw, the draws' range and count in brackets; all rooms: the same over the "
+                                "mean of the rooms every seed and draw has.", heading=f"{name} over draws"))
     return tables
 
 
@@ -251,17 +355,19 @@ def decided_rows(c: Comparison) -> list[dict]:
                 a, b = c.get(m, label, value), c.get(ref, label, value)
                 verdict = decided(a, b)
                 if verdict:
+                    both = (a, b)
+                    seeds = " / ".join(f"{x['seeds']}" if x["draws"] == 1 else f"{x['seeds']}x{x['draws']} draws"
+                                       for x in both)
                     rows.append({"method": m, "against": ref, "value": value, "label": label,
-                                 "difference": a["mean"] - b["mean"], "seeds": f"{a['seeds']} / {b['seeds']}",
-                                 "verdict": verdict})
+                                 "difference": a["mean"] - b["mean"], "seeds": seeds, "verdict": verdict})
     return rows
 
 
 def _shown(rows: list[dict]) -> tuple[list[dict], str]:
-    """The pairs both sides of which have several seeds, and a sentence on those left out."""
+    """The pairs both sides of which have several seeds (or draws), and a sentence on those left out."""
     shown = [r for r in rows if r["verdict"] != "one seed"]
     n = len(rows) - len(shown)
-    return shown, (f" {n} pair(s) with a single seed on one side are not listed." if n else "")
+    return shown, (f" {n} pair(s) with a single seed (of a single draw) on one side are not listed." if n else "")
 
 
 def _decided_markdown(c: Comparison, rows: list[dict]) -> str:
@@ -277,7 +383,8 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
     """One row per method and checkpoint: `value` per scene, the seeds' figures joined with '/' (seed order)."""
     if value not in VALUES:
         raise StringsBenchError(f"--per-scene {value}: not a compared value", hint=f"one of: {', '.join(VALUES)}")
-    scenes = sorted({sc for per_seed in c.data.values() for by_scene in per_seed.values() for sc in by_scene})
+    scenes = sorted({sc for per_seed in c.data.values() for by_scene in per_seed.values() for sc in by_scene},
+                    key=lambda sc: (room_draw(sc)[0], room_draw(sc)[1], sc))  # a room's draws side by side
     first: dict = {}  # label -> the smallest iteration trained for it (checkpoint order)
     for (_, label), per_seed in c.data.items():
         for by_scene in per_seed.values():
@@ -297,14 +404,15 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
 
 
 def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
-    parts = [f"# Comparison over seeds: {', '.join(str(d) for d in c.run_dirs)}", ""]
+    over = "seeds and scene draws" if has_draws(c) else "seeds"
+    parts = [f"# Comparison over {over}: {', '.join(str(d) for d in c.run_dirs)}", ""]
     for t in comparison_tables(c):
         parts += [f"## {t.title}", "", t.markdown(), t.caption, ""]
     rows, left = _shown(decided_rows(c))
     if rows or left:
         parts += ["## Decided or not", "", _decided_markdown(c, rows),
-                  "Decided: both methods have several seeds and the ranges of their seeds' means do not overlap; not "
-                  "decided: they overlap." + left, ""]
+                  "Decided: both methods have several seeds (or scene draws) and the ranges of their means per seed "
+                  "and draw do not overlap; not decided: they overlap." + left, ""]
     if c.left_out():
         parts += c.left_out() + [""]
     if per_scene:
@@ -316,20 +424,24 @@ def comparison_csv(c: Comparison) -> str:
     """Every summary as a row: method, checkpoint, value, mean, min, max, seeds, scenes, the seeds' means."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["method", "label", "value", "mean", "min", "max", "seeds", "scenes", "per_seed"])
+    w.writerow(["method", "label", "value", "mean", "min", "max", "seeds", "scenes", "per_seed", "draws", "per_draw",
+                "draw_min", "draw_max"])
     for m in c.methods:
         for label in sorted(c.numbers[m], key=label_value):
             for value, s in c.numbers[m][label].items():
                 if s is not None:
+                    per_draw = list(s["per_draw"].values())
                     w.writerow([m, label, value, repr(s["mean"]), repr(s["min"]), repr(s["max"]), s["seeds"], s["scenes"],
-                                " ".join(repr(x) for x in s["per_seed"])])
+                                " ".join(repr(x) for x in s["per_seed"]), s["draws"],
+                                " ".join(f"{d}:{x!r}" for d, x in s["per_draw"].items()), repr(min(per_draw)),
+                                repr(max(per_draw))])
     return buf.getvalue()
 
 
 def comparison_html(c: Comparison, tables: list[Table]) -> str:
     from strings_bench.reports.html import esc, html_page, table_html
 
-    title = "strings-bench comparison over seeds"
+    title = "strings-bench comparison over seeds" + (" and scene draws" if has_draws(c) else "")
     parts = [f"<header><h1>{esc(title)}</h1><p>Run folders: {esc(', '.join(str(d) for d in c.run_dirs))}</p></header>"
              "<main>", '<p class="legend"><span style="background:var(--first)">first</span><span style="background:'
              'var(--second)">second</span><span style="background:var(--third)">third</span>best of each column by the '
@@ -350,8 +462,8 @@ def comparison_html(c: Comparison, tables: list[Table]) -> str:
                      '<th data-col="2" data-type="text">checkpoint</th><th data-col="3" data-type="num">difference</th>'
                      '<th data-col="4" data-type="text">seeds</th><th data-col="5" data-type="text">verdict</th>'
                      f"</tr></thead><tbody>{body}</tbody></table>"
-                     '<p class="caption">Decided: both methods have several seeds and the ranges of their seeds\' means '
-                     f"do not overlap; not decided: they overlap.{esc(left)}</p>")
+                     '<p class="caption">Decided: both methods have several seeds (or scene draws) and the ranges of '
+                     f"their means per seed and draw do not overlap; not decided: they overlap.{esc(left)}</p>")
     for line in c.left_out():
         parts.append(f'<p class="note">{esc(line)}</p>')
     return html_page(title, "\n".join(parts) + "</main>")

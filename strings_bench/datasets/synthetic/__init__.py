@@ -5,12 +5,20 @@ configurations of STRinGS-360; easy) and `synthetic360` (room-scale scenes with 
 views, seed 0; synthetic360 with the photometric settings of `SYNTHETIC360_DEFAULTS`) into
 `cache_root()/synthetic/<scene>-<key>/` and reuse it afterwards. See docs/synthetic.md for what
 each scene holds, the difficulty controls, and how its point cloud is made.
+
+Every synthetic360 card (synthetic360, its configurations such as synthetic360-cpu, the calibration's grid
+points) has scene draws (core/draws.py): `<card>/pantry@N` is the room built with generator seed N (`with_draw`);
+`pantry` and `pantry@0` are the seed-0 scene, with the cache key it had before draws existed.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from dataclasses import replace
+
+from strings_bench.core.draws import REGISTERED_DRAWS, split_draw
+from strings_bench.core.errors import DatasetError
 from strings_bench.datasets.card import DatasetCard, SceneCard
 from strings_bench.core.scripts import LANGUAGES
 from strings_bench.datasets.synthetic.multiscript import SCENE_NAMES_MULTI, WORDS, scene_script
@@ -20,7 +28,7 @@ from strings_bench.datasets.synthetic.generate import (GENERATOR_VERSION, SCENE_
 __all__ = ["GENERATOR_VERSION", "SCENE_NAMES", "SCENE_NAMES_360", "SYNTHETIC360_DEFAULTS", "SyntheticSettings",
            "build_scene", "default_settings", "SYNTHETIC360_CPU", "CONFIGURATIONS", "CARD_360_CPU", "is_built",
            "read_meta", "scene_dir", "settings_with", "CARD", "CARD_360", "CARD_MULTI", "SCENE_NAMES_MULTI",
-           "synthetic360_card"]
+           "synthetic360_card", "with_draw", "REGISTERED_DRAWS"]
 
 DESCRIPTIONS = {
     "books": "packed book spines: vertical titles and authors, lying books with horizontal text, printed covers",
@@ -55,10 +63,26 @@ CONFIGURATIONS = {"synthetic360-cpu": SYNTHETIC360_CPU}
 
 def default_settings(scene: str, dataset: str | None = None) -> SyntheticSettings:
     """The settings `synthetic/<scene>`, `synthetic360/<scene>` or a configuration's scene (`dataset`, e.g.
-    synthetic360-cpu) builds with when none are given."""
+    synthetic360-cpu) builds with when none are given; a draw (pantry@N) at generator seed N."""
+    room = split_draw(scene)[0]
     if dataset in CONFIGURATIONS:
-        return settings_with(**CONFIGURATIONS[dataset])
-    return settings_with(**SYNTHETIC360_DEFAULTS) if scene in SCENE_NAMES_360 else SyntheticSettings()
+        base = settings_with(**CONFIGURATIONS[dataset])
+    else:
+        base = settings_with(**SYNTHETIC360_DEFAULTS) if room in SCENE_NAMES_360 else SyntheticSettings()
+    return with_draw(scene, base)[1]
+
+
+def with_draw(scene: str, settings: SyntheticSettings) -> tuple[str, SyntheticSettings]:
+    """(room, settings) a scene name builds with: ROOM@N is the room at generator seed N (every other setting as
+    given); ROOM (= ROOM@0) is the settings as given. A draw needs settings whose own seed is 0: otherwise ROOM and
+    ROOM@0 would be two scenes (DatasetError)."""
+    room, draw = split_draw(scene)
+    if scene == room:
+        return room, settings
+    if settings.seed != 0:
+        raise DatasetError(f"{scene}: a draw sets the generator seed, and these settings already have seed "
+                           f"{settings.seed}", hint=f"give {room}@{settings.seed}, or leave the seed at 0")
+    return room, replace(settings, seed=draw)
 
 
 def _locate(scene: str) -> Path:
@@ -81,11 +105,16 @@ CARD = DatasetCard(
 def synthetic360_card(card_id: str = "synthetic360", settings: SyntheticSettings | None = None,
                       title: str | None = None) -> DatasetCard:
     """A `synthetic360` card whose scenes build with `settings` (default: SYNTHETIC360_DEFAULTS);
-    benchmarks/calibrate.py registers one per point of its difficulty grid."""
+    benchmarks/calibrate.py registers one per point of its difficulty grid. Its scenes have draws (ROOM@N: the
+    room at generator seed N; `with_draw`) unless `settings` set a generator seed of their own."""
     chosen = settings
 
     def locate(scene: str) -> Path:
-        return build_scene(scene, chosen if chosen is not None else default_settings(scene), progress=True)
+        room, st = with_draw(scene, chosen if chosen is not None else default_settings(split_draw(scene)[0]))
+        return build_scene(room, st, progress=True)
+
+    draws = () if chosen is not None and chosen.seed != 0 else REGISTERED_DRAWS
+    registered = ", ".join(f"@{d}" for d in draws)
 
     return DatasetCard(
         id=card_id,
@@ -96,7 +125,10 @@ def synthetic360_card(card_id: str = "synthetic360", settings: SyntheticSettings
         layout="images/, sparse/0/, masks/ (GT text), text_annotations.json, scene_meta.json",
         locate=locate,
         notes="built on first use into the cache; `strings-bench datasets prepare synthetic360` builds all three; "
-              "difficulty settings: `datasets prepare --help`, docs/synthetic.md",
+              "difficulty settings: `datasets prepare --help`, docs/synthetic.md"
+              + (f"; scene draws: SCENE@N is the room at generator seed N (any N >= 0; registered: {registered}; "
+                 f"SCENE@0 = SCENE), {card_id}@N every room at draw N" if draws else ""),
+        draws=draws,
     )
 
 
