@@ -323,6 +323,7 @@ class ImprovedGSStrategy(Strategy):
         threshold = torch.quantile(opacity.to(torch.float64), self.recovery_prune_fraction).to(opacity.dtype)
         pruned = self._prune_where(model, optimizer, state, opacity < threshold)
         state["n_recovery_prune"] += pruned
+        state["grad2d_abs"] = state["count"] = None  # the release's only_prune restarts the statistics
 
     @staticmethod
     def _prune_where(model: GaussianModel, optimizer: GaussianAdam, state: dict, mask: torch.Tensor) -> int:

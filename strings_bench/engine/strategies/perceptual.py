@@ -78,7 +78,7 @@ def sensitivity_map(image: np.ndarray, gamma: float = 1.5, edge_threshold: float
     rgb8 = np.round(np.clip(arr, 0.0, 1.0) * 255.0).astype(np.uint8)
     grey = Image.fromarray(rgb8, mode="RGB").convert("L").point(lambda x: 255 * (x / 255) ** (1 / gamma))
     x = torch.from_numpy(np.asarray(grey, dtype=np.float32) / 255.0)[None, None]
-    sobel_x = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]])[None, None]
+    sobel_x = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], device=x.device)[None, None]
     gx = F.conv2d(x, sobel_x, padding=1)
     gy = F.conv2d(x, sobel_x.transpose(2, 3), padding=1)
     edges = (torch.sqrt(gx ** 2 + gy ** 2) > edge_threshold).to(torch.float32)
@@ -141,7 +141,7 @@ class PerceptualGSStrategy(DefaultStrategy):
         if missing:
             raise StringsBenchError(f"perceptual-gs: no sensitivity map for training view(s) {missing[:5]}")
         self._views = {"order": sorted(cameras), "cameras": dict(cameras), "maps": dict(maps),
-                       "background": torch.as_tensor(background, dtype=torch.float32), "backend": backend}
+                       "background": torch.as_tensor(background, dtype=torch.float32, device="cpu"), "backend": backend}
 
     def _require_views(self) -> dict:
         if self._views is None:
