@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 from scipy.spatial.transform import Rotation
 
 import _engine_helpers as eh

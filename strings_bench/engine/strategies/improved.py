@@ -37,7 +37,6 @@ is the method's optimizer (methods/improved_gs.py).
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 
@@ -52,8 +51,6 @@ from strings_bench.engine.strategies.absgs import raster_absgrad
 from strings_bench.engine.strategies.base import Strategy
 from strings_bench.engine.strategies.contrib import blend_weight_sums
 from strings_bench.engine.strategies.default import ndc_norm
-
-log = logging.getLogger(__name__)
 
 
 def edge_map(image: np.ndarray) -> torch.Tensor:
