@@ -53,6 +53,16 @@ SETTINGS = {
     # round until the recovery pruning would remove them all.
     "edc-absgs": {**_DEFAULT, "grow_grad2d_abs": 1e-4, "recovery_delay": 2, "recovery_min_steps": 1},
     "mip-splatting": {**_DEFAULT, "filter_every": 2},
+    # every rule within 12 steps: budget ramp, edge score, long-axis split, early/recovery pruning,
+    # opacity reset, the late (gradient-scored) rounds and both multi-step update intervals
+    "improved-gs": dict(steps_scale=1.0, sh_degree=1, refine_start_iter=1, refine_every=3, refine_stop_iter=11,
+                        reset_every=5, grow_grad2d_abs=1e-4, growth_full_iter=6, late_iter=8, prune_stop_iter=11,
+                        early_prune_iter=2, recovery_delay=2, recovery_min_steps=1, recovery_stop_iter=11,
+                        score_views=2, multi_step_from=7, multi_step_mid_every=2, multi_step_late_from=9,
+                        multi_step_late_every=3),
+    # HD and MD rounds, the trans statistic, the BCE term, the classification at step 4
+    "perceptual-gs": {**_DEFAULT, "hd_interval": 3, "md_interval": 6, "hd_md_from": 3, "sensitivity_until": 11,
+                      "classify_iter": 4, "complex_transaction": 0.0, "mix_transaction": 0.0},
     "mcmc": dict(steps_scale=1.0, sh_degree=1, refine_start_iter=1, refine_every=3, min_opacity=0.2, seed=3),
     "strings": _STRINGS,
     "strings-no-densify": _STRINGS,

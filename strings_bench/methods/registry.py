@@ -310,6 +310,21 @@ BUILTIN_SPECS: list[MethodSpec] = [
         paper_figures=PaperFigures(tandt_cer_7k=.142, tandt_cer_30k=.118, dl3dv_cer_7k=.239, dl3dv_cer_30k=.162,
                                    strings360_cer_7k=.328, strings360_cer_30k=.116,
                                    strings360_minutes_7k=5.5, strings360_minutes_30k=23.2)),
+    # Newer methods beyond the paper's table (issue 42); no published figures on the STRinGS datasets.
+    MethodSpec(
+        name="improved-gs", title="Improved-GS", implementation="strings_bench.methods.improved_gs:ImprovedGS",
+        description="Improved-GS: edge-aware score, growth control to a Gaussian budget, long-axis split, "
+                    "recovery-aware pruning, multi-step update",
+        paper="Deng, Diao, Li, Yu, Xu: Improving Densification in 3D Gaussian Splatting for High-Fidelity "
+              "Rendering (arXiv 2508.12313, 2025); release github.com/XiaoBin2001/Imporved-GS",
+        # the release's arguments/__init__.py: position 4e-5 -> 2e-6, opacity 0.025, SH rest 0.005 / 20
+        defaults={"lr_means": 4e-5, "lr_means_final": 2e-6, "lr_opacity_logits": 0.025, "lr_shN": 0.005 / 20}),
+    MethodSpec(
+        name="perceptual-gs", title="Perceptual-GS", implementation="strings_bench.methods.perceptual_gs:PerceptualGS",
+        description="Perceptual-GS: learned per-Gaussian perceptual sensitivity (BCE to Sobel-based maps) drives "
+                    "extra densification of high/medium-sensitivity Gaussians, opacity decline of clones",
+        paper="Zhou, Ni: Perceptual-GS: Scene-adaptive Perceptual Densification for Gaussian Splatting (ICML 2025, "
+              "arXiv 2506.12400); release github.com/eezkni/Perceptual-GS"),
     MethodSpec(
         name="strings", title="STRinGS", group="ours", implementation="strings_bench.methods.strings.method:Strings",
         description="STRinGS: text-first two-phase 3DGS (text segmentation in 3D, visibility densification, "
