@@ -206,3 +206,98 @@ def test_a_budget_below_the_initial_model_is_a_clear_error():
         _train_capped("3dgs", 1000, steps=1)
     with pytest.raises(StringsBenchError, match="and 1089 it adds later"):
         _train_capped("strings", 1200, steps=1)  # 340 text points + 1089 non-text > 1200
+
+
+# ---- the run option ----------------------------------------------------------------------------------------------
+FAST_RUN = {"refine_every": 5, "refine_start_iter": 2, "grow_grad2d": 1e-9, "grow_grad2d_abs": 1e-9, "sh_degree": 0,
+            "grow_rate": 0.5}
+
+
+def _run(tmp_path, methods, budget, out="run", **kw):
+    import runner_fakes as rf
+    import strings_bench.bench.runner as runner
+    from strings_bench.bench.check import tiny_scene
+
+    from strings_bench.methods.registry import get_method
+
+    overrides = {m: {k: v for k, v in FAST_RUN.items() if k in {s.name for s in get_method(m).settings()}}
+                 for m in methods}
+    return runner.run(methods, [str(tiny_scene())], run_dir=tmp_path / out, schedule="tiny", steps_scale=0.02,
+                      checkpoints=[1000], ocr="fake", ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False,
+                      write_report=False, method_overrides=overrides, budget=budget, **kw)
+
+
+def _cell(run_dir, method):
+    import json
+
+    (path,) = (run_dir / "cells" / method).rglob("result.json")
+    return json.loads(path.read_text())
+
+
+@pytest.mark.parametrize("text, value", [("40000", 40000), ("40k", 40000), (1500, 1500), (None, None), ("3dgs", "3dgs")])
+def test_parse_budget(text, value):
+    from strings_bench.bench.plan import parse_budget
+
+    assert parse_budget(text) == value
+
+
+@pytest.mark.parametrize("bad", ["0", "-3", 2.5, "1.5k", True])
+def test_parse_budget_refuses_what_is_not_a_count_or_a_name(bad):
+    from strings_bench.bench.plan import parse_budget
+
+    with pytest.raises(StringsBenchError, match="budget"):
+        parse_budget(bad)
+
+
+def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path):
+    out = _run(tmp_path, ["absgs", "3dgs"], "3dgs")
+    ref, capped = _cell(out, "3dgs"), _cell(out, "absgs")
+    assert ref["config"]["budget"] == "reference" and "max_gaussians" not in ref["config"]["method"]["settings"]
+    n = ref["gaussians"]
+    assert n > 1429  # 3DGS grew past the SfM points, so the budget is its own count
+    assert capped["config"]["budget"] == {"rule": "3dgs", "max_gaussians": n,
+                                          "reference": {"method": "3dgs", "iteration": 20}}
+    assert capped["config"]["method"]["settings"]["max_gaussians"] == n  # in the training state's fingerprint too
+    assert capped["gaussians"] <= n
+    import json
+
+    assert json.loads((out / "run.json").read_text())["budget"] == "3dgs"
+    # the same folder without the budget (or with another) is refused: its cells are budgeted
+    with pytest.raises(StringsBenchError, match="--budget 3dgs; this run asks for no budget"):
+        _run(tmp_path, ["absgs", "3dgs"], None)
+    with pytest.raises(StringsBenchError, match="this run asks for --budget 1600"):
+        _run(tmp_path, ["absgs"], 1600)
+    # the reference's cells are in the folder: a run of another method alone resumes under the same budget
+    _run(tmp_path, ["edc-absgs"], "3dgs")
+    assert _cell(out, "edc-absgs")["config"]["budget"]["max_gaussians"] == n
+
+
+def test_numeric_budget_caps_every_method(tmp_path):
+    out = _run(tmp_path, ["3dgs", "mcmc"], 1600)
+    for m in ("3dgs", "mcmc"):
+        cell = _cell(out, m)
+        assert cell["config"]["budget"] == {"rule": "1600", "max_gaussians": 1600, "reference": None}
+        assert cell["config"]["method"]["settings"]["max_gaussians"] == 1600
+        assert 1429 < cell["gaussians"] <= 1600
+
+
+def test_budget_errors_are_clear(tmp_path):
+    import strings_bench.bench.runner as runner
+    from strings_bench.bench.check import tiny_scene
+
+    scene = str(tiny_scene())
+    with pytest.raises(StringsBenchError, match="needs 3dgs among the run's methods"):
+        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "r1", schedule="tiny", budget="3dgs")
+    with pytest.raises(StringsBenchError, match="set with --budget, not --set"):
+        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "r2", schedule="tiny",
+                        method_overrides={"absgs": {"max_gaussians": 5}})
+    with pytest.raises(StringsBenchError, match="method ply takes no Gaussian budget"):
+        runner.plan_run(["ply"], [scene], run_dir=tmp_path / "r3", schedule="tiny", budget=2000)
+
+
+def test_cli_run_takes_budget():
+    from strings_bench.cli import build_parser
+    from strings_bench.cli.run import run_config
+
+    args = build_parser().parse_args(["run", "--methods", "3dgs,absgs", "--budget", "3dgs"])
+    assert run_config(args).budget == "3dgs"
