@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
@@ -301,3 +302,54 @@ def test_cli_run_takes_budget():
 
     args = build_parser().parse_args(["run", "--methods", "3dgs,absgs", "--budget", "3dgs"])
     assert run_config(args).budget == "3dgs"
+
+
+# ---- the report's size/accuracy front ------------------------------------------------------------------------------
+def _cells():
+    """Constructed results.csv rows: 2 scenes x 4 methods (and an ablation, never on a front) at 30K."""
+    rows = []
+    by_method = {  # (Gaussians, CER) on scene a, then scene b
+        "3dgs": [(30_000, 0.50), (34_000, 0.60)],        # mean 32k, 0.55
+        "strings": [(48_000, 0.30), (50_000, 0.36)],     # mean 49k, 0.33: beaten by edc-absgs on both
+        "absgs": [(20_000, 0.70), (22_000, 0.70)],       # mean 21k, 0.70: the smallest
+        "edc-absgs": [(40_000, 0.15), (44_000, 0.19)],   # mean 42k, 0.17
+        "strings-no-densify": [(1_000, 0.0), (1_000, 0.0)],  # an ablation: left out of the fronts
+    }
+    for m, cells in by_method.items():
+        for scene, (n, cer) in zip("ab", cells):
+            rows.append({"method": m, "dataset": "d", "scene": scene, "label": "30K", "iteration": 1500,
+                         "gaussians": n, "cer": cer, "word_cer": cer / 2, "train_seconds": 60.0,
+                         "preprocess_seconds": 0.0, "evaluation": "full"})
+    return pd.DataFrame(rows)
+
+
+def test_size_front_on_constructed_cells():
+    from strings_bench.reports import readability_analysis as ra
+
+    fr = ra.fronts(_cells(), x="gaussians")
+    cer = next(f for f in fr if f["metric"] == "cer" and f["label"] == "30K")
+    assert cer["x"] == "gaussians"
+    assert cer["points"]["edc-absgs"] == pytest.approx((42_000, 0.17))
+    assert "strings-no-densify" not in cer["points"]
+    # by hand: absgs (fewest), 3dgs (fewer than edc, worse), edc-absgs (best CER); strings is beaten by edc on both
+    assert sorted(cer["front"]) == ["3dgs", "absgs", "edc-absgs"]
+    csv = ra.fronts_csv(fr).splitlines()
+    assert csv[0] == "label,metric,method,gaussians,value,on_front"
+    assert any(ln.startswith("30K,cer,strings,49000.0,0.3") and ln.endswith(",False") for ln in csv)
+    (line,) = [ln for ln in ra.front_lines([cer]) if ln.startswith("- 30K, OCR-CER")]
+    assert line.startswith("- 30K, OCR-CER vs Gaussian count: 3DGS (32,000 Gaussians, OCR-CER 0.550)")
+    # the time front of the same cells is unchanged by the axis option: every method took 1 min, so the best CER wins
+    assert next(f for f in ra.fronts(_cells()) if f["metric"] == "cer")["front"] == ["edc-absgs"]
+
+
+def test_size_front_in_the_html_and_the_figure(tmp_path):
+    from strings_bench.reports import readability_analysis as ra
+    from strings_bench.reports.figures import metric_vs_gaussians
+    from strings_bench.reports.html import _fronts_html
+
+    fr = ra.fronts(_cells(), x="gaussians")
+    html = _fronts_html(fr)
+    assert 'id="table-size-front"' in html and 'data-front="3dgs,absgs,edc-absgs"' in html
+    assert "tables/size_front.csv" in html
+    png = metric_vs_gaussians(_cells(), tmp_path / "cer_vs_gaussians_30K.png", "30K", "cer")
+    assert png is not None and png.stat().st_size > 1000
