@@ -353,3 +353,18 @@ def test_size_front_in_the_html_and_the_figure(tmp_path):
     assert "tables/size_front.csv" in html
     png = metric_vs_gaussians(_cells(), tmp_path / "cer_vs_gaussians_30K.png", "30K", "cer")
     assert png is not None and png.stat().st_size > 1000
+
+
+def test_compare_refuses_folders_of_different_budgets(tmp_path):
+    import json
+
+    from strings_bench.reports.compare import compare
+
+    for name, budget in (("a", None), ("b", "3dgs")):
+        (tmp_path / name).mkdir()
+        manifest = {"schedule": {"name": "cpu"}, "downscale": 1.0, "ocr": "rapidocr", "methods": {}, "datasets": []}
+        if budget:
+            manifest["budget"] = budget
+        (tmp_path / name / "run.json").write_text(json.dumps(manifest))
+    with pytest.raises(StringsBenchError, match="different Gaussian budgets.*b: --budget 3dgs"):
+        compare([tmp_path / "a", tmp_path / "b"])
