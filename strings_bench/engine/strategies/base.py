@@ -260,13 +260,27 @@ class Strategy:
     def budget(self, state: dict) -> int | None:
         """The most Gaussians the model may hold now: `max_gaussians` less what the method keeps free for
         Gaussians it will add itself (`state["reserved_gaussians"]`: STRinGS' phase 1 keeps room for the non-text
-        points that join at T1); None without a budget."""
+        points that join at T1); None without a budget.
+
+        Args:
+            state: this strategy's state dict (reads "reserved_gaussians", default 0).
+
+        Example:
+            >>> from strings_bench.engine.strategies import Strategy
+            >>> Strategy(max_gaussians=1000).budget({"reserved_gaussians": 300}), Strategy().budget({})
+            (700, None)
+        """
         if self.max_gaussians is None:
             return None
         return int(self.max_gaussians) - int(state.get("reserved_gaussians", 0))
 
     def room(self, model: GaussianModel, state: dict) -> int | None:
-        """How many Gaussians may still be added (>= 0), or None without a budget."""
+        """How many Gaussians may still be added (>= 0), or None without a budget.
+
+        Args:
+            model: the model (its current size is read).
+            state: this strategy's state dict (see `budget`).
+        """
         cap = self.budget(state)
         return None if cap is None else max(0, cap - len(model))
 
