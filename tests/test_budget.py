@@ -263,6 +263,8 @@ def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path
     import json
 
     assert json.loads((out / "run.json").read_text())["budget"] == "3dgs"
+    rows = pd.read_csv(out / "results.csv", dtype=str).set_index("method")["budget"]
+    assert rows.to_dict() == {"3dgs": "reference", "absgs": str(n)}
     # the same folder without the budget (or with another) is refused: its cells are budgeted
     with pytest.raises(StringsBenchError, match="--budget 3dgs; this run asks for no budget"):
         _run(tmp_path, ["absgs", "3dgs"], None)
