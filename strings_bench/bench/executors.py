@@ -39,6 +39,10 @@ class Job:
     # of `checkpoints`, those that only `--checkpoints every:N` adds: evaluated with the word-crop metrics only
     # (Evaluator.evaluate_words); () when there are none or the run asked for --dense-eval full
     dense_checkpoints: tuple[int, ...] = ()
+    # `--budget METHOD`: the reference method whose Gaussian count on this scene, at this job's last checkpoint, is
+    # this job's budget (resolved where the job runs: bench/runner.py resolve_budget); None: no such budget (a
+    # numeric --budget is in method_overrides as max_gaussians already)
+    budget: str | None = None
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

@@ -49,6 +49,11 @@ class RunConfig:
     method_overrides: method (or ALL_METHODS) -> settings (`--set`).
     ocr: OCR engine name(s), comma-separated; the first is the primary.
     ocr_backend: an OCR backend object used in place of the names (tests, benchmarks).
+    budget: the equal Gaussian budget (`--budget`): None (none), a number N (every method is capped at N
+        Gaussians), or a method name (e.g. "3dgs": that method trains first, uncapped, as the reference, and
+        every other method is capped at the Gaussian count it reaches on the same scene at the job's last
+        checkpoint; its cells may also be in the run folder already). Reaches each method as its
+        `max_gaussians` setting (`parse_budget`).
     """
 
     methods: list[str] = field(default_factory=list)
@@ -74,6 +79,7 @@ class RunConfig:
     lpips_at: str = "last"
     progress: bool = True
     write_report: bool = True
+    budget: int | str | None = None
 
     @classmethod
     def of(cls, config: "RunConfig | list[str] | None" = None, datasets=None, **given) -> "RunConfig":
@@ -100,6 +106,42 @@ class RunPlan:
     @property
     def cells(self) -> list[CellKey]:
         return [k for j in self.jobs for k in j.cells()]
+
+
+BUDGET_SETTING = "max_gaussians"  # the strategy field a budget reaches every method as (engine/strategies/base.py)
+
+
+def parse_budget(value) -> int | str | None:
+    """`--budget`'s value: None/"" (no budget), a positive count (int, or a string of digits, "40k" = 40 000), or a
+    method name (the reference method, e.g. "3dgs"). Anything else is a clear error."""
+    if value is None or value == "":
+        return None
+    if isinstance(value, bool):
+        raise StringsBenchError(f"--budget {value!r} is neither a number of Gaussians nor a method name")
+    if isinstance(value, (int, float)):
+        if int(value) != value or value < 1:
+            raise StringsBenchError(f"--budget {value!r} is not a positive whole number of Gaussians",
+                                    hint="e.g. --budget 40000, --budget 40k, or --budget 3dgs")
+        return int(value)
+    text = str(value).strip()
+    digits, mult = (text[:-1], 1000) if text[-1:] in ("k", "K") else (text, 1)
+    if digits.isdigit():
+        return parse_budget(int(digits) * mult)
+    try:
+        float(digits)
+        numeric = True
+    except ValueError:
+        numeric = False
+    if numeric or not text or text.startswith("-"):
+        raise StringsBenchError(f"--budget {value!r} is neither a number of Gaussians nor a method name",
+                                hint="e.g. --budget 40000, --budget 40k, or --budget 3dgs")
+    return text
+
+
+def budget_reference(job: "Job") -> "CellKey":
+    """The cell whose Gaussian count is the budget of `job` under `--budget METHOD`: METHOD's cell on the job's
+    scene at the job's last checkpoint."""
+    return CellKey(str(job.budget), job.dataset, job.scene, max(job.checkpoints))
 
 
 def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given) -> RunPlan:
@@ -138,7 +180,21 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     if unknown:
         raise StringsBenchError(f"--presets names method(s) {', '.join(unknown)} that this run does not train",
                                 hint=f"methods of this run: {', '.join(methods)}")
+    budget = parse_budget(c.budget)
+    if isinstance(budget, str) and budget not in methods and not (Path(c.run_dir) / "cells" / budget).is_dir():
+        raise StringsBenchError(f"--budget {budget} needs {budget} among the run's methods: it trains first, uncapped, "
+                                f"and its Gaussian count on each scene is the others' budget",
+                                hint=f"add it: --methods {budget},{','.join(methods)}")
     for_all = dict(overrides.get(ALL_METHODS, {}))
+    if BUDGET_SETTING in for_all or any(BUDGET_SETTING in v for v in overrides.values()):
+        raise StringsBenchError(f"{BUDGET_SETTING} is set with --budget, not --set",
+                                hint="--budget N caps every method of the run at N Gaussians (docs/running.md)")
+    if budget is not None:
+        for m in methods:
+            schema = specs[m].settings()
+            if m != budget and schema is not None and BUDGET_SETTING not in {s.name for s in schema}:
+                raise StringsBenchError(f"method {m} takes no Gaussian budget (it trains no Gaussians of its own)",
+                                        hint="leave it out of a --budget run")
     taken: set[str] = set()
     planned = []
     given_settings: dict[str, dict] = {}  # each method's --set values, the all-methods ones included
@@ -152,6 +208,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         given_settings[m] = {**mine, **overrides.get(m, {})}
         # The schedule's scale reaches every method that trains (a --set steps_scale for the method wins).
         m_over = spec.with_steps_scale(p.steps_scale, given_settings[m])
+        if isinstance(budget, int):
+            m_over[BUDGET_SETTING] = budget
         spec.check_keys(spec.resolve(chosen, **m_over))  # a typo in --set is refused before any scene is built
         planned.append((m, chosen, m_over))
     if set(for_all) - taken:
@@ -161,6 +219,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     if not refs:
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
     jobs = []
+    if isinstance(budget, str):  # the reference method's jobs first: the others' budgets are its counts
+        planned.sort(key=lambda item: item[0] != budget)
     for m, chosen, m_over in planned:
         for ref in refs:
             # The presets the job gets: those that apply to the scene by themselves, then the chosen ones. Its
@@ -174,7 +234,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
             dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(m_scale))
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps),
                             labels, p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every),
-                            bool(c.keep_models), presets, dense))
+                            bool(c.keep_models), presets, dense,
+                            budget if isinstance(budget, str) and m != budget else None))
     manifest = {
         "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
         # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
@@ -190,6 +251,9 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
                     for m in methods},
         "datasets": datasets,
         "device": c.device,  # as asked; execute() adds where it resolved to on this machine
+        # The equal Gaussian budget (--budget): a count, or the reference method's name; absent when none, so that
+        # folders made without it keep resuming.
+        **({"budget": budget} if budget is not None else {}),
     }
     return RunPlan(run_dir, jobs, manifest)
 
@@ -247,6 +311,15 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
         raise StringsBenchError(f"{run_dir} holds dense checkpoints evaluated with --dense-eval {old.get('dense_eval')}; "
                                 f"this run asks for {manifest.get('dense_eval')}",
                                 hint="use another --out folder, or the same --dense-eval to resume")
+    # Cells are keyed by method, scene and iteration only: a budgeted cell must never be taken for an unbudgeted
+    # one (or one of another budget), so a folder holds one budget.
+    if old.get("budget") != manifest.get("budget"):
+        def _b(b):
+            return "no budget" if b is None else f"--budget {b}"
+        raise StringsBenchError(f"{run_dir} holds results made with {_b(old.get('budget'))}; this run asks for "
+                                f"{_b(manifest.get('budget'))}",
+                                hint="use another --out folder for each budget (e.g. runs/NAME-budget-3dgs), or the "
+                                     "same --budget to resume")
     # A finished cell is skipped on resume, so cells trained with other --set values must not be
     # taken for this run's (folders made before overrides were recorded carry no such entry).
     old_over = old.get("method_overrides")

@@ -53,10 +53,43 @@ log = logging.getLogger(__name__)
 
 
 # ---- running ------------------------------------------------------------------------------------
-def _build_method(job: Job):
+def _build_method(job: Job, overrides: dict | None = None):
     from strings_bench.methods.registry import get_method
 
-    return get_method(job.method).build(job.method_presets, **job.method_overrides)
+    return get_method(job.method).build(job.method_presets, **(job.method_overrides if overrides is None else overrides))
+
+
+def resolve_budget(job: Job) -> dict | None:
+    """The job's Gaussian budget as its cells record it: {"rule", "max_gaussians", "reference"}; None without one.
+
+    `--budget N` is in the job's settings already; `--budget METHOD` is read here, where the job runs, from the
+    reference method's cell on the same scene at the job's last checkpoint (`plan.budget_reference`), which must be
+    finished (the reference's jobs run first)."""
+    from strings_bench.bench.plan import BUDGET_SETTING, budget_reference
+    from strings_bench.reports.results import read_cell
+
+    if job.budget is None:
+        n = job.method_overrides.get(BUDGET_SETTING)
+        return None if n is None else {"rule": str(n), "max_gaussians": int(n), "reference": None}
+    ref = budget_reference(job)
+    if not is_finished(Path(job.run_dir), ref):
+        raise StringsBenchError(
+            f"--budget {job.budget}: {job.method} on {job.dataset}/{job.scene} needs {job.budget}'s cell at iteration "
+            f"{ref.iteration} ({ref.path(Path(job.run_dir))}), which is not in the run folder",
+            hint=f"add {job.budget} to --methods (its jobs run first, uncapped), or give a number: --budget N")
+    count = (read_cell(job.run_dir, ref) or {}).get("gaussians")
+    if not count:
+        raise StringsBenchError(f"--budget {job.budget}: the reference cell {ref.path(Path(job.run_dir))} records no "
+                                "Gaussian count", hint="the reference must be a method that trains Gaussians")
+    return {"rule": job.budget, "max_gaussians": int(count),
+            "reference": {"method": ref.method, "iteration": ref.iteration}}
+
+
+def job_overrides(job: Job, budget: dict | None) -> dict:
+    """The job's settings with its resolved budget as `max_gaussians`."""
+    from strings_bench.bench.plan import BUDGET_SETTING
+
+    return {**job.method_overrides, **({BUDGET_SETTING: budget["max_gaussians"]} if budget else {})}
 
 
 def _load_scene(job: Job):
@@ -106,8 +139,9 @@ class Runner:
         if not todo:
             job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
+        budget = resolve_budget(job)
         scene = _load_scene(job)
-        adapter = _build_method(job)
+        adapter = _build_method(job, job_overrides(job, budget))
         adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
         ocr = _get_ocr(self.ocr)
         from strings_bench.engine.trainer import resolve_device
@@ -137,7 +171,7 @@ class Runner:
             key = CellKey(job.method, job.dataset, job.scene, result.iteration)
             if is_finished(run_dir, key):
                 continue  # evaluated in an earlier run; training had to pass through it again
-            self._write_cell(job, key, result, evaluator, describe, scene)
+            self._write_cell(job, key, result, evaluator, describe, scene, budget)
             written.append(key)
             if self.on_cell:
                 self.on_cell(key)
@@ -168,7 +202,8 @@ class Runner:
                        save_every=SaveEvery.parse(job.save_every), model_path=model_path if job.keep_models else None,
                        fingerprint=fingerprint).train()
 
-    def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene) -> None:
+    def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene,
+                    budget: dict | None = None) -> None:
         t0 = time.perf_counter()
         # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
         # the paper reports it at 30K.
@@ -188,6 +223,9 @@ class Runner:
                 "downscale": job.downscale,
                 "cer_profile": job.cer_profile,
                 "checkpoints": list(job.checkpoints),
+                # the equal Gaussian budget (--budget): {"rule", "max_gaussians", "reference"}; "reference" where
+                # this cell is the reference of --budget METHOD (trained uncapped); None without a budget
+                "budget": budget if budget is not None else ("reference" if self._is_budget_reference(job) else None),
                 "versions": versions(),
                 "metrics": metrics_describe(),
             },
@@ -203,6 +241,11 @@ class Runner:
         if self.results_csv:
             write_results_csv(job.run_dir)
 
+
+    def _is_budget_reference(self, job: Job) -> bool:
+        from strings_bench.reports.results import read_manifest
+
+        return (read_manifest(Path(job.run_dir)) or {}).get("budget") == job.method
 
 def _preprocess_seconds(result) -> float:
     value = getattr(result, "preprocess_seconds", 0.0)  # adapters written before the field: none
@@ -274,24 +317,12 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     try:
         if pending:
             ex.start(run_dir, pending)
-        futures = {ex.submit(job): job for job in pending}
-        waiting = set(futures)
-        while waiting:
-            finished, waiting = wait(waiting, timeout=POLL_SECONDS, return_when=FIRST_COMPLETED)
-            if not in_process:
-                now = sum(is_finished(run_dir, k) for k in cells)
-                if now != done:  # results.csv follows the cells as they arrive
-                    done = now
-                    write_results_csv(run_dir)
-                    if bar is not None:
-                        bar.n = now
-                        bar.refresh()
-            for fut in finished:
-                exc = fut.exception()
-                if exc is not None:
-                    job = futures[fut]
-                    errors.append((job, exc))
-                    log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
+        # --budget METHOD: the reference method's jobs first (the others read their counts), then the rest.
+        reference = plan.manifest.get("budget") if isinstance(plan.manifest.get("budget"), str) else None
+        stages = [[j for j in pending if j.method == reference], [j for j in pending if j.method != reference]]
+        for stage in stages:
+            if stage:
+                _run_stage(ex, stage, errors, in_process, run_dir, cells, bar)
     except KeyboardInterrupt:
         ex.cancel()
         discard_incomplete_cells(run_dir, [j for j in pending if not all(is_finished(run_dir, k) for k in j.cells())])
@@ -308,6 +339,29 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     if errors:
         raise failure_summary(run_dir, errors, total_jobs=len(pending))
     return run_dir
+
+
+def _run_stage(ex: Executor, jobs: list[Job], errors: list, in_process: bool, run_dir: Path, cells: list, bar) -> None:
+    """Submit `jobs` and wait for all of them; failures are appended to `errors` (the others go on)."""
+    done = sum(is_finished(run_dir, k) for k in cells)
+    futures = {ex.submit(job): job for job in jobs}
+    waiting = set(futures)
+    while waiting:
+        finished, waiting = wait(waiting, timeout=POLL_SECONDS, return_when=FIRST_COMPLETED)
+        if not in_process:
+            now = sum(is_finished(run_dir, k) for k in cells)
+            if now != done:  # results.csv follows the cells as they arrive
+                done = now
+                write_results_csv(run_dir)
+                if bar is not None:
+                    bar.n = now
+                    bar.refresh()
+        for fut in finished:
+            exc = fut.exception()
+            if exc is not None:
+                job = futures[fut]
+                errors.append((job, exc))
+                log.error("%s on %s/%s failed: %s", job.method, job.dataset, job.scene, exc)
 
 
 def failure_summary(run_dir: Path, errors: list[tuple[Job, BaseException]], total_jobs: int) -> StringsBenchError:

@@ -232,6 +232,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                          "needs its own run folder (default: the regime's folder with -seed<N>)")
     ap.add_argument("--methods", default="3dgs", help="3dgs to calibrate; strings once the settings are frozen")
     ap.add_argument("--ocr", default="rapidocr")
+    ap.add_argument("--budget", default=None, metavar="N|METHOD",
+                    help="cap every method at N Gaussians, or at the count METHOD (e.g. 3dgs, trained first, uncapped) "
+                         "reaches on the same scene at the last checkpoint; a budget needs its own --out folder "
+                         "(docs/running.md, \"Equal Gaussian budget\")")
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
     ap.add_argument("--target", choices=sorted(TARGET_NAMES), default=None,
                     help="the metric whose mean is held against the paper's 3DGS figures (paper: cer, cpu: cer_known)")
@@ -297,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             runner.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False,
                        write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints,
-                       dense_every=dense_every, method_overrides=overrides, device=device)
+                       dense_every=dense_every, method_overrides=overrides, device=device, budget=args.budget)
     except StringsBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

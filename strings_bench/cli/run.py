@@ -74,6 +74,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="override a method setting (VALUE parsed as JSON when it can be): KEY=VALUE for every method of "
                         "the run, METHOD.KEY=VALUE for one (it wins over the former), e.g. --set lr_means=1e-3 "
                         "--set ply.ply_path=/models/{scene}/point_cloud.ply; repeatable")
+    p.add_argument("--budget", default=None, metavar="N|METHOD",
+                   help="equal Gaussian budget: cap every method at N Gaussians (40000 or 40k), or at the count METHOD "
+                        "reaches on the same scene at the last checkpoint (--budget 3dgs: 3dgs trains first, uncapped, "
+                        "as the reference; it must be in --methods or its cells in the run folder). Each method keeps "
+                        "to it by its own rules (docs/baselines.md); recorded in run.json and every result.json, and a "
+                        "run folder holds one budget (docs/running.md)")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
     p.add_argument("--lpips-at", default="last", choices=["last", "all"],
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
@@ -127,7 +133,8 @@ def run_config(args: argparse.Namespace):
                      cer_profile=args.cer_profile, steps_scale=args.steps_scale,
                      checkpoints=checkpoints, dense_every=dense_every,
                      dense_eval=args.dense_eval,
-                     device=args.device, save_every=args.save_every, keep_models=args.keep_models)
+                     device=args.device, save_every=args.save_every, keep_models=args.keep_models,
+                     budget=args.budget)
 
 
 def parse_presets(items: list[str]) -> dict[str, list[str]]:

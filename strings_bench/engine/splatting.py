@@ -328,6 +328,21 @@ class GaussianSplatting(Method):
         self.optimizer = self.make_optimizer(model)
         self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale,
                                                              [self.camera(i) for i in self.train_views()])
+        reserved = self.reserved_gaussians()
+        if reserved:
+            self.strategy_state["reserved_gaussians"] = int(reserved)
+        cap = getattr(self.strategy, "max_gaussians", None)
+        if cap is not None and len(model) + reserved > cap:
+            more = f" and {reserved} it adds later" if reserved else ""
+            raise StringsBenchError(
+                f"the budget of {cap} Gaussians is below what {self.name} starts from on {self.scene.name}: "
+                f"{len(model)} Gaussians{more}; a budget stops densification, it cannot remove initial Gaussians",
+                hint="give a larger --budget (at least the scene's SfM point count)")
+
+    def reserved_gaussians(self) -> int:
+        """Gaussians this method will add by itself later (outside the strategy), kept free under a budget
+        (`Strategy.budget`): 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1."""
+        return 0
 
     def target(self, view_idx: int) -> torch.Tensor:
         """The ground-truth image of a view, (H, W, 3) float32 on the method's device (kept once loaded)."""

@@ -345,6 +345,14 @@ BUILTIN_SPECS: list[MethodSpec] = [
         description="STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", paper=STRINGS_PAPER,
         presets=dict(_STRINGS_PRESETS), ablation_of="strings", ablation_at=3000,
         ablation_effect="zero position LR of Gaussians"),
+    # This suite's variant (issue 42), not the paper's: STRinGS on AbsGS' absolute-gradient densification.
+    MethodSpec(
+        name="strings-absgrad", title="STRinGS + AbsGS criterion",
+        implementation="strings_bench.methods.strings.method:StringsAbsGrad",
+        description="this suite's variant (not the paper's): STRinGS with AbsGS' absolute-gradient densification "
+                    "criterion (splits on the absolute gradient >= 4e-4, clones on the ordinary one >= 2e-4) in both phases",
+        paper=STRINGS_PAPER + "; densification criterion of Ye et al., AbsGS (ACM MM 2024); the combination is "
+                              "strings-bench's", presets=dict(_STRINGS_PRESETS)),
     MethodSpec(
         name="ply", title="PLY models", group="adapter", implementation="strings_bench.methods.ply_adapter:PlyAdapter",
         description="evaluate existing 3DGS PLY models (setting ply_path, may use {scene}/{dataset}/{iteration}); "

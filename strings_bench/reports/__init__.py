@@ -51,6 +51,8 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     figures = write_figures(df, run_dir, out / "figures", metrics, names)
     if analysis.fronts:
         write_fronts(analysis.fronts, out / "tables" / "pareto_front.csv")
+    if analysis.size_fronts:
+        write_fronts(analysis.size_fronts, out / "tables" / "size_front.csv")
     lines = [f"# strings-bench report: {run_dir.name}", ""]
     schedule = manifest.get("schedule") or {}
     if schedule:
@@ -81,14 +83,24 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
                   "At each checkpoint, the methods that no other method beats on both mean training time "
                   "(preprocessing + optimisation) and the mean CER over the scenes (circled in the scatter figures; "
                   "`tables/pareto_front.csv`):", "", *front_lines(analysis.fronts, names), ""]
+    if analysis.size_fronts:
+        budget = manifest.get("budget")
+        held = (f" This run held every method to an equal budget (`--budget {budget}`, docs/running.md)." if budget
+                else " The counts are each method's own (no `--budget`); `run --budget 3dgs` holds them level.")
+        lines += ["## Size/accuracy front", "",
+                  "At each checkpoint, the methods that no other method beats on both the mean Gaussian count and "
+                  "the mean CER over the scenes (circled in the CER-vs-Gaussians figures; `tables/size_front.csv`)."
+                  + held, "", *front_lines(analysis.size_fronts, names), ""]
     if figures:
         lines += ["## figures", ""]
         for name, p in figures.items():
             lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({p.relative_to(out)})", ""]
+            if "_vs_gaussians_" in name:
+                lines += [f"Mean {name.split('_vs_gaussians_')[0]} against the mean Gaussian count at the checkpoint.", ""]
             if "_vs_time_" in name:
                 lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
     md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     write_html(run_dir, out, df, manifest, build_tables(df, manifest) + analysis.tables, figures, notes,
-               fronts=analysis.fronts)
+               fronts=analysis.fronts + analysis.size_fronts)
     return md

@@ -188,6 +188,13 @@ class Comparison:
 
 def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET) -> Comparison:
     """The comparison of the fully evaluated cells of `run_dirs` (one seed each)."""
+    # Seeds are averaged: folders of different equal-Gaussian budgets (run --budget; none is one of them) are
+    # different conditions, never seeds of one.
+    budgets = {str(d): (read_manifest(d) or {}).get("budget") for d in run_dirs}
+    if len(set(map(str, budgets.values()))) > 1:
+        raise StringsBenchError("the run folders were made under different Gaussian budgets: " + ", ".join(
+            f"{d}: {'no budget' if b is None else f'--budget {b}'}" for d, b in budgets.items()),
+            hint="compare folders of one budget at a time (run --budget, docs/running.md)")
     data = collect(run_dirs, dataset)
     if not data:
         raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),

@@ -30,6 +30,7 @@ METRICS: dict[str, tuple[str, bool, bool]] = {
     "psnr": ("PSNR (dB)", False, False), "ssim": ("SSIM", False, False), "lpips": ("LPIPS", True, False),
 }
 DEFAULT_METRICS = ("cer", "word_cer", "text_nll")  # plotted by default (each when the run has it)
+SIZE_FRONT_METRICS = ("cer", "cer_known", "word_cer")  # also plotted against the Gaussian count (of those plotted)
 
 
 def check_metric(metric: str) -> None:
@@ -75,20 +76,30 @@ def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, names: Me
     return metric_vs_time(df, out, label, "cer", names)
 
 
+def metric_vs_gaussians(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer",
+                        names: MethodNames = REGISTERED) -> Path | None:
+    """A metric's mean over all scenes against the mean Gaussian count at one checkpoint, with the size/accuracy
+    front circled (issue 42; `metric_vs_time`'s figure with the count on x)."""
+    return metric_vs_time(df, out, label, metric, names, x="gaussians")
+
+
 def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer",
-                   names: MethodNames = REGISTERED) -> Path | None:
+                   names: MethodNames = REGISTERED, x: str = "minutes") -> Path | None:
     """Teaser scatter: a metric's mean over all scenes against mean whole-run training minutes
-    (total_seconds = preprocessing + optimisation) at one checkpoint."""
+    (total_seconds = preprocessing + optimisation) at one checkpoint; x="gaussians": against the mean Gaussian
+    count instead (`metric_vs_gaussians`)."""
     check_metric(metric)
-    if df.empty or not _has(df, metric):
+    if df.empty or not _has(df, metric) or (x == "gaussians" and not _has(df, "gaussians")):
         return None
     name, lower, rate = METRICS[metric]
     label = label or main_labels(df)[0]
     sub = with_total_seconds(df[df["label"] == label])
     if sub.empty:
         return None
-    sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"))
-    g = sub.groupby("method").agg(v=("_v", "mean"), minutes=("total_seconds", lambda s: s.mean() / 60)).reset_index()
+    xs = sub["total_seconds"] / 60 if x == "minutes" else pd.to_numeric(sub["gaussians"], errors="coerce")
+    sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"), _x=xs)
+    # the x column keeps the name "minutes" below whichever axis it holds
+    g = sub.groupby("method").agg(v=("_v", "mean"), minutes=("_x", "mean")).reset_index()
     g = g.dropna(subset=["minutes"])
     if g.empty:
         return None
@@ -110,12 +121,16 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
                    marker="*" if r.method == "strings" else "o", zorder=3, label=names.title(r.method))
         if not math.isnan(y):
             ax.annotate(names.title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
-    ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
+    if x == "minutes":
+        ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
+    else:
+        ax.set_xlabel(f"Gaussians at {label} (mean over the scenes)", fontsize=8)
     ax.set_ylabel(f"{name} at {label} ({'lower' if lower else 'higher'} is better)", fontsize=8)
     if rate:
         _cer_axis(ax, g["v"])
     ax.grid(True, alpha=0.3)
-    ax.set_title(f"Readability vs training time ({label})" if metric == "cer" else f"{name} vs training time ({label})",
+    what = "training time" if x == "minutes" else "Gaussian count"
+    ax.set_title(f"Readability vs {what} ({label})" if metric == "cer" else f"{name} vs {what} ({label})",
                  fontsize=10)
     if len(fr):
         ax.legend(handles=[ax.collections[0]], labels=["Pareto front (circled)"], fontsize=7, loc="best")
@@ -411,6 +426,10 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
             p = metric_vs_time(df, out_dir / f"{metric}_vs_time_{label}.png", label, metric, names)
             if p:
                 written[f"{metric}_vs_time_{label}"] = p
+            if metric in SIZE_FRONT_METRICS:  # CER against the Gaussian count (issue 42)
+                p = metric_vs_gaussians(df, out_dir / f"{metric}_vs_gaussians_{label}.png", label, metric, names)
+                if p:
+                    written[f"{metric}_vs_gaussians_{label}"] = p
         p = qualitative(df, run_dir, out_dir / f"qualitative_{label}.png", label, names=names)
         if p:
             written[f"qualitative_{label}"] = p

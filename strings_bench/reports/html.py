@@ -573,20 +573,30 @@ def gallery_page(g: SceneGallery, paths: dict, back: str, names: MethodNames = R
 
 
 def _fronts_html(fronts: list[dict], names: MethodNames = REGISTERED) -> str:
-    """The speed/accuracy fronts as a table: one row per (checkpoint, metric), the front's methods."""
-    from strings_bench.reports.readability_analysis import FRONT_METRICS
+    """The fronts of one x axis (all of `fronts` share it) as a table: one row per (checkpoint, metric), the front's
+    methods. Against training time: the speed/accuracy front; against the Gaussian count: the size/accuracy front."""
+    from strings_bench.reports.readability_analysis import FRONT_METRICS, front_member
 
+    x = fronts[0].get("x", "minutes") if fronts else "minutes"
     rows = []
     for f in fronts:
-        members = "; ".join(f"{names.title(m)} ({f['points'][m][0]:.2f} min, {f['points'][m][1]:.3f})" for m in f["front"])
+        members = "; ".join(front_member(f, m, names, metric_name=False) for m in f["front"])
         rows.append(f'<tr><td class="name">{esc(f["label"])}</td><td class="name">{esc(FRONT_METRICS[f["metric"]])}</td>'
                     f'<td class="name" data-front="{esc(",".join(f["front"]))}">{esc(members or "none")}</td></tr>')
-    return ('<h3 id="h-pareto_front">Speed/accuracy front</h3><table class="data" id="table-pareto-front"><thead><tr>'
+    if x == "minutes":
+        anchor, table_id, title, csv = "h-pareto_front", "table-pareto-front", "Speed/accuracy front", "pareto_front.csv"
+        what, axis = "mean training time (preprocessing + optimisation)", "mean training minutes"
+        where = "circled in the scatter figures"
+    else:
+        anchor, table_id, title, csv = "h-size_front", "table-size-front", "Size/accuracy front", "size_front.csv"
+        what, axis = "mean Gaussian count at the checkpoint", "mean Gaussians"
+        where = "circled in the CER-vs-Gaussians figures; an equal-budget run (run --budget) holds the counts level"
+    return (f'<h3 id="{anchor}">{title}</h3><table class="data" id="{table_id}"><thead><tr>'
             '<th class="name" data-col="0" data-type="text">checkpoint</th><th class="name" data-col="1" data-type="text">'
-            'metric</th><th class="name" data-col="2" data-type="text">front (mean training minutes, mean CER)</th>'
+            f'metric</th><th class="name" data-col="2" data-type="text">front ({axis}, mean CER)</th>'
             "</tr></thead><tbody>" + "".join(rows) + '</tbody></table><p class="caption">The methods that no other '
-            "method beats on both mean training time (preprocessing + optimisation) and mean CER over the scenes; "
-            "circled in the scatter figures. CSV: <a href=\"tables/pareto_front.csv\">tables/pareto_front.csv</a>.</p>")
+            f"method beats on both {what} and mean CER over the scenes; {where}. "
+            f'CSV: <a href="tables/{csv}">tables/{csv}</a>.</p>')
 
 
 # ---- the index -------------------------------------------------------------------------------------------------
@@ -632,8 +642,8 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         parts.append(f'<figure><img src="{href(rel)}" alt="{esc(name)}">'
                      f"<figcaption>{esc(name.replace('_', ' '))}</figcaption></figure>")
 
-    if fronts:
-        parts.append(_fronts_html(fronts, names))
+    for x in dict.fromkeys(f.get("x", "minutes") for f in fronts or []):
+        parts.append(_fronts_html([f for f in fronts if f.get("x", "minutes") == x], names))
 
     parts.append('<h2 id="galleries">Word crops</h2><p>Per scene, every reference word of the word-crop readability '
                  "metric: its ground-truth crop and each method's render crop side by side, per checkpoint, with what "

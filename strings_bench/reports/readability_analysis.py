@@ -17,10 +17,14 @@ efficiency and accuracy (its teaser scatter). Each becomes a measured table here
 - **Speed/accuracy front** (`pareto_front`): at each checkpoint, the methods that no other method beats on both
   mean training time and mean CER (lower is better on both; a method equal on both to another is on the front
   with it).
+- **Size/accuracy front** (issue 42; `fronts(..., x="gaussians")`): the same with the mean Gaussian count at the
+  checkpoint in place of the training time: which methods read best for their model size (the question of an
+  equal-budget run, `run --budget`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +50,8 @@ MIN_BIN_WORDS = 10  # a bin with fewer reference words is greyed and never ranke
 THRESHOLDS = (0.8, 0.5, 0.2)
 LEGIBILITY_METRICS = {"word_cer": "word CER", "cer": "OCR-CER"}
 FRONT_METRICS = {"cer": "OCR-CER", "word_cer": "word CER"}
+# The fronts' x axes: results.csv's column (per cell) -> (what the report calls it, the unit it prints, its format).
+FRONT_AXES = {"minutes": ("training time", "min", "{:.2f}"), "gaussians": ("Gaussian count", "Gaussians", "{:,.0f}")}
 
 
 def size_bin(height_px: float | None) -> str | None:
@@ -250,35 +256,47 @@ def pareto_front(points: dict[str, tuple[float, float]]) -> list[str]:
     return front
 
 
-def front_points(df: pd.DataFrame, label: str, metric: str,
-                 names: MethodNames = REGISTERED) -> dict[str, tuple[float, float]]:
-    """Per method at checkpoint `label`: (mean total minutes, mean `metric`) over the scenes."""
+def front_points(df: pd.DataFrame, label: str, metric: str, names: MethodNames = REGISTERED,
+                 x: str = "minutes") -> dict[str, tuple[float, float]]:
+    """Per method at checkpoint `label`: (mean x, mean `metric`) over the scenes; x (FRONT_AXES): "minutes" (total
+    training minutes, preprocessing + optimisation) or "gaussians" (the Gaussian count at the checkpoint)."""
+    if x not in FRONT_AXES:
+        raise ValueError(f"unknown front axis {x!r}; one of {', '.join(FRONT_AXES)}")
     sub = with_total_seconds(df[(df["label"] == label) & ~df["method"].map(names.is_ablation).astype(bool)])
-    if sub.empty or metric not in sub:
+    if sub.empty or metric not in sub or (x == "gaussians" and "gaussians" not in sub):
         return {}
-    sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"))
-    g = sub.groupby("method").agg(v=("_v", "mean"), m=("total_seconds", lambda s: s.mean() / 60))
+    xs = sub["total_seconds"] / 60 if x == "minutes" else pd.to_numeric(sub["gaussians"], errors="coerce")
+    sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"), _x=xs)
+    g = sub.groupby("method").agg(v=("_v", "mean"), m=("_x", "mean"))
     return {m: (float(g.loc[m, "m"]), float(g.loc[m, "v"])) for m in names.order(g.index)}
 
 
-def fronts(df: pd.DataFrame, names: MethodNames = REGISTERED) -> list[dict]:
-    """The front of every checkpoint and FRONT_METRICS metric the run has: {label, metric, points, front}."""
+def fronts(df: pd.DataFrame, names: MethodNames = REGISTERED, x: str = "minutes") -> list[dict]:
+    """The front of every checkpoint and FRONT_METRICS metric the run has against x (FRONT_AXES):
+    {label, metric, x, points, front}."""
     out = []
     for label in main_labels(df):
         for metric in FRONT_METRICS:
-            pts = front_points(df, label, metric, names)
-            if any(not math.isnan(v) for _t, v in pts.values()):
-                out.append({"label": label, "metric": metric, "points": pts, "front": pareto_front(pts)})
+            pts = front_points(df, label, metric, names, x)
+            if any(not (math.isnan(v) or math.isnan(t)) for t, v in pts.values()):
+                out.append({"label": label, "metric": metric, "x": x, "points": pts, "front": pareto_front(pts)})
     return out
+
+
+def front_member(f: dict, m: str, names: MethodNames = REGISTERED, metric_name: bool = True) -> str:
+    """'STRinGS (12.30 min, OCR-CER 0.327)' / 'STRinGS (31,200 Gaussians, 0.327)': one method of a front."""
+    _what, unit, fmt = FRONT_AXES[f.get("x", "minutes")]
+    value = f"{FRONT_METRICS[f['metric']]} " if metric_name else ""
+    return f"{names.title(m)} ({fmt.format(f['points'][m][0])} {unit}, {value}{f['points'][m][1]:.3f})"
 
 
 def front_lines(fr: list[dict], names: MethodNames = REGISTERED) -> list[str]:
     """The fronts as Markdown lines (the report lists them)."""
     lines = []
     for f in fr:
-        members = ", ".join(f"{names.title(m)} ({f['points'][m][0]:.2f} min, {FRONT_METRICS[f['metric']]} "
-                            f"{f['points'][m][1]:.3f})" for m in f["front"])
-        lines.append(f"- {f['label']}, {FRONT_METRICS[f['metric']]} vs training time: {members or 'none'}")
+        members = ", ".join(front_member(f, m, names) for m in f["front"])
+        what = FRONT_AXES[f.get("x", "minutes")][0]
+        lines.append(f"- {f['label']}, {FRONT_METRICS[f['metric']]} vs {what}: {members or 'none'}")
     return lines
 
 
@@ -292,6 +310,7 @@ class Analysis:
     by_size: pd.DataFrame  # cer_by_size at `label`
     spread: pd.DataFrame
     label: str | None
+    size_fronts: list[dict] = dataclasses.field(default_factory=list)  # CER against the Gaussian count (issue 42)
 
 
 def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Analysis:
@@ -312,13 +331,15 @@ def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "", names: Method
         tables.append(t)
     for t in tables:
         t.names = names
-    return Analysis(tables, fronts(df, names), by_size, size_spread(by_size), label)
+    return Analysis(tables, fronts(df, names), by_size, size_spread(by_size), label, fronts(df, names, "gaussians"))
 
 
 def fronts_csv(fr: list[dict]) -> str:
-    rows = [{"label": f["label"], "metric": f["metric"], "method": m, "minutes": t, "value": v,
+    """The fronts as CSV: label, metric, method, the x column ("minutes" or "gaussians", FRONT_AXES), value, on_front."""
+    x = fr[0].get("x", "minutes") if fr else "minutes"
+    rows = [{"label": f["label"], "metric": f["metric"], "method": m, x: t, "value": v,
              "on_front": m in f["front"]} for f in fr for m, (t, v) in f["points"].items()]
-    return pd.DataFrame(rows, columns=["label", "metric", "method", "minutes", "value", "on_front"]).to_csv(index=False)
+    return pd.DataFrame(rows, columns=["label", "metric", "method", x, "value", "on_front"]).to_csv(index=False)
 
 
 def write_fronts(fr: list[dict], path: Path) -> Path:

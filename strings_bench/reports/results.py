@@ -38,7 +38,7 @@ READABILITY_COLUMNS = ["word_cer", "word_acc", "text_nll", "text_psnr", "text_ss
 CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
-    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "budget", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]
 # Names of the run folder's fields before issue 41, when "preset" named the run's schedule (run.json, result.json's
@@ -249,6 +249,15 @@ def readability_columns(rec: dict) -> dict:
             "read_words": num(render.get("words")), "read_oov_chars": num(render.get("oov_chars"))}
 
 
+def budget_column(rec: dict) -> int | str:
+    """results.csv's `budget`: the cell's Gaussian cap (run --budget), "reference" for the uncapped reference of
+    --budget METHOD, "" without a budget (and for cells written before budgets existed)."""
+    b = (rec.get("config") or {}).get("budget")
+    if isinstance(b, dict):
+        return int(b["max_gaussians"])
+    return b if b == "reference" else ""
+
+
 def cell_row(rec: dict) -> dict:
     """A cell's result.json as one results.csv row (keys: CSV_COLUMNS, plus ENGINE_COLUMNS for each further OCR
     engine; missing values are "")."""
@@ -268,6 +277,7 @@ def cell_row(rec: dict) -> dict:
         **readability_columns(rec),
         **timing_columns(rec),
         "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
+        "budget": budget_column(rec),
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),

@@ -10,6 +10,7 @@ averaged over the steps in which the Gaussian was visible, as in 3DGS.
 Clone: ordinary gradient >= `grow_grad2d` (2e-4) and largest scale <= `grow_scale3d` x extent.
 Split: absolute gradient >= `grow_grad2d_abs` (4e-4) and largest scale > `grow_scale3d` x extent.
 Everything else (schedule, pruning, opacity reset) is vanilla 3DGS (DefaultStrategy).
+With a budget (`max_gaussians`), candidates grow in order of their statistic over its threshold (`_grow_scores`).
 """
 
 from __future__ import annotations
@@ -70,6 +71,14 @@ class AbsGSStrategy(DefaultStrategy):
         """(mean ordinary gradient, mean absolute gradient) over the steps each Gaussian was visible (NDC)."""
         count = state["count"].clamp_min(1)
         return state["grad2d"] / count, state["grad2d_abs"] / count
+
+    def _grow_scores(self, model: GaussianModel, state: dict, step: int) -> torch.Tensor:
+        """Budget ranking: each candidate's selection statistic over its threshold (small Gaussians: the ordinary
+        gradient / grow_grad2d, large ones: the absolute gradient / grow_grad2d_abs), so clones and splits
+        compete on how far past their own threshold they are."""
+        grads, grads_abs = self.mean_grads(state)
+        is_small = model.scales.max(dim=-1).values <= self.grow_scale3d * state["scene_extent"]
+        return torch.where(is_small, grads / self.grow_grad2d, grads_abs / self.grow_grad2d_abs)
 
     def _select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
         """(clone mask, split mask): clone on the ordinary gradient, split on the absolute one."""

@@ -33,6 +33,7 @@ and back to the method's device on resume.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -56,6 +57,45 @@ MIN_SCALED_INTERVAL = 50
 # Adam steps (~100-150 at the 0.05 opacity LR), not a fixed fraction of the run. Scaled by 0.02, 3DGS
 # reset every 60 steps and reached 11.2 dB at its 7K checkpoint vs 16.5 dB without resets (books).
 MIN_SCALED_RESET_INTERVAL = 200
+
+
+def keep_within_budget(candidates: torch.Tensor, scores: torch.Tensor, cost: torch.Tensor | int,
+                       room: int | None) -> torch.Tensor:
+    """The candidates that fit in `room` new Gaussians, highest `scores` first (Taming-3DGS' budgeted densification).
+
+    Args:
+        candidates: (N,) bool, the Gaussians a strategy selected to grow.
+        scores: (N,) float, the strategy's score (higher grows first); ties go to the lower index.
+        cost: (N,) int or an int, the Gaussians each candidate adds (a clone 1, a 3DGS split n_split - 1).
+        room: how many Gaussians may be added; None: no budget (every candidate is kept).
+
+    Returns:
+        (N,) bool, a subset of `candidates` whose total cost is at most `room`: the longest prefix of the candidates
+        sorted by decreasing score that fits (a candidate that does not fit stops the growth; none after it is tried,
+        so a cheaper low-scoring one never overtakes a costlier high-scoring one).
+
+    Example:
+        >>> import torch
+        >>> from strings_bench.engine.strategies.base import keep_within_budget
+        >>> cand = torch.tensor([True, True, False, True])
+        >>> keep_within_budget(cand, torch.tensor([0.1, 0.9, 5.0, 0.5]), 1, room=2).tolist()
+        [False, True, False, True]
+    """
+    candidates = torch.as_tensor(candidates, dtype=torch.bool)
+    if room is None:
+        return candidates
+    cost = torch.as_tensor(cost, device=candidates.device).to(torch.int64).expand(candidates.shape)
+    idx = candidates.nonzero().squeeze(1)
+    if idx.numel() == 0 or int(cost[idx].sum()) <= room:
+        return candidates
+    s = scores.detach()[idx].to(torch.float64)
+    s = torch.where(torch.isnan(s), torch.tensor(-math.inf, dtype=s.dtype, device=s.device), s)
+    order = torch.sort(-s, stable=True).indices  # decreasing score, ties by index
+    fits = torch.cumsum(cost[idx][order], 0) <= int(room)
+    n_fit = int(fits.long().cumprod(0).sum())  # the longest prefix that fits
+    keep = torch.zeros_like(candidates)
+    keep[idx[order[:n_fit]]] = True
+    return keep
 
 
 def scaled_interval(nominal: float, steps_scale: float, floor: int = MIN_SCALED_INTERVAL) -> int:
@@ -136,6 +176,18 @@ class Strategy:
     """
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
+    # The equal-budget cap (`run --budget`, docs/running.md): never hold more Gaussians than this. Each strategy
+    # honours it by its own rules (docs/baselines.md, "Equal Gaussian budget"): one with a budget of its own uses it
+    # (MCMC: cap_max), the others stop densifying at the cap, keeping the highest-scoring candidates when they do
+    # not all fit (`keep_within_budget`), as Taming-3DGS does. A subclass may redeclare the field with its own rule.
+    max_gaussians: int | None = None  # equal-budget cap on the number of Gaussians (None: no cap; run --budget)
+
+    def __post_init__(self):
+        if self.max_gaussians is not None and (int(self.max_gaussians) != self.max_gaussians or self.max_gaussians < 1):
+            from strings_bench.core.errors import StringsBenchError
+
+            raise StringsBenchError(f"max_gaussians must be a positive number of Gaussians, got {self.max_gaussians!r}",
+                                    hint="leave it unset (None) for no budget")
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
         """A fresh state for a new model (called at every `set_model`, so a phase switch resets it).
@@ -203,6 +255,34 @@ class Strategy:
             step: the step the strategy sees (1-based).
             info: this step's info dict.
         """
+
+    # ---- the Gaussian budget ----------------------------------------------------------------
+    def budget(self, state: dict) -> int | None:
+        """The most Gaussians the model may hold now: `max_gaussians` less what the method keeps free for
+        Gaussians it will add itself (`state["reserved_gaussians"]`: STRinGS' phase 1 keeps room for the non-text
+        points that join at T1); None without a budget.
+
+        Args:
+            state: this strategy's state dict (reads "reserved_gaussians", default 0).
+
+        Example:
+            >>> from strings_bench.engine.strategies import Strategy
+            >>> Strategy(max_gaussians=1000).budget({"reserved_gaussians": 300}), Strategy().budget({})
+            (700, None)
+        """
+        if self.max_gaussians is None:
+            return None
+        return int(self.max_gaussians) - int(state.get("reserved_gaussians", 0))
+
+    def room(self, model: GaussianModel, state: dict) -> int | None:
+        """How many Gaussians may still be added (>= 0), or None without a budget.
+
+        Args:
+            model: the model (its current size is read).
+            state: this strategy's state dict (see `budget`).
+        """
+        cap = self.budget(state)
+        return None if cap is None else max(0, cap - len(model))
 
     # ---- helpers ----------------------------------------------------------------------------
     @staticmethod

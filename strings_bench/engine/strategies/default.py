@@ -8,6 +8,10 @@ Every `refine_every` steps after `refine_start_iter`: clone Gaussians whose mean
 children (scales / (0.8 n)); prune opacity < prune_opa and, after `screen_prune_after`, world scale
 > prune_scale3d x extent (and screen radius > prune_screen_px, off by default); then clear the statistics.
 Every `reset_every` steps (before refine_stop_iter): opacity <- min(opacity, reset_value).
+
+With a budget (`max_gaussians`, run --budget): when the clones and splits of a round would pass it, the ones with
+the largest mean gradient grow and the rest wait (Taming-3DGS' rule: stop densifying at the cap); pruning is
+unchanged.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from strings_bench.core.errors import TrainingError
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.optim import GaussianAdam
 import strings_bench.engine.strategies.ops as ops
-from strings_bench.engine.strategies.base import Strategy
+from strings_bench.engine.strategies.base import Strategy, keep_within_budget
 
 
 @dataclass
@@ -68,7 +72,9 @@ class DefaultStrategy(Strategy):
     reset_value: float = 0.01  # opacity after a reset: min(opacity, this)
     screen_prune_after: int = 3_000  # big-Gaussian prunes start after this step (nominal)
     n_split: int = 2  # children of a split
-    max_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
+    # A memory guard, not a budget: growth past it fails clearly (the budget, `max_gaussians`, is the base
+    # Strategy's field: growth stops at it). Named max_gaussians before the budget existed (issue 42).
+    memory_limit_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
         """`Strategy.initialize_state` plus empty statistics (grad2d, count, max_radii) and n_refine.
@@ -188,15 +194,37 @@ class DefaultStrategy(Strategy):
         split = torch.cat([split, torch.zeros(int(clone.sum()), dtype=torch.bool, device=model.device)])
         ops.split(model, optimizer, split, n_children=self.n_split, state=state)
 
+    def _grow_scores(self, model: GaussianModel, state: dict, step: int) -> torch.Tensor:
+        """(N,) the score that decides which candidates grow first when they do not all fit in the budget: here the
+        mean screen-space gradient (NDC) that `_select` compares with grow_grad2d, for clones and splits alike."""
+        return state["grad2d"] / state["count"].clamp_min(1)
+
+    def _split_cost(self) -> int:
+        """Gaussians one split adds (n_split children replace the parent)."""
+        return self.n_split - 1
+
+    def _fit_budget(self, model: GaussianModel, state: dict, step: int, clone: torch.Tensor,
+                    split: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(clone, split) cut to the room the budget leaves (`max_gaussians`), highest `_grow_scores` first."""
+        room = self.room(model, state)
+        if room is None:
+            return clone, split
+        cost = torch.where(split, self._split_cost(), 1)
+        keep = keep_within_budget(clone | split, self._grow_scores(model, state, step), cost, room)
+        state["budget_dropped"] = state.get("budget_dropped", 0) + int((clone | split).sum() - keep.sum())
+        return clone & keep, split & keep
+
     @torch.no_grad()
     def _grow_gs(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
-        """`_select`, refuse growth past `max_gaussians`, `_grow`, and record what was done."""
-        clone, split = self._select(model, state, step)
-        grow = int(clone.sum()) + int(split.sum()) * (self.n_split - 1)
-        if len(model) + grow > self.max_gaussians:
+        """`_select`, cut to the budget (`_fit_budget`), refuse growth past `memory_limit_gaussians`, `_grow`, and
+        record what was done."""
+        clone, split = self._fit_budget(model, state, step, *self._select(model, state, step))
+        grow = int(clone.sum()) + int(split.sum()) * self._split_cost()
+        if len(model) + grow > self.memory_limit_gaussians:
             raise TrainingError(f"densification at step {step} would make {len(model) + grow} Gaussians "
-                                f"(more than max_gaussians={self.max_gaussians})",
-                                hint="raise max_gaussians or the gradient threshold(s)")
+                                f"(more than memory_limit_gaussians={self.memory_limit_gaussians})",
+                                hint="raise memory_limit_gaussians or the gradient threshold(s), or set a budget "
+                                     "(max_gaussians, run --budget)")
         self._grow(model, optimizer, state, clone, split)
         state["last_clone"], state["last_split"] = int(clone.sum()), int(split.sum())
 

@@ -77,6 +77,19 @@ class EDCStrategy(AbsGSStrategy):
     # is at least this many actual steps (and ends before the next reset). No effect at steps_scale 1.
     recovery_min_steps: int = 100  # minimum recovery window at scaled schedules
     release_schedule: bool = False  # use the public code's schedule instead of the paper's
+    def _abs_score(self, state: dict) -> torch.Tensor:
+        """The mean absolute gradient `_select` compares with its threshold (x the release's count factor)."""
+        count = state["count"]
+        grads_abs = state["grad2d_abs"] / count.clamp_min(1)
+        return grads_abs * (1 + count / 100.0 * 0.3) if self.release_schedule else grads_abs
+
+    def _grow_scores(self, model: GaussianModel, state: dict, step: int) -> torch.Tensor:
+        """Budget ranking: the absolute-gradient statistic the selection uses (every candidate is a split)."""
+        return self._abs_score(state)
+
+    def _split_cost(self) -> int:
+        return 1  # a long-axis split: 2 children replace the parent, whatever n_split says
+
     def _select(self, model: GaussianModel, state: dict, step: int) -> tuple[torch.Tensor, torch.Tensor]:
         count = state["count"]
         grads_abs = state["grad2d_abs"] / count.clamp_min(1)

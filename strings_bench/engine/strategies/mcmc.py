@@ -115,7 +115,7 @@ class MCMCStrategy(Strategy):
     refine_every: int = 100  # relocation interval (nominal)
     min_opacity: float = 0.005      # "dead" threshold
     grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to the cap
-    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians
+    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; a budget (max_gaussians) replaces it
     cap_multiple: float = 10.0  # cap = this x initial Gaussians when cap_max is None
     opacity_reg: float = 0.01  # weight of mean |opacity| in the loss
     scale_reg: float = 0.01  # weight of mean |scale| in the loss
@@ -126,6 +126,7 @@ class MCMCStrategy(Strategy):
     seed: int | None = None         # sampling RNG (None: torch's global RNG, seeded by the trainer)
 
     def __post_init__(self):
+        super().__post_init__()
         if self.cap_max is not None and self.cap_max < 1:
             raise StringsBenchError(f"MCMC cap_max must be a positive number of Gaussians, got {self.cap_max}",
                                     hint="leave it unset to use cap_multiple x the initial point count")
@@ -136,7 +137,9 @@ class MCMCStrategy(Strategy):
         state = super().initialize_state(scene_extent, steps_scale, cameras)
         # The seeded generator is made at first use, on the model's device (a CPU generator cannot
         # drive torch.multinomial / torch.randn on CUDA tensors).
-        state.update(cap=self.cap_max, generator=None, n_relocated=0, n_added=0)
+        # A budget (max_gaussians, run --budget) is MCMC's own cap: cap_max := max_gaussians.
+        state.update(cap=self.cap_max if self.max_gaussians is None else int(self.max_gaussians), generator=None,
+                     n_relocated=0, n_added=0)
         return state
 
     def generator(self, state: dict, device: torch.device) -> torch.Generator | None:

@@ -55,14 +55,30 @@ def densification_factors(counts: np.ndarray, n_max: int, equal_counts: str = "n
     return np.clip(np.floor(x + 0.5), 1, n_max).astype(np.int64)
 
 
+def fit_factors_to_budget(n_children: np.ndarray, budget: int | None) -> np.ndarray:
+    """Eq. 1's factors cut to a Gaussian budget (run --budget): when sum(N_i) exceeds `budget`, the parents with the
+    largest N_i (the least observed text points, Eq. 1's own priority; ties: the lower index) keep their N_i while
+    the total fits, every later one keeps N_i = 1 (itself, undensified). None: unchanged."""
+    k = np.asarray(n_children, dtype=np.int64).reshape(-1)
+    if budget is None or int(k.sum()) <= budget:
+        return k
+    from strings_bench.engine.strategies.base import keep_within_budget
+
+    keep = keep_within_budget(torch.from_numpy(k > 1), torch.from_numpy(k.astype(np.float64)),
+                              torch.from_numpy(k - 1), max(0, int(budget) - len(k)))
+    return np.where(keep.numpy(), k, 1)
+
+
 def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Tensor,
                        generator: torch.Generator | None = None,
-                       max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> "GaussianModel":
+                       max_gaussians: int = DEFAULT_MAX_GAUSSIANS, budget: int | None = None) -> "GaussianModel":
     """Replace Gaussian i of `model` by n_children[i] samples of itself, in place (n = 1 keeps it).
 
     Children are drawn by `strategies.ops.sample_children` from N(mean, R S^2 R^T) of the parent
     (unshrunk scales), log-scales reduced by log(0.8 n), other parameters and extras copied.
     Row order afterwards: the kept (n = 1) Gaussians, then the children grouped by parent.
+    `budget`: at most this many Gaussians afterwards (`fit_factors_to_budget`); `max_gaussians` is the memory guard
+    (more is an error).
     """
     from strings_bench.engine.strategies import ops
 
@@ -72,6 +88,8 @@ def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Te
         raise StringsBenchError(f"{k.shape[0]} densification factors for {n} Gaussians")
     if n and int(k.min()) < 1:
         raise StringsBenchError("densification factors must be >= 1")
+    if budget is not None:
+        k = torch.from_numpy(fit_factors_to_budget(k.cpu().numpy(), budget)).to(model.device)
     total = int(k.sum())
     if total > max_gaussians:
         raise TrainingError(

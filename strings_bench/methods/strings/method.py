@@ -8,8 +8,9 @@ text Gaussians; standard 3DGS loss and densification; position LR = eta_r(t) * e
 eta_opt the 3DGS schedule shifted by T1 and eta_r = alpha (non-text) or
 alpha / (1 + exp(-beta (t - gamma))) (text). See docs/strings.md for settings and choices.
 
-Registered method names: "strings", and the paper's ablations "strings-no-densify" (no text
-densification) and "strings-pos-lr" (3DGS position LR in phase 1 instead of 0).
+Registered method names: "strings", the paper's ablations "strings-no-densify" (no text
+densification) and "strings-pos-lr" (3DGS position LR in phase 1 instead of 0), and this suite's variant
+"strings-absgrad" (AbsGS' absolute-gradient densification criterion in both phases; not the paper's).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import torch
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.splatting import GaussianSplatting
+from strings_bench.engine.strategies.absgs import AbsGSStrategy
 
 if TYPE_CHECKING:
     from strings_bench.scene.scene import Scene
@@ -216,7 +218,12 @@ class Strings(GaussianSplatting):
                 factors = densification_factors(counts[is_text], self.n_max, st.equal_counts)
             # the children are sampled on the model's device, so the generator must live there too
             gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
-            densify_text_model(model, factors, gen, max_gaussians=st.max_text_gaussians)
+            cap = self.strategy.max_gaussians
+            # Under a budget Eq. 1 leaves room for the non-text points that join at T1 (reserved_gaussians)
+            budget = None if cap is None else int(cap) - self.reserved_gaussians()
+            densify_text_model(model, factors, gen, max_gaussians=st.max_text_gaussians, budget=budget)
+            if budget is not None:
+                stats["text_densify_budget"] = budget
         stats["text_gaussians_after_densify"] = len(model)
         if st.prune_outside_masks:
             outside = self.mask_hits(model) < st.tau
@@ -243,6 +250,13 @@ class Strings(GaussianSplatting):
         xyz = model.params["means"].detach().cpu().numpy()
         hits = count_mask_hits(xyz, ptr, views, cameras, self._seg_masks)
         return torch.from_numpy(hits).to(model.device)
+
+    def reserved_gaussians(self) -> int:
+        """Under a budget, phase 1 keeps room for the non-text SfM points that join at T1 (`_start_phase2`), so
+        phase 1's growth (Eq. 1 and 3DGS densification) stops at max_gaussians less their number."""
+        if self.fallback or self.phase != 1 or self.segmentation is None:
+            return 0
+        return int((~self.segmentation.is_text).sum())
 
     def _start_phase2(self) -> None:
         from strings_bench.engine.gaussians import GaussianModel
@@ -365,3 +379,14 @@ class StringsPosLR(Strings):
     """Ablation of the paper: the 3DGS position LR in phase 1 instead of 0."""
 
     forced_settings = {"phase1_position_lr": 1.0}
+
+
+class StringsAbsGrad(Strings):
+    """This suite's variant (not the paper's): STRinGS with AbsGS' densification criterion in both phases (clone on
+    the ordinary screen-space gradient >= grow_grad2d, split on the absolute gradient >= grow_grad2d_abs, AbsGS'
+    thresholds 2e-4 / 4e-4). Phase 1 too: it runs 3DGS densification on the text Gaussians with their positions
+    locked, so clones stay on their parent and splits (children sampled off the parent) are the only growth that
+    places new Gaussians; AbsGS changes exactly the split rule, on the strokes where per-pixel gradients cancel
+    (docs/strings.md, "strings-absgrad")."""
+
+    strategy_cls = AbsGSStrategy
