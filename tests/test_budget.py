@@ -147,6 +147,7 @@ def test_eq1_under_a_budget_densifies_the_least_observed_points_first():
 DENSIFY_FAST = {
     "steps_scale": 1.0, "refine_start_iter": 2, "refine_every": 5, "grow_grad2d": 1e-9, "grow_grad2d_abs": 1e-9,
     "grow_rate": 0.5, "t1": 15, "sh_degree": 0,
+    "growth_full_iter": 20, "score_views": 2,  # improved-gs: its growth control reaches the budget at step 20
 }
 STEPS = 40
 CAP = 1800  # the check scene has 1429 SfM points (340 text points, 1089 non-text)
