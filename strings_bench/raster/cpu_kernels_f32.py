@@ -61,13 +61,14 @@ E2 = F32(8.3334519073e-3)
 E3 = F32(4.1665795894e-2)
 E4 = F32(1.6666665459e-1)
 E5 = F32(5.0000001201e-1)
-# reassoc: vector reductions. No nnan/ninf: NaN checks keep their meaning. No `contract` (fused
-# multiply-adds): LLVM fused them differently in the JIT's code and in the object code numba caches,
-# so a kernel compiled in the process and the same kernel loaded from the cache gave other gradient
-# bits (tests/test_raster_f32.py; a clean clone's first run differed from every later one). Measured
-# cost without it: within the noise of a loaded 2-core machine (fwd+bwd 320x240x50k 590 -> 612 ms,
-# 640x480x200k 1156 -> 1068 ms, ABBA).
-FASTMATH = {"reassoc", "nsz", "arcp"}
+# reassoc (vector reductions) and nothing else. No nnan/ninf: NaN checks keep their meaning. No `contract`
+# (fused multiply-adds), `arcp` or `nsz`: with them LLVM compiled differently on the JIT path and in the
+# object code numba caches, so a kernel compiled in the process and the same kernel loaded from the cache
+# gave other bits (tests/test_raster_f32.py; a clean clone's first run differed from every later one:
+# `contract` in the backward's gradients, `arcp`/`nsz` in one checkpoint render of tests/test_ray.py).
+# Measured cost without `contract`: within the noise of a loaded 2-core machine (fwd+bwd 320x240x50k
+# 590 -> 612 ms, 640x480x200k 1156 -> 1068 ms, ABBA).
+FASTMATH = {"reassoc"}
 
 
 @intrinsic
