@@ -153,8 +153,7 @@ class ImprovedGSStrategy(Strategy):
     recovery_min_steps: int = 100  # minimum recovery window at scaled schedules (no effect at steps_scale 1)
 
     def __post_init__(self):
-        if self.max_gaussians is not None and int(self.max_gaussians) < 1:
-            raise StringsBenchError(f"max_gaussians must be a positive number of Gaussians, got {self.max_gaussians}")
+        super().__post_init__()  # the base Strategy checks max_gaussians
         if self.budget is not None and int(self.budget) < 1:
             raise StringsBenchError(f"improved-gs budget must be a positive number of Gaussians, got {self.budget}",
                                     hint="leave it unset to use budget_multiple x the initial count")
