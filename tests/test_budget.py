@@ -192,6 +192,12 @@ def test_no_method_exceeds_the_budget_at_any_step(name):
     assert not over, f"{name} exceeded the budget of {CAP} Gaussians at (step, count) {over[:5]}"
     assert max(counts) >= 0.95 * CAP, (f"{name} never came near the cap ({max(counts)} < 0.95 x {CAP}): "
                                        "add the settings that make it densify fast to DENSIFY_FAST")
+    # the cell's record of the size (result.json extra) against the counts seen from outside
+    assert method.checkpoint_extra(STEPS)["peak_gaussians"] == max(counts)
+    if not name.startswith("strings"):  # STRinGS' phase-1 cap is lower (test_strings_keeps_room_...)
+        after_refine = counts[2::2]  # the count after refine(step), step = 1..STEPS
+        first = next((s for s, c in enumerate(after_refine, start=1) if c >= CAP), None)
+        assert method.checkpoint_extra(STEPS)["budget_reached_at"] == first
 
 
 def test_strings_keeps_room_for_the_non_text_points_in_phase_1():
@@ -201,6 +207,11 @@ def test_strings_keeps_room_for_the_non_text_points_in_phase_1():
     assert max(phase1) <= CAP - n_non_text
     assert method.densify_stats["text_densify_budget"] == CAP - n_non_text
     assert method.phase == 2 and counts[-1] <= CAP
+    # phase 1's budget is the reduced one: the record says when the text Gaussians filled it, if they did
+    reached = method.checkpoint_extra(16)["budget_reached_at"]
+    full = [s for s, c in enumerate(phase1[2::2], start=1) if c >= CAP - n_non_text]
+    assert reached == (full[0] if full else reached)
+    assert reached is None or reached <= 15 or counts[2 * reached] >= CAP
 
 
 def test_a_budget_below_the_initial_model_is_a_clear_error():
@@ -283,6 +294,9 @@ def test_numeric_budget_caps_every_method(tmp_path):
         assert cell["config"]["budget"] == {"rule": "1600", "max_gaussians": 1600, "reference": None}
         assert cell["config"]["method"]["settings"]["max_gaussians"] == 1600
         assert 1429 < cell["gaussians"] <= 1600
+        assert cell["gaussians"] <= cell["extra"]["peak_gaussians"] <= 1600
+    rows = pd.read_csv(out / "results.csv").set_index("method")
+    assert (rows["peak_gaussians"] <= 1600).all() and (rows["peak_gaussians"] >= rows["gaussians"]).all()
 
 
 def test_budget_errors_are_clear(tmp_path):

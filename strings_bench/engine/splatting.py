@@ -195,6 +195,9 @@ class GaussianSplatting(Method):
         self._step_info: tuple | None = None
         self.step = 0
         self.last_loss = float("nan")
+        # The model's size over training, for the cell's record: the most Gaussians it held, and the first step at
+        # which it filled the Gaussian budget in force then (run --budget; STRinGS' phase 1 keeps room free)
+        self.size_log: dict = {"peak_gaussians": 0, "budget_reached_at": None}
 
     @classmethod
     def from_settings(cls, **settings) -> "GaussianSplatting":
@@ -311,8 +314,20 @@ class GaussianSplatting(Method):
         pass
 
     def checkpoint_extra(self, step: int) -> dict:
-        return {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
-                "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss}
+        extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
+                 "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss,
+                 "peak_gaussians": int(self.size_log["peak_gaussians"])}
+        if getattr(self.strategy, "max_gaussians", None) is not None:
+            extra["budget_reached_at"] = self.size_log["budget_reached_at"]  # a step, or None: never filled
+        return extra
+
+    def note_model_size(self, step: int) -> None:
+        """Update `size_log` after the model may have grown (a refinement, a phase switch)."""
+        n = len(self.model)
+        self.size_log["peak_gaussians"] = max(int(self.size_log["peak_gaussians"]), n)
+        cap = self.strategy.cap_now(self.strategy_state)
+        if cap is not None and n >= cap and self.size_log["budget_reached_at"] is None:
+            self.size_log["budget_reached_at"] = int(step)
 
     # ---- model / optimizer ---------------------------------------------------------------------
     def make_optimizer(self, model: GaussianModel) -> GaussianAdam:
@@ -338,10 +353,11 @@ class GaussianSplatting(Method):
                 f"the budget of {cap} Gaussians is below what {self.name} starts from on {self.scene.name}: "
                 f"{len(model)} Gaussians{more}; a budget stops densification, it cannot remove initial Gaussians",
                 hint="give a larger --budget (at least the scene's SfM point count)")
+        self.note_model_size(self.step)
 
     def reserved_gaussians(self) -> int:
         """Gaussians this method will add by itself later (outside the strategy), kept free under a budget
-        (`Strategy.budget`): 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1."""
+        (`Strategy.cap_now`): 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1."""
         return 0
 
     def target(self, view_idx: int) -> torch.Tensor:
@@ -442,6 +458,7 @@ class GaussianSplatting(Method):
         self._step_info = None
         self.strategy.step_post_backward(self.model, self.optimizer, self.strategy_state, sstep, info)
         self.optimizer.zero_grad()
+        self.note_model_size(step)
 
     @torch.no_grad()
     def render(self, view_idx: int) -> np.ndarray:
@@ -473,6 +490,7 @@ class GaussianSplatting(Method):
             "view_stack": list(self._view_stack),
             "view_key": self._view_key,
             "last_loss": self.last_loss,
+            "size_log": dict(self.size_log),
             "extra": self.extra_state(),
         }
 
@@ -487,6 +505,8 @@ class GaussianSplatting(Method):
         self._view_stack = list(state["view_stack"])
         self._view_key = state["view_key"]
         self.last_loss = state["last_loss"]
+        # states saved before the size log existed start it at the loaded model's size
+        self.size_log = dict(state.get("size_log") or {"peak_gaussians": len(model), "budget_reached_at": None})
         self.step = int(state["step"])
         self.load_extra_state(state.get("extra") or {})
 

@@ -38,7 +38,8 @@ READABILITY_COLUMNS = ["word_cer", "word_acc", "text_nll", "text_psnr", "text_ss
 CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
-    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "budget", "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "budget", "peak_gaussians", "budget_reached_at",
+    "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]
 # Names of the run folder's fields before issue 41, when "preset" named the run's schedule (run.json, result.json's
@@ -278,6 +279,10 @@ def cell_row(rec: dict) -> dict:
         **timing_columns(rec),
         "gaussians": "" if rec.get("gaussians") is None or rec["gaussians"] < 0 else rec["gaussians"],
         "budget": budget_column(rec),
+        # the most Gaussians held before this checkpoint, and the step the budget was first filled ("" when it never
+        # was, or without a budget; cells written before the record existed leave both empty)
+        "peak_gaussians": num((rec.get("extra") or {}).get("peak_gaussians")),
+        "budget_reached_at": num((rec.get("extra") or {}).get("budget_reached_at")),
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),

@@ -257,7 +257,7 @@ class Strategy:
         """
 
     # ---- the Gaussian budget ----------------------------------------------------------------
-    def budget(self, state: dict) -> int | None:
+    def cap_now(self, state: dict) -> int | None:  # not "budget": Improved-GS has a setting of that name
         """The most Gaussians the model may hold now: `max_gaussians` less what the method keeps free for
         Gaussians it will add itself (`state["reserved_gaussians"]`: STRinGS' phase 1 keeps room for the non-text
         points that join at T1); None without a budget.
@@ -267,7 +267,7 @@ class Strategy:
 
         Example:
             >>> from strings_bench.engine.strategies import Strategy
-            >>> Strategy(max_gaussians=1000).budget({"reserved_gaussians": 300}), Strategy().budget({})
+            >>> Strategy(max_gaussians=1000).cap_now({"reserved_gaussians": 300}), Strategy().cap_now({})
             (700, None)
         """
         if self.max_gaussians is None:
@@ -279,9 +279,9 @@ class Strategy:
 
         Args:
             model: the model (its current size is read).
-            state: this strategy's state dict (see `budget`).
+            state: this strategy's state dict (see `cap_now`).
         """
-        cap = self.budget(state)
+        cap = self.cap_now(state)
         return None if cap is None else max(0, cap - len(model))
 
     # ---- helpers ----------------------------------------------------------------------------
