@@ -322,11 +322,15 @@ class GaussianSplatting(Method):
         return extra
 
     def note_model_size(self, step: int) -> None:
-        """Update `size_log` after the model may have grown (a refinement, a phase switch)."""
+        """Update `size_log` after the model may have grown (a refinement, a phase switch): the peak count, and the first
+        step at which the budget in force held the model (it reached the cap, or the strategy dropped candidates for it)."""
         n = len(self.model)
         self.size_log["peak_gaussians"] = max(int(self.size_log["peak_gaussians"]), n)
         cap = self.strategy.cap_now(self.strategy_state)
-        if cap is not None and n >= cap and self.size_log["budget_reached_at"] is None:
+        # filled: at the cap, or growth already cut by it (a strategy that prunes in the same round may end a little
+        # under the cap; DefaultStrategy and its subclasses count the candidates the budget dropped)
+        held = cap is not None and (n >= cap or self.strategy_state.get("budget_dropped", 0) > 0)
+        if held and self.size_log["budget_reached_at"] is None:
             self.size_log["budget_reached_at"] = int(step)
 
     # ---- model / optimizer ---------------------------------------------------------------------
