@@ -239,3 +239,41 @@ def test_a_room_missing_at_one_draw_is_left_out_and_two_datasets_scene_names_col
     with pytest.raises(StringsBenchError, match="is in datasets synthetic360-cpu and s360-seed1"):
         cmp.collect([run, other])
     assert set(cmp.collect([run, other], "s360-seed1")) == {("3dgs", "7K")}
+
+
+def test_methods_are_held_to_the_scenes_they_all_have(tmp_path, capsys):
+    """A draw trained for some methods only (a 30K folder still filling) would rank methods on different rooms: every
+    method is averaged over the scenes all of them have, and the rest is listed."""
+    run = tmp_path / "run"
+    known = {"3dgs": {"pantry": 0.5, "office": 0.7, "storeroom": 0.6, "pantry@1": 0.9},
+             "strings": {"pantry": 0.4, "office": 0.2, "storeroom": 0.3, "pantry@1": 0.1},
+             "edc-absgs": {"pantry": 0.2, "office": 0.2, "storeroom": 0.2}}  # pantry@1 not trained yet
+    for method, by_scene in known.items():
+        for scene, k in by_scene.items():
+            _cell(run, method, scene, "30K", 3000, 0.5, k)
+    c = cmp.compare([run])
+    # all three on draw 0: 3DGS (0.5 + 0.7 + 0.6) / 3 = 0.6; over its own scenes it was (0.5 + 0.9) / 2 = 0.7
+    means = {m: c.get(m, "30K", "cer_known")["mean"] for m in known}
+    assert means == {"3dgs": pytest.approx(0.6), "strings": pytest.approx(0.3), "edc-absgs": pytest.approx(0.2)}
+    assert {c.get(m, "30K", "cer_known")["scenes"] for m in known} == {3}
+    assert "3dgs 30K: seed 0 also has pantry@1 (left out of the means: not every method has it)" in c.left_out()
+    assert not any(line.startswith("edc-absgs") for line in c.left_out())
+    # the per-scene rows still show every cell
+    assert "| 3DGS | 30K | 0.700 | 0.500 | 0.900 | 0.600 |" in cmp.per_scene_table(c)
+    # EDC-AbsGS' pantry@1 lands: every method has four scenes, but draw 1 has one room of three. Keeping the
+    # complete draw (3 cells) beats keeping pantry alone over both draws (2 cells): the same means, and pantry@1 is
+    # listed as left out within each method.
+    _cell(run, "edc-absgs", "pantry@1", "30K", 3000, 0.5, 0.3)
+    c = cmp.compare([run])
+    assert {m: c.get(m, "30K", "cer_known")["mean"] for m in known} == means
+    assert "edc-absgs 30K: seed 0 also has pantry@1 (left out of the means)" in c.left_out()
+
+
+def test_methods_with_no_common_scene_keep_their_own_and_say_so(tmp_path):
+    run = tmp_path / "run"
+    _cell(run, "3dgs", "pantry", "7K", 700, 0.5, 0.6)
+    _cell(run, "strings", "office", "7K", 700, 0.5, 0.4)
+    c = cmp.compare([run])
+    assert c.get("3dgs", "7K", "cer_known")["mean"] == pytest.approx(0.6)
+    assert c.get("strings", "7K", "cer_known")["mean"] == pytest.approx(0.4)
+    assert c.left_out() == ["7K: the methods share no scene; each method's mean is over its own (not comparable)"]

@@ -220,3 +220,30 @@ def test_method_titles_and_groups_come_from_the_run_folder_then_the_specs():
     (ocr_cer, *_) = tables.build_tables(df, {"methods": {"my-splat": {"title": "MySplat (ours)", "group": "ours"}}})
     assert "| MySplat (ours) | 0.200 **(1)** |" in ocr_cer.markdown()
     assert "| my-splat | 0.200 **(1)** |" in tables.build_tables(df)[0].markdown()  # built without the record
+
+
+def test_the_report_ranks_methods_on_the_scenes_they_all_have(tmp_path):
+    """A run still under way (STRinGS has trained one scene of two): the tables and figures average the common
+    scene, the cells table keeps both, and the report says what is left out."""
+    rows = []
+    for method, cers in (("strings", {"a": 0.2}), ("3dgs", {"a": 0.4, "b": 0.9})):
+        for scene, cer in cers.items():
+            rows.append({"method": method, "dataset": "synthetic", "scene": scene, "iteration": 1050, "label": "7K",
+                         "cer": cer, "cer_known": math.nan, "psnr": 20.0, "ssim": 0.8, "lpips": math.nan,
+                         "train_seconds": 60.0, "gaussians": 1000, "ocr_failed": 0})
+    df = pd.DataFrame(rows)
+    from strings_bench.reports.aggregate import common_scenes
+
+    kept, notes = common_scenes(df)
+    assert sorted(zip(kept["method"], kept["scene"])) == [("3dgs", "a"), ("strings", "a")]
+    assert notes == ["3dgs synthetic 7K: b left out of the means (not every method has them yet)"]
+    run = tmp_path / "run"
+    run.mkdir()
+    df.to_csv(run / "results.csv", index=False)
+    report = write_report(run).read_text()
+    section = report.split("## OCR-CER (lower is better)")[1].split("## ")[0]
+    assert "0.400" in section and "0.650" not in section  # 3DGS on scene a, not the mean (0.4 + 0.9) / 2
+    assert "3dgs synthetic 7K: b left out of the means" in report
+    assert "3 cell(s)" in report
+    # one method alone, or methods on the same scenes: nothing is held back
+    assert common_scenes(df[df["method"] == "3dgs"])[1] == []

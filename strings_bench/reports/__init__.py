@@ -41,7 +41,10 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     from strings_bench.reports.table_model import MethodNames
 
     names = MethodNames.of(manifest)  # method titles and groups as the run recorded them, then the specs'
-    df = load_results(run_dir)
+    from strings_bench.reports.aggregate import common_scenes
+
+    all_cells = load_results(run_dir)
+    df, left_out = common_scenes(all_cells)  # the tables and figures rank methods on the same scenes
     out = run_dir / "report"
     from strings_bench.reports.readability_analysis import analyse, front_lines, write_fronts
     from strings_bench.reports.tables import schedule_note
@@ -58,17 +61,20 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if schedule:
         lines.append(f"Schedule **{schedule.get('name')}** (steps scale {schedule.get('steps_scale')}), downscale "
                      f"{manifest.get('downscale')}, OCR backend `{manifest.get('ocr')}`.")
-    lines.append(f"{len(df)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
+    lines.append(f"{len(all_cells)} cell(s) (method x scene x checkpoint) in `{RESULTS_CSV}`. Checkpoint columns are labelled "
                  "by the paper iteration they stand for (see `iteration` in the CSV for the iterations trained).")
     notes = []
-    if not df.empty and df["ocr_failed"].fillna(0).astype(int).sum():
-        notes.append(f"OCR failed on {int(df['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s); "
+    if not all_cells.empty and all_cells["ocr_failed"].fillna(0).astype(int).sum():
+        notes.append(f"OCR failed on {int(all_cells['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s); "
                      "those views are left out of CER (see `ocr_failed` in results.csv).")
-    if not df.empty and df["lpips"].isna().all():
+    if not all_cells.empty and all_cells["lpips"].isna().all():
         from strings_bench.eval.lpips_net import INSTALL_HINT, available
 
         why = "it was skipped (--no-lpips)" if available() else f"its weights are not installed (`{INSTALL_HINT}`)"
         notes.append(f"LPIPS is n/a: {why}.")
+    if left_out:
+        notes.append("The tables and figures average the scenes every method has at each checkpoint (the cells table "
+                     "and results.csv hold them all): " + "; ".join(left_out) + ".")
     lines += [f"\n{n}" for n in notes]
     lines.append("")
     lines.append("The same report as one page with sortable tables and word-crop galleries per scene: `index.html` "
@@ -101,6 +107,6 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
                 lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
     md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
-    write_html(run_dir, out, df, manifest, build_tables(df, manifest) + analysis.tables, figures, notes,
+    write_html(run_dir, out, all_cells, manifest, build_tables(df, manifest) + analysis.tables, figures, notes,
                fronts=analysis.fronts + analysis.size_fronts)
     return md

@@ -49,6 +49,32 @@ def dataset_means(df: pd.DataFrame, value: str) -> pd.DataFrame:
 
 
 
+def common_scenes(df: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """The cells of the scenes every method has at its (dataset, checkpoint), and one line per method whose other
+    cells are left out. A mean over different scenes would rank methods on different rooms (a run still under way,
+    or scene draws trained for some methods only): the report's tables and figures average the common scenes. Where
+    the methods share no scene, the cells stay and the line says their means are not comparable."""
+    if df.empty or not {"method", "dataset", "label", "scene"} <= set(df.columns):
+        return df, []
+    keep = pd.Series(True, index=df.index)
+    notes = []
+    for (dataset, label), group in df.groupby(["dataset", "label"], sort=False):
+        by_method = {m: set(g["scene"]) for m, g in group.groupby("method", sort=False)}
+        common = set.intersection(*by_method.values())
+        if not common:
+            if len(by_method) > 1:
+                notes.append(f"{dataset} {label}: no scene is common to every method; each method's mean is over "
+                             "its own scenes (not comparable)")
+            continue
+        for m, scenes in by_method.items():
+            extra = sorted(scenes - common)
+            if extra:
+                notes.append(f"{m} {dataset} {label}: {', '.join(extra)} left out of the means (not every method "
+                             "has them yet)")
+        keep &= ~(((df["dataset"] == dataset) & (df["label"] == label)) & ~df["scene"].isin(common))
+    return df[keep], notes
+
+
 def main_labels(df: pd.DataFrame) -> list[str]:
     """Checkpoint labels of the tables: every checkpoint the run evaluated fully, in order (the paper's layout
     has 7K and 30K; a run that also evaluated 3K shows it too). The dense checkpoints of `--checkpoints every:N`

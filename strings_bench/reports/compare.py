@@ -24,9 +24,11 @@ is one draw, today's figure), and its range, the one "decided" reads, is over ev
 With several draws the comparison adds, per CER value, the mean over draws with the draws' range per room and
 over all rooms (`draws_tables`); the per-scene rows stay (`per_scene_table`).
 
-Only fully evaluated checkpoints count (not the word-crop-only ones of `--checkpoints every:N`). A method is
-averaged over the scenes every seed of it has; a (method, seed) with a scene the others lack is reported, not
-averaged. The same cell in two folders counts once when its figures agree and is an error when they differ.
+Only fully evaluated checkpoints count (not the word-crop-only ones of `--checkpoints every:N`). Every method is
+held to the scenes all methods have at that checkpoint (`common_scenes`: a folder still filling, or a draw trained
+for some methods only, would otherwise rank methods on different rooms). Within a method, a ragged coverage keeps
+the replicates that have every room or every replicate over the rooms they all have, whichever keeps more cells.
+What is held back is listed, not averaged. The same cell in two folders counts once when its figures agree and is an error when they differ.
 Written as Markdown, LaTeX, CSV and an HTML page in the run report's style (`write_comparison`).
 """
 
@@ -117,7 +119,15 @@ def summarise(per_seed: dict, value: str) -> dict | None:
         for scene, vals in by_scene.items():
             room, draw = room_draw(scene)
             reps.setdefault((seed, draw), {})[room] = vals
-    rooms = set.intersection(*(set(r) for r in reps.values())) if reps else set()
+    if not reps:
+        return None
+    # A ragged coverage (draw 1 of one room only) keeps either the replicates that have every room, or every
+    # replicate over the rooms all of them have: whichever keeps more cells (a tie keeps every replicate).
+    every_room = set.union(*(set(r) for r in reps.values()))
+    rooms = set.intersection(*(set(r) for r in reps.values()))
+    complete = {rep: r for rep, r in reps.items() if set(r) == every_room}
+    if len(complete) * len(every_room) > len(reps) * len(rooms):
+        reps, rooms = complete, every_room
     if not rooms:
         return None
     means = {}
@@ -131,9 +141,12 @@ def summarise(per_seed: dict, value: str) -> dict | None:
     seeds = sorted({seed for seed, _ in means})
     draws = sorted({draw for _, draw in means})
     per_draw = {d: _mean(m for (_, dd), m in means.items() if dd == d) for d in draws}
-    # the scenes a seed has beyond the rooms every replicate has (reported, not averaged)
-    missing = {seed: sorted(sc for sc in by_scene if room_draw(sc)[0] not in rooms)
-               for seed, by_scene in per_seed.items() if any(room_draw(sc)[0] not in rooms for sc in by_scene)}
+    # the scenes of a seed outside the replicates and rooms averaged (reported, not averaged)
+    def used(seed, scene):
+        room, draw = room_draw(scene)
+        return (seed, draw) in reps and room in rooms
+    missing = {seed: sorted(sc for sc in by_scene if not used(seed, sc))
+               for seed, by_scene in per_seed.items() if not all(used(seed, sc) for sc in by_scene)}
     return {"mean": _mean(per_draw.values()), "min": min(means.values()), "max": max(means.values()),
             "seeds": len(seeds), "draws": len(draws), "replicates": len(means), "scenes": len(rooms),
             "per_seed": [_mean(m for (s, _), m in means.items() if s == seed) for seed in seeds],
@@ -152,9 +165,32 @@ def decided(a: dict | None, b: dict | None) -> str:
     return "decided" if a["max"] < b["min"] or b["max"] < a["min"] else "not decided"
 
 
+def common_scenes(data: dict) -> tuple[dict, dict]:
+    """`data` ({(method, label): {seed: {scene: ...}}}) held to the scenes every method has at each checkpoint (in
+    any of its seeds), and {(method, label): {seed: [scenes left out]}}. Means over different scenes would rank
+    methods on different rooms and draws (a draw trained for some methods only): a draw moves known-text CER more
+    than a seed does (issue 40). Where the methods share no scene, nothing is held back."""
+    have: dict = {}
+    for (m, label), per_seed in data.items():
+        scenes = set().union(*(set(by_scene) for by_scene in per_seed.values()))
+        have[label] = scenes if label not in have else have[label] & scenes
+    kept, dropped = {}, {}
+    for (m, label), per_seed in data.items():
+        common = have[label] or None  # none shared: each method keeps its own (`left_out` says so)
+        kept[(m, label)] = {seed: {sc: v for sc, v in by_scene.items() if common is None or sc in common}
+                            for seed, by_scene in per_seed.items()}
+        kept[(m, label)] = {seed: by_scene for seed, by_scene in kept[(m, label)].items() if by_scene}
+        out = {seed: sorted(set(by_scene) - common) for seed, by_scene in per_seed.items() if common}
+        if any(out.values()):
+            dropped[(m, label)] = {seed: sc for seed, sc in out.items() if sc}
+    return kept, dropped
+
+
 @dataclass
 class Comparison:
-    """The numbers of a comparison: {method: {label: {value: summary}}}, in the registry's order."""
+    """The numbers of a comparison: {method: {label: {value: summary}}}, in the registry's order. `data` holds the
+    cells averaged (the scenes every method has, `common_scenes`), `cells` every cell of the folders (the per-scene
+    rows), `not_common` the cells held back for that."""
 
     data: dict
     numbers: dict
@@ -162,6 +198,8 @@ class Comparison:
     run_dirs: list[Path]
     names: MethodNames  # as the folders' run.json recorded the methods, then as their specs do
     paper_dataset: str = PAPER_DATASET
+    cells: dict | None = None
+    not_common: dict | None = None
 
     def get(self, method: str, label: str, value: str) -> dict | None:
         return (self.numbers.get(method) or {}).get(label, {}).get(value)
@@ -181,9 +219,16 @@ class Comparison:
         return out
 
     def left_out(self) -> list[str]:
-        return sorted({f"{m} {lab}: seed {seed} also has {', '.join(sc)} (left out of the means)"
-                       for m in self.methods for lab, vs in self.numbers[m].items()
-                       for seed, sc in ((vs.get("cer") or {}).get("left_out") or {}).items()})
+        within = {f"{m} {lab}: seed {seed} also has {', '.join(sc)} (left out of the means)"
+                  for m in self.methods for lab, vs in self.numbers[m].items()
+                  for seed, sc in ((vs.get("cer") or {}).get("left_out") or {}).items()}
+        across = {f"{m} {lab}: seed {seed} also has {', '.join(sc)} (left out of the means: not every method has it)"
+                  for (m, lab), per_seed in (self.not_common or {}).items() for seed, sc in per_seed.items()}
+        labels = {lab for _, lab in self.data}
+        apart = {f"{lab}: the methods share no scene; each method's mean is over its own (not comparable)"
+                 for lab in labels if not set.intersection(*(set().union(*map(set, ps.values()))
+                                                            for (_, l), ps in self.data.items() if l == lab))}
+        return sorted(within | across | apart)
 
 
 def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET) -> Comparison:
@@ -195,7 +240,8 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
         raise StringsBenchError("the run folders were made under different Gaussian budgets: " + ", ".join(
             f"{d}: {'no budget' if b is None else f'--budget {b}'}" for d, b in budgets.items()),
             hint="compare folders of one budget at a time (run --budget, docs/running.md)")
-    data = collect(run_dirs, dataset)
+    cells = collect(run_dirs, dataset)
+    data, not_common = common_scenes(cells)
     if not data:
         raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),
                                 hint="give run folders with finished cells (strings-bench run or calibrate)")
@@ -206,7 +252,7 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
     methods = names.order(m for m, _ in data)
     numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES} for (mm, label) in data if mm == m}
                for m in methods}
-    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset)
+    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset, cells, not_common)
 
 
 # ---- tables --------------------------------------------------------------------------------------------
@@ -390,10 +436,11 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
     """One row per method and checkpoint: `value` per scene, the seeds' figures joined with '/' (seed order)."""
     if value not in VALUES:
         raise StringsBenchError(f"--per-scene {value}: not a compared value", hint=f"one of: {', '.join(VALUES)}")
-    scenes = sorted({sc for per_seed in c.data.values() for by_scene in per_seed.values() for sc in by_scene},
+    cells = c.cells if c.cells is not None else c.data
+    scenes = sorted({sc for per_seed in cells.values() for by_scene in per_seed.values() for sc in by_scene},
                     key=lambda sc: (room_draw(sc)[0], room_draw(sc)[1], sc))  # a room's draws side by side
     first: dict = {}  # label -> the smallest iteration trained for it (checkpoint order)
-    for (_, label), per_seed in c.data.items():
+    for (_, label), per_seed in cells.items():
         for by_scene in per_seed.values():
             for v in by_scene.values():
                 first[label] = min(first.get(label, v["iteration"]), v["iteration"])
@@ -401,12 +448,12 @@ def per_scene_table(c: Comparison, value: str = "cer_known") -> str:
              "| method | ckpt | " + " | ".join(scenes) + " |", "|---|---|" + "---|" * len(scenes)]
     for label in sorted(first, key=first.get):
         for m in c.methods:
-            per_seed = c.data.get((m, label))
+            per_seed = cells.get((m, label))
             if not per_seed:
                 continue
-            cells = [" / ".join(f"{per_seed[seed][sc][value]:.3f}" for seed in sorted(per_seed) if sc in per_seed[seed])
+            row = [" / ".join(f"{per_seed[seed][sc][value]:.3f}" for seed in sorted(per_seed) if sc in per_seed[seed])
                      or "-" for sc in scenes]
-            lines.append(f"| {c.names.title(m)} | {label} | " + " | ".join(cells) + " |")
+            lines.append(f"| {c.names.title(m)} | {label} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
