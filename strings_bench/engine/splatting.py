@@ -350,8 +350,9 @@ class GaussianSplatting(Method):
         reserved = self.reserved_gaussians()
         if reserved:
             self.strategy_state["reserved_gaussians"] = int(reserved)
-        cap = getattr(self.strategy, "max_gaussians", None)
-        if cap is not None and len(model) + reserved > cap:
+        room_now = self.strategy.cap_now(self.strategy_state)  # the budget less what the method reserves
+        if room_now is not None and len(model) > room_now:
+            cap = self.strategy.max_gaussians
             more = f" and {reserved} it adds later" if reserved else ""
             raise StringsBenchError(
                 f"the budget of {cap} Gaussians is below what {self.name} starts from on {self.scene.name}: "

@@ -98,29 +98,28 @@ def metric_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, metric
         return None
     xs = sub["total_seconds"] / 60 if x == "minutes" else pd.to_numeric(sub["gaussians"], errors="coerce")
     sub = sub.assign(_v=pd.to_numeric(sub[metric], errors="coerce"), _x=xs)
-    # the x column keeps the name "minutes" below whichever axis it holds
-    g = sub.groupby("method").agg(v=("_v", "mean"), minutes=("_x", "mean")).reset_index()
-    g = g.dropna(subset=["minutes"])
+    g = sub.groupby("method").agg(v=("_v", "mean"), along=("_x", "mean")).reset_index()  # along: minutes or count
+    g = g.dropna(subset=["along"])
     if g.empty:
         return None
     plt = _plt()
     methods = names.order(g["method"])
     colors = _colors(methods)
     fig, ax = plt.subplots(figsize=(4.8, 3.6))
-    # The speed/accuracy front: the methods no other beats on both training time and the metric (circled).
+    # The front: the methods no other beats on both the x axis (time or Gaussian count) and the metric (circled).
     sign = 1 if lower else -1
-    front = pareto_front({r.method: (r.minutes, sign * r.v) for r in g.itertuples()})
-    fr = g[g["method"].isin(front)].sort_values("minutes")
+    front = pareto_front({r.method: (r.along, sign * r.v) for r in g.itertuples()})
+    fr = g[g["method"].isin(front)].sort_values("along")
     if len(fr):
-        ax.scatter(fr["minutes"], fr["v"], s=260, facecolors="none", edgecolors="k", linewidths=1.0, zorder=4,
+        ax.scatter(fr["along"], fr["v"], s=260, facecolors="none", edgecolors="k", linewidths=1.0, zorder=4,
                    label="Pareto front")
-        ax.step(fr["minutes"], fr["v"], where="post", color="k", linewidth=0.8, linestyle=":", zorder=2)
+        ax.step(fr["along"], fr["v"], where="post", color="k", linewidth=0.8, linestyle=":", zorder=2)
     for r in g.itertuples():
         y = r.v if not math.isnan(r.v) else np.nan
-        ax.scatter([r.minutes], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
+        ax.scatter([r.along], [y], s=90 if r.method == "strings" else 60, color=colors[r.method],
                    marker="*" if r.method == "strings" else "o", zorder=3, label=names.title(r.method))
         if not math.isnan(y):
-            ax.annotate(names.title(r.method), (r.minutes, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+            ax.annotate(names.title(r.method), (r.along, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
     if x == "minutes":
         ax.set_xlabel(f"training time at {label}, preprocessing + optimisation (minutes)", fontsize=8)
     else:
