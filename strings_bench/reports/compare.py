@@ -165,25 +165,28 @@ def decided(a: dict | None, b: dict | None) -> str:
     return "decided" if a["max"] < b["min"] or b["max"] < a["min"] else "not decided"
 
 
-def common_scenes(data: dict) -> tuple[dict, dict]:
+def common_scenes(data: dict) -> tuple[dict, dict, set]:
     """`data` ({(method, label): {seed: {scene: ...}}}) held to the scenes every method has at each checkpoint (in
-    any of its seeds), and {(method, label): {seed: [scenes left out]}}. Means over different scenes would rank
-    methods on different rooms and draws (a draw trained for some methods only): a draw moves known-text CER more
-    than a seed does (issue 40). Where the methods share no scene, nothing is held back."""
+    any of its seeds), {(method, label): {seed: [scenes left out]}}, and the checkpoints whose methods share no
+    scene (nothing is held back there). Means over different scenes would rank methods on different rooms and
+    draws (a draw trained for some methods only): a draw moves known-text CER more than a seed does (issue 40)."""
     have: dict = {}
     for (m, label), per_seed in data.items():
         scenes = set().union(*(set(by_scene) for by_scene in per_seed.values()))
         have[label] = scenes if label not in have else have[label] & scenes
+    unshared = {label for label, scenes in have.items() if not scenes}
     kept, dropped = {}, {}
     for (m, label), per_seed in data.items():
-        common = have[label] or None  # none shared: each method keeps its own (`left_out` says so)
-        kept[(m, label)] = {seed: {sc: v for sc, v in by_scene.items() if common is None or sc in common}
-                            for seed, by_scene in per_seed.items()}
-        kept[(m, label)] = {seed: by_scene for seed, by_scene in kept[(m, label)].items() if by_scene}
-        out = {seed: sorted(set(by_scene) - common) for seed, by_scene in per_seed.items() if common}
+        if label in unshared:  # each method keeps its own (`left_out` says so)
+            kept[(m, label)] = per_seed
+            continue
+        common = have[label]
+        kept[(m, label)] = {seed: {sc: v for sc, v in by_scene.items() if sc in common}
+                            for seed, by_scene in per_seed.items() if common & set(by_scene)}
+        out = {seed: sorted(set(by_scene) - common) for seed, by_scene in per_seed.items()}
         if any(out.values()):
             dropped[(m, label)] = {seed: sc for seed, sc in out.items() if sc}
-    return kept, dropped
+    return kept, dropped, unshared
 
 
 @dataclass
@@ -200,6 +203,7 @@ class Comparison:
     paper_dataset: str = PAPER_DATASET
     cells: dict | None = None
     not_common: dict | None = None
+    unshared: set | None = None  # checkpoints whose methods share no scene
 
     def get(self, method: str, label: str, value: str) -> dict | None:
         return (self.numbers.get(method) or {}).get(label, {}).get(value)
@@ -224,10 +228,8 @@ class Comparison:
                   for seed, sc in ((vs.get("cer") or {}).get("left_out") or {}).items()}
         across = {f"{m} {lab}: seed {seed} also has {', '.join(sc)} (left out of the means: not every method has it)"
                   for (m, lab), per_seed in (self.not_common or {}).items() for seed, sc in per_seed.items()}
-        labels = {lab for _, lab in self.data}
         apart = {f"{lab}: the methods share no scene; each method's mean is over its own (not comparable)"
-                 for lab in labels if not set.intersection(*(set().union(*map(set, ps.values()))
-                                                            for (_, l), ps in self.data.items() if l == lab))}
+                 for lab in self.unshared or ()}
         return sorted(within | across | apart)
 
 
@@ -241,7 +243,7 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
             f"{d}: {'no budget' if b is None else f'--budget {b}'}" for d, b in budgets.items()),
             hint="compare folders of one budget at a time (run --budget, docs/running.md)")
     cells = collect(run_dirs, dataset)
-    data, not_common = common_scenes(cells)
+    data, not_common, unshared = common_scenes(cells)
     if not data:
         raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),
                                 hint="give run folders with finished cells (strings-bench run or calibrate)")
@@ -252,7 +254,7 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
     methods = names.order(m for m, _ in data)
     numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES} for (mm, label) in data if mm == m}
                for m in methods}
-    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset, cells, not_common)
+    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset, cells, not_common, unshared)
 
 
 # ---- tables --------------------------------------------------------------------------------------------
