@@ -277,3 +277,40 @@ def test_methods_with_no_common_scene_keep_their_own_and_say_so(tmp_path):
     assert c.get("3dgs", "7K", "cer_known")["mean"] == pytest.approx(0.6)
     assert c.get("strings", "7K", "cer_known")["mean"] == pytest.approx(0.4)
     assert c.left_out() == ["7K: the methods share no scene; each method's mean is over its own (not comparable)"]
+
+
+def test_methods_and_scenes_choose_the_cells_before_the_common_scenes(tmp_path, capsys):
+    """`--methods` and `--scenes` pick cells before the scenes all methods share are found: a method trained on
+    draw 0 only, left out, no longer holds the others to draw 0; a scene choice holds every method to it; a
+    name no cell has is an error, not a silent narrowing."""
+    run = tmp_path / "run"
+    known = {"3dgs": {"pantry": 0.5, "office": 0.7, "pantry@1": 0.9, "office@1": 0.3},
+             "strings": {"pantry": 0.4, "office": 0.2, "pantry@1": 0.1, "office@1": 0.5},
+             "improved-gs": {"pantry": 0.2, "office": 0.2}}  # draw 0 only
+    for method, by_scene in known.items():
+        for scene, k in by_scene.items():
+            _cell(run, method, scene, "30K", 3000, 0.5, k)
+    every = cmp.compare([run])
+    assert every.get("3dgs", "30K", "cer_known")["mean"] == pytest.approx(0.6)  # held to draw 0 by improved-gs
+    two = cmp.compare([run], methods=["3dgs", "strings"])
+    assert two.methods == ["3dgs", "strings"]
+    # both draws now: draw 0 (0.5 + 0.7) / 2 = 0.6, draw 1 (0.9 + 0.3) / 2 = 0.6 for 3DGS; 0.3 and 0.3 for STRinGS
+    g, s = (two.get(m, "30K", "cer_known") for m in ("3dgs", "strings"))
+    assert (g["mean"], g["draws"], s["mean"], s["draws"]) == (pytest.approx(0.6), 2, pytest.approx(0.3), 2)
+    draw1 = cmp.compare([run], scenes=["pantry@1", "office@1"])
+    assert draw1.methods == ["3dgs", "strings"]  # improved-gs has no cell there
+    assert draw1.get("strings", "30K", "cer_known")["mean"] == pytest.approx(0.3)
+    assert draw1.get("3dgs", "30K", "cer_known")["mean"] == pytest.approx(0.6)
+    one = cmp.compare([run], methods=["3dgs", "strings"], scenes=["pantry@1"])
+    assert one.get("strings", "30K", "cer_known")["mean"] == pytest.approx(0.1)
+    with pytest.raises(StringsBenchError, match="methods 3dgss") as err:
+        cmp.compare([run], methods=["3dgss"])
+    assert "3dgs, improved-gs, strings" in err.value.hint
+    with pytest.raises(StringsBenchError, match="scenes pantry@2"):
+        cmp.compare([run], scenes=["pantry", "pantry@2"])
+    # the command line: comma-separated names
+    assert _compare(run, "--methods", "3dgs,strings", "--scenes", "pantry@1", "--out", tmp_path / "cmp") == 0
+    md = capsys.readouterr().out
+    assert "| STRinGS |" in md and "Improved-GS" not in md
+    with pytest.raises(SystemExit):
+        _compare(run, "--methods", ",")

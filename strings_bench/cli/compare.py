@@ -21,6 +21,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                     "seeds and draws, and per room and over all rooms the mean over draws with the draws' range.")
     p.add_argument("run_dirs", nargs="+", type=Path, help="run folders, one seed each")
     p.add_argument("--dataset", default=None, help="only this dataset's cells (e.g. synthetic360-cpu)")
+    p.add_argument("--methods", default=None, type=_names,
+                   help="only these methods (comma-separated spec names, e.g. 3dgs,strings): the scenes every "
+                        "method shares are found among these")
+    p.add_argument("--scenes", default=None, type=_names,
+                   help="only these scenes (comma-separated, e.g. storeroom,pantry,office for draw 0 of the "
+                        "three rooms; a draw is ROOM@N)")
     p.add_argument("--out", type=Path, default=None,
                    help="write comparison.md, comparison.tex, comparison.csv and index.html there (default: "
                         "<first run folder>/comparison)")
@@ -33,10 +39,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     return p
 
 
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("give one name or more, comma-separated")
+    return names
+
+
 def run(args: argparse.Namespace) -> int:
     from strings_bench.reports.compare import compare, comparison_markdown, write_comparison
 
-    c = compare(args.run_dirs, args.dataset, args.paper_dataset)
+    c = compare(args.run_dirs, args.dataset, args.paper_dataset, args.methods, args.scenes)
     out = args.out or args.run_dirs[0] / "comparison"
     written = write_comparison(c, out, args.per_scene)
     print(json.dumps(c.numbers, indent=1) if args.json else comparison_markdown(c, args.per_scene))

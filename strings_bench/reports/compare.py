@@ -58,10 +58,13 @@ def cell_seed(rec: dict) -> int:
     return int(settings.get("seed", 0))
 
 
-def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
+def collect(run_dirs: list[Path], dataset: str | None = None, methods: list[str] | None = None,
+            scenes: list[str] | None = None) -> dict:
     """{(method, label): {seed: {scene: {value: float, "iteration": int}}}} from the fully evaluated cells of the
-    folders (of `dataset` only, when given)."""
+    folders (of `dataset`, of `methods` and of `scenes` only, each when given). A name in `methods` or `scenes`
+    that no cell of the folders has is an error (a typo would otherwise narrow the comparison in silence)."""
     out: dict = {}
+    found: dict = {"methods": set(), "scenes": set()}
     seen: dict = {}
     datasets: dict = {}  # (method, seed, scene, label) -> the dataset it came from
     for run_dir in map(Path, run_dirs):
@@ -70,6 +73,10 @@ def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
         for rec in iter_cells(run_dir):
             row = cell_row(rec)
             if row["evaluation"] != "full" or (dataset and row["dataset"] != dataset):
+                continue
+            found["methods"].add(row["method"])
+            found["scenes"].add(row["scene"])
+            if (methods and row["method"] not in methods) or (scenes and row["scene"] not in scenes):
                 continue
             seed = cell_seed(rec)
             key = (row["method"], seed, row["dataset"], row["scene"], row["label"])
@@ -94,6 +101,12 @@ def collect(run_dirs: list[Path], dataset: str | None = None) -> dict:
                                         hint="compare one dataset at a time (--dataset); draws of a room are scenes "
                                              "ROOM@N of one dataset (docs/datasets.md, 'Scene draws')")
             out.setdefault((row["method"], row["label"]), {}).setdefault(seed, {})[row["scene"]] = vals
+    for what, wanted in (("methods", methods), ("scenes", scenes)):
+        unknown = sorted(set(wanted or ()) - found[what])
+        if unknown:
+            raise StringsBenchError(f"no fully evaluated cell of {what} {', '.join(unknown)} in "
+                                    + ", ".join(map(str, run_dirs)),
+                                    hint=f"the folders' {what}: {', '.join(sorted(found[what])) or 'none'}")
     return out
 
 
@@ -233,8 +246,11 @@ class Comparison:
         return sorted(within | across | apart)
 
 
-def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET) -> Comparison:
-    """The comparison of the fully evaluated cells of `run_dirs` (one seed each)."""
+def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET,
+            methods: list[str] | None = None, scenes: list[str] | None = None) -> Comparison:
+    """The comparison of the fully evaluated cells of `run_dirs` (one seed each), of `methods` and `scenes` only
+    when given: the scenes all methods share are found after that choice, so a method left out does not narrow
+    the others."""
     # Seeds are averaged: folders of different equal-Gaussian budgets (run --budget; none is one of them) are
     # different conditions, never seeds of one.
     budgets = {str(d): (read_manifest(d) or {}).get("budget") for d in run_dirs}
@@ -242,7 +258,7 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
         raise StringsBenchError("the run folders were made under different Gaussian budgets: " + ", ".join(
             f"{d}: {'no budget' if b is None else f'--budget {b}'}" for d, b in budgets.items()),
             hint="compare folders of one budget at a time (run --budget, docs/running.md)")
-    cells = collect(run_dirs, dataset)
+    cells = collect(run_dirs, dataset, methods, scenes)
     data, not_common, unshared = common_scenes(cells)
     if not data:
         raise StringsBenchError("no fully evaluated cells in " + ", ".join(map(str, run_dirs)),
