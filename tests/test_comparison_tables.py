@@ -197,6 +197,9 @@ def test_draws_count_like_seeds_in_means_ranges_and_decided(tmp_path, capsys):
     # known-text: STRinGS 0.3-0.7 against 3DGS 0.75-0.95: decided; OCR-CER: 0.3-0.85 against 0.6-0.75: not decided
     assert verdict[("cer_known", "7K")]["verdict"] == "decided"
     assert verdict[("cer", "7K")]["verdict"] == "not decided" and verdict[("cer", "7K")]["seeds"] == "2x2 draws / 2x2 draws"
+    # paired by (seed, draw), beside the verdict: 3DGS' OCR-CER is below STRinGS' on draw 1 (0.7 < 0.8, 0.75 < 0.85)
+    # and above on draw 0 (0.6 > 0.3, 0.65 > 0.35); its known-text CER is above on all four
+    assert (verdict[("cer", "7K")]["paired"], verdict[("cer_known", "7K")]["paired"]) == ("2 of 4", "0 of 4")
     # draw 0 alone: the seeds (0.3, 0.35 against 0.6, 0.65) decide OCR-CER; the draws undo that
     only0 = cmp.compare(_draw_folders(tmp_path / "d0", draws=(0,)))
     assert {r["verdict"] for r in cmp.decided_rows(only0) if (r["method"], r["value"]) == ("3dgs", "cer")} == {"decided"}
@@ -212,6 +215,7 @@ def test_draws_count_like_seeds_in_means_ranges_and_decided(tmp_path, capsys):
     assert _compare(*runs, "--per-scene", "cer_known", "--out", tmp_path / "cmp") == 0
     md = capsys.readouterr().out
     assert md.startswith("# Comparison over seeds and scene draws")
+    assert "| 3DGS | STRinGS | OCR-CER | 7K | +0.100 | 2x2 draws / 2x2 draws | not decided | 2 of 4 |" in md
     # seeds, draws, scenes (rooms), then OCR-CER 7K and known-text CER 7K with the range over seeds and draws
     assert "| STRinGS | _2_ | _2_ | _2_ | 0.575 (0.300-0.850) **(1)** | n/a | 0.500 (0.300-0.700) **(1)** |" in md
     assert "| STRinGS | 0.600 (0.450-0.750, 2 draws) **(1)** | 0.400 (0.250-0.550, 2 draws) **(1)** | 0.500 " in md

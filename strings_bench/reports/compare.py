@@ -430,8 +430,19 @@ def decided_rows(c: Comparison) -> list[dict]:
                     seeds = " / ".join(f"{x['seeds']}" if x["draws"] == 1 else f"{x['seeds']}x{x['draws']} draws"
                                        for x in both)
                     rows.append({"method": m, "against": ref, "value": value, "label": label,
-                                 "difference": a["mean"] - b["mean"], "seeds": seeds, "verdict": verdict})
+                                 "difference": a["mean"] - b["mean"], "seeds": seeds, "verdict": verdict,
+                                 "paired": paired_lower(a, b)})
     return rows
+
+
+def paired_lower(a: dict, b: dict) -> str:
+    """In how many of the replicates (seed, draw) both summaries have, `a`'s mean is below `b`'s: "3 of 3". Shown
+    beside the verdict, never deciding it: a draw moves every method together (one room build is harder for all),
+    so two methods whose ranges over draws overlap can still be in the same order on every draw."""
+    pa = {(seed, draw): v for seed, draw, v in a["per_replicate"]}
+    pb = {(seed, draw): v for seed, draw, v in b["per_replicate"]}
+    shared = sorted(pa.keys() & pb.keys())
+    return f"{sum(pa[k] < pb[k] for k in shared)} of {len(shared)}"
 
 
 def _shown(rows: list[dict]) -> tuple[list[dict], str]:
@@ -442,11 +453,12 @@ def _shown(rows: list[dict]) -> tuple[list[dict], str]:
 
 
 def _decided_markdown(c: Comparison, rows: list[dict]) -> str:
-    lines = ["| method | against | CER | checkpoint | difference of means | seeds | verdict |", "|---|---|---|---|---|---|---|"]
+    lines = ["| method | against | CER | checkpoint | difference of means | seeds | verdict | lower in (paired) |",
+             "|---|---|---|---|---|---|---|---|"]
     cer_names = dict(CER_VALUES)
     for r in rows:
         lines.append(f"| {c.names.title(r['method'])} | {c.names.title(r['against'])} | {cer_names[r['value']]} | {r['label']} | "
-                     f"{r['difference']:+.3f} | {r['seeds']} | {r['verdict']} |")
+                     f"{r['difference']:+.3f} | {r['seeds']} | {r['verdict']} | {r['paired']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -484,7 +496,9 @@ def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
     if rows or left:
         parts += ["## Decided or not", "", _decided_markdown(c, rows),
                   "Decided: both methods have several seeds (or scene draws) and the ranges of their means per seed "
-                  "and draw do not overlap; not decided: they overlap." + left, ""]
+                  "and draw do not overlap; not decided: they overlap. Lower in (paired): in how many of the "
+                  "(seed, draw) replicates both have the method's mean is below the reference's (beside the "
+                  "verdict, not part of it)." + left, ""]
     if c.left_out():
         parts += c.left_out() + [""]
     if per_scene:
@@ -527,15 +541,18 @@ def comparison_html(c: Comparison, tables: list[Table]) -> str:
             f'<tr><td class="name">{esc(c.names.title(r["method"]))}</td><td>{esc(cer_names[r["value"]])}</td>'
             f'<td>{esc(r["label"])}</td><td data-v="{r["difference"]!r}">{r["difference"]:+.3f}</td>'
             f'<td>{esc(r["seeds"])}</td><td class="{"decided" if r["verdict"] == "decided" else "undecided"}">'
-            f'{esc(r["verdict"])}</td></tr>' for r in rows)
+            f'{esc(r["verdict"])}</td><td>{esc(r["paired"])}</td></tr>' for r in rows)
         parts.append(f"<h2>Decided or not, against {esc(c.names.title(c.reference))}</h2>"
                      '<table class="data" id="table-decided"><thead><tr>'
                      '<th class="name" data-col="0" data-type="text">method</th><th data-col="1" data-type="text">CER</th>'
                      '<th data-col="2" data-type="text">checkpoint</th><th data-col="3" data-type="num">difference</th>'
                      '<th data-col="4" data-type="text">seeds</th><th data-col="5" data-type="text">verdict</th>'
+                     '<th data-col="6" data-type="text">lower in (paired)</th>'
                      f"</tr></thead><tbody>{body}</tbody></table>"
                      '<p class="caption">Decided: both methods have several seeds (or scene draws) and the ranges of '
-                     f"their means per seed and draw do not overlap; not decided: they overlap.{esc(left)}</p>")
+                     "their means per seed and draw do not overlap; not decided: they overlap. Lower in (paired): "
+                     "in how many of the (seed, draw) replicates both have the method's mean is below the "
+                     f"reference's (beside the verdict, not part of it).{esc(left)}</p>")
     for line in c.left_out():
         parts.append(f'<p class="note">{esc(line)}</p>')
     return html_page(title, "\n".join(parts) + "</main>")
