@@ -1,6 +1,6 @@
 """The paper's tables over run folders of several seeds (`strings-bench compare RUN_DIR...`; issue 27).
 
-Size (~480 lines): one comparison from its cells to its numbers (seeds and scene draws), its tables and its four
+Size (~570 lines): one comparison from its cells to its numbers (seeds and scene draws), its tables and its four
 renderings (Markdown, LaTeX, CSV, HTML); the renderings share the numbers and the decided rows, so they stay together.
 
 Each run folder holds one seed (`strings-bench calibrate --seed N`, or `run --set seed=N`); a cell's seed is read
@@ -15,7 +15,8 @@ from its own settings (0 when none was given). For each method, in the registry'
 - the ablations (its Table "Ablations"): every method whose spec names `ablation_of`, beside that method, at the
   checkpoint the spec names (`ablation_at`);
 - "decided / not decided": each method against STRinGS (the spec of group "ours") where both have several seeds:
-  decided when the seeds' ranges do not overlap.
+  decided when the seeds' ranges do not overlap. Beside it, the (seed, draw) replicates in which the method is below STRinGS
+  (`paired_lower`), which never changes the verdict.
 
 Scene draws (core/draws.py, issue 40) count like seeds: a cell of scene `pantry@1` is room pantry at draw 1, and
 a (seed, draw) pair is one *replicate*. Each replicate's figure is the mean over the rooms every replicate has; a
@@ -24,6 +25,7 @@ is one draw, today's figure), and its range, the one "decided" reads, is over ev
 With several draws the comparison adds, per CER value, the mean over draws with the draws' range per room and
 over all rooms (`draws_tables`); the per-scene rows stay (`per_scene_table`).
 
+`methods` and `scenes` (`--methods`, `--scenes`) choose the cells before anything else.
 Only fully evaluated checkpoints count (not the word-crop-only ones of `--checkpoints every:N`). Every method is
 held to the scenes all methods have at that checkpoint (`common_scenes`: a folder still filling, or a draw trained
 for some methods only, would otherwise rank methods on different rooms). Within a method, a ragged coverage keeps
