@@ -51,6 +51,10 @@ from strings_bench.reports.table_model import PREAMBLE, Column, MethodNames, Tab
 
 VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds")
 CER_VALUES = (("cer", "OCR-CER"), ("cer_known", "known-text CER"), ("word_cer", "word CER"))
+DECIDED_CAPTION = ("Decided: both methods have several seeds (or scene draws) and the ranges of their means per seed "
+                   "and draw do not overlap; not decided: they overlap. Lower in (paired): in how many of the (seed, "
+                   "draw) replicates both have the method's mean is below the reference's (beside the verdict, not "
+                   "part of it).")
 PAPER_DATASET = "strings360"  # the paper's dataset a synthetic360 comparison stands beside
 
 
@@ -497,10 +501,7 @@ def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
     rows, left = _shown(decided_rows(c))
     if rows or left:
         parts += ["## Decided or not", "", _decided_markdown(c, rows),
-                  "Decided: both methods have several seeds (or scene draws) and the ranges of their means per seed "
-                  "and draw do not overlap; not decided: they overlap. Lower in (paired): in how many of the "
-                  "(seed, draw) replicates both have the method's mean is below the reference's (beside the "
-                  "verdict, not part of it)." + left, ""]
+                  DECIDED_CAPTION + left, ""]
     if c.left_out():
         parts += c.left_out() + [""]
     if per_scene:
@@ -551,10 +552,7 @@ def comparison_html(c: Comparison, tables: list[Table]) -> str:
                      '<th data-col="4" data-type="text">seeds</th><th data-col="5" data-type="text">verdict</th>'
                      '<th data-col="6" data-type="text">lower in (paired)</th>'
                      f"</tr></thead><tbody>{body}</tbody></table>"
-                     '<p class="caption">Decided: both methods have several seeds (or scene draws) and the ranges of '
-                     "their means per seed and draw do not overlap; not decided: they overlap. Lower in (paired): "
-                     "in how many of the (seed, draw) replicates both have the method's mean is below the "
-                     f"reference's (beside the verdict, not part of it).{esc(left)}</p>")
+                     f'<p class="caption">{esc(DECIDED_CAPTION + left)}</p>')
     for line in c.left_out():
         parts.append(f'<p class="note">{esc(line)}</p>')
     return html_page(title, "\n".join(parts) + "</main>")
