@@ -55,6 +55,19 @@ def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: st
             "peak_mb": peak_memory_mb(device), "gaussians": result.gaussians}
 
 
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    import csv
+    import os
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(tmp, path)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto", help="device under test: auto (default), cuda, cuda:N, cpu")
@@ -65,6 +78,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-cpu", action="store_true", help="skip the CPU-backend rows")
     ap.add_argument("--ocr", default="rapidocr")
     ap.add_argument("--no-lpips", action="store_true")
+    ap.add_argument("--csv", type=Path, default=None,
+                    help="also write the rows to this CSV, rewritten (atomically) after every row: a run cut "
+                         "short keeps the rows it finished (scripts/gpu_campaign.py banks them)")
     args = ap.parse_args(argv)
 
     from strings_bench.core.method import Method
@@ -90,6 +106,8 @@ def main(argv=None) -> int:
                 for dev, n in ([(device, steps)] + ([("cpu", cpu_steps)] if cuda and not args.no_cpu else [])):
                     r = measure(m, size, n, dev, args.ocr, not args.no_lpips, Path(tmp) / f"{m}-{size[0]}-{dev}")
                     rows.append(r)
+                    if args.csv:
+                        _write_csv(args.csv, rows)
                     print(f"  {r['method']:20s} {r['size']:>9s} {r['device']:7s} {r['steps_per_s']:8.2f} steps/s "
                           f"peak {r['peak_mb']:8.0f} MB  eval {r['eval_s']:6.1f} s", file=sys.stderr, flush=True)
     print("\n| method | size | device | steps | steps/s | peak MB | Gaussians | eval s | eval share | x CPU |")

@@ -4,8 +4,9 @@
 
 Stages (issue 25's order of value; `list` prints them):
   verify         versions, gsplat's first-use compilation (timed), pytest -m gpu, benchmarks/gpu.py
-                 (3dgs, strings), and strings + 3dgs on synthetic/books at 1280x960 to 7K (paper schedule,
-                 checkpoints 3K and 7K) with the peak GPU memory of each cell;
+                 (3dgs, strings) at 320x240 with the CPU backend's rows, strings then 3dgs on synthetic/books
+                 at 1280x960 to 7K (paper schedule, checkpoints 3K and 7K) with the peak GPU memory of each
+                 cell, and the benchmark at 1280x960 (CUDA rows only); it takes two sittings on an H200;
   cal7k-rs1.5    3DGS on synthetic360/storeroom built at 1280x960 with 100 views, room_scale 1.5, the
   cal7k-rs2      card's photometric settings, to 7K (room_scale 2 for the second point);
   cal30k         3DGS to 30K on the banked 7K point closest to the paper's 3DGS OCR-CER (0.736);
@@ -16,7 +17,8 @@ per step with its status (ok, failed, partial = cut at the stage's time budget),
 versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
 whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
 short, the steps already banked ok are skipped at the next sitting (gsplat's compilation and scene
-builds excepted: a sitting starts on a fresh machine). Runs train under RUNS/<stage> (--runs, default
+builds excepted: a sitting starts on a fresh machine), and so is a run or benchmark step whose every
+result row an earlier sitting banked, though that sitting cut the step after them. Runs train under RUNS/<stage> (--runs, default
 OUT_DIR/runs) and resume there while the machine is the same; each step's log is RUNS/logs/<stage>_<step>.log.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
@@ -80,6 +82,31 @@ def banked_steps(out: Path, stage: str, dry_run: bool) -> dict[str, str]:
     return done
 
 
+def result_rows(out: Path, stage: str, pattern: str, dry_run: bool) -> list[tuple[dict, str]]:
+    """(row, file name) of every result row in OUT_DIR's `<date>_<stage>_<pattern>_<gpu>.csv` files (same
+    dry-run flag), the rows of a step cut short included; steps CSVs (a `step` column) are not results."""
+    found = []
+    for path in sorted(out.glob(f"*_{stage}_{pattern}_*.csv")):
+        with open(path, newline="") as fh:
+            found += [(r, path.name) for r in csv.DictReader(fh)
+                      if r.get("dry_run") == str(dry_run).lower() and "step" not in r]
+    return found
+
+
+def banked_run(out: Path, stage: str, pattern: str, methods: list[str], label: str, dry_run: bool) -> str | None:
+    """The CSV(s) holding every method's row at checkpoint `label`, or None when one is missing."""
+    rows = result_rows(out, stage, pattern, dry_run)
+    files = [next((f for r, f in rows if r.get("method") == m and r.get("label") == label), None) for m in methods]
+    return ", ".join(sorted(set(files))) if all(files) else None
+
+
+def banked_benchmark(out: Path, stage: str, name: str, want: set[tuple[str, str]], dry_run: bool) -> str | None:
+    """The CSV(s) holding a (method, device) row for each of `want`, or None when one is missing."""
+    rows = result_rows(out, stage, name, dry_run)
+    have = {(r.get("method"), r.get("device")) for r, _ in rows}
+    return ", ".join(sorted({f for r, f in rows if (r.get("method"), r.get("device")) in want})) if want <= have else None
+
+
 class Sitting:
     def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None):
         self.out, self.stage, self.dry_run = out, stage, dry_run
@@ -97,12 +124,16 @@ class Sitting:
     def left(self) -> float:
         return self.budget_s - (time.monotonic() - self.t0)
 
-    def step(self, name: str, argv: list[str], limit_s: float, env: dict | None = None) -> str:
+    def step(self, name: str, argv: list[str], limit_s: float, env: dict | None = None,
+             banked_in: str | None = None) -> str:
         """Run one step (its own process group), at most `limit_s` and never past the stage's budget.
-        A step an earlier sitting banked as ok is not run again (except ALWAYS and scene builds)."""
-        if name in self.done and name not in ALWAYS and not name.startswith("build_"):
-            self.record(name, "ok", 0.0, f"banked in {self.done[name]}")
-            print(f"== {self.stage}/{name}: banked in {self.done[name]}; skipped", flush=True)
+        A step an earlier sitting banked as ok is not run again (except ALWAYS and scene builds), nor one
+        whose results an earlier sitting banked whole (`banked_in`: the CSV that holds them), even where
+        that sitting's step was cut after them."""
+        where = banked_in or (self.done.get(name) if name not in ALWAYS and not name.startswith("build_") else None)
+        if where:
+            self.record(name, "ok", 0.0, f"banked in {where}")
+            print(f"== {self.stage}/{name}: banked in {where}; skipped", flush=True)
             return "ok"
         limit = max(0.1, min(limit_s, self.left()))
         log = self.runs / "logs" / f"{self.stage}_{name}.log"
@@ -133,9 +164,12 @@ class Sitting:
                           "seconds": f"{seconds:.1f}", "detail": detail, **self.v})
         self.write(self.csv, STEP_COLUMNS, self.rows)
 
-    def bank_results(self, run_dir: Path, name: str) -> None:
-        """Copy a run's results.csv next to the steps CSV, versions added (partial rows as they are)."""
-        src = run_dir / "results.csv"
+    def results_csv(self, name: str) -> Path:
+        return self.out / f"{self.date}_{self.stage}_{name}_{slug(self.v['gpu'])}.csv"
+
+    def bank_results(self, src: Path, name: str) -> None:
+        """Copy a step's results CSV (a run's results.csv, the benchmark's rows) next to the steps CSV,
+        versions added (partial rows as they are)."""
         if not src.exists():
             return
         with open(src, newline="") as fh:
@@ -145,7 +179,7 @@ class Sitting:
         cols = list(rows[0]) + [c for c in ("gpu", "torch", "cuda", "gsplat", "python", "dry_run") if c not in rows[0]]
         for r in rows:
             r.update({k: self.v[k] for k in ("gpu", "torch", "cuda", "gsplat", "python", "dry_run")})
-        self.write(self.out / f"{self.date}_{self.stage}_{name}_{slug(self.v['gpu'])}.csv", cols, rows)
+        self.write(self.results_csv(name), cols, rows)
 
     @staticmethod
     def write(path: Path, cols: list[str], rows: list[dict]) -> None:
@@ -175,16 +209,39 @@ class Sitting:
         status = self.step(f"build_{scene}", [self.py, "-c", code, json.dumps(settings), str(where)], 300)
         return where.read_text().strip() if status == "ok" and where.exists() else None
 
-    def run(self, name: str, methods: str, scene: str, checkpoints: str, limit_s: float, extra=()) -> None:
-        run_dir = self.runs / self.stage
+    def run(self, name: str, methods: str, scene: str, checkpoints: str, limit_s: float, extra=(),
+            banked_as: str | None = None) -> None:
+        """Train and evaluate `methods` on `scene`; banked when every method's last checkpoint has a row in
+        a results CSV of a step named `banked_as` (a glob; default `name`), an earlier sitting's cut after
+        that cell included."""
+        last = max(int(c) for c in checkpoints.split(","))
+        label = f"{last // 1000}K" if last % 1000 == 0 else str(last)
+        banked_in = banked_run(self.out, self.stage, banked_as or name, methods.split(","), label, self.dry_run)
+        run_dir = self.runs / self.stage / name
         schedule = ["--schedule", "tiny"] if self.dry_run else ["--schedule", "paper"]
         argv = [self.py, "-m", "strings_bench", "run", "--device", self.device, "--methods", methods,
                 "--datasets", scene, *schedule, "--checkpoints", checkpoints, "--out", str(run_dir),
                 "--no-progress", "--save-every", "2", *extra]
         if self.dry_run:
             argv.append("--no-lpips")
-        self.step(name, argv, limit_s)
-        self.bank_results(run_dir, name)
+        self.step(name, argv, limit_s, banked_in=banked_in)
+        if not banked_in:
+            self.bank_results(run_dir / "results.csv", name)
+
+    def benchmark(self, size: str, limit_s: float, with_cpu: bool) -> None:
+        """benchmarks/gpu.py for 3dgs and strings at one size (the CPU backend's rows beside it when
+        `with_cpu`); banked when every (method, device) row of an earlier sitting is in a CSV."""
+        name, methods = f"benchmark_{size}", ("3dgs",) if self.dry_run else ("3dgs", "strings")
+        want = {(m, d) for m in methods for d in (self.device,) + (("cpu",) if with_cpu and not self.dry_run else ())}
+        banked_in = banked_benchmark(self.out, self.stage, name, want, self.dry_run)
+        rows_csv = self.runs / "logs" / f"{self.stage}_{name}.rows.csv"
+        rows_csv.unlink(missing_ok=True)
+        argv = [self.py, "benchmarks/gpu.py", "--methods", ",".join(methods), "--csv", str(rows_csv)]
+        argv += (["--device", "cpu", "--sizes", "64x48", "--steps", "2", "--no-lpips"] if self.dry_run
+                 else ["--sizes", size, "--steps", "200", "--cpu-steps", "3"] + ([] if with_cpu else ["--no-cpu"]))
+        self.step(name, argv, limit_s, banked_in=banked_in)
+        if not banked_in:
+            self.bank_results(rows_csv, name)
 
 
 # ---- stages ----------------------------------------------------------------------------------------
@@ -205,16 +262,19 @@ def stage_verify(s: Sitting) -> None:
                                 "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
     if s.step("compile", [s.py, "-c", compile_code], 180, env) != "ok":
         return  # nothing else can run without gsplat
+    # Measured on an H200 (docs/gpu.md, first sitting): pytest -m gpu needs more than 150 s (14 tests, each a
+    # run with its OCR); the CPU rows of the benchmark at 1280x960 cost minutes, so its CPU ratio is the
+    # 320x240 one. Order: correctness, the 320x240 ratio, the paper runs, then the large benchmark.
     s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_gpu.py",
-                          "tests/test_raster.py"], 150)
-    # dry run: one method, one evaluation (OCR of the renders is most of a CPU check's time)
-    bench = [s.py, "benchmarks/gpu.py"]
-    bench += (["--methods", "3dgs", "--device", "cpu", "--sizes", "64x48", "--steps", "2", "--no-lpips"] if s.dry_run
-              else ["--methods", "3dgs,strings", "--sizes", "320x240,1280x960", "--steps", "200", "--cpu-steps", "3"])
-    s.step("benchmark", bench, 120)
+                          "tests/test_raster.py"], 300)
+    s.benchmark("320x240", 120, with_cpu=True)
     scene = s.build("books")
     if scene:
-        s.run("paper_run", "strings,3dgs", scene, "7000" if s.dry_run else "3000,7000", s.left())
+        for method in ("strings", "3dgs"):
+            # banked_as: the first sitting's `paper_run` step (both methods in one) banked STRinGS' cells
+            s.run(f"paper_run_{method}", method, scene, "7000" if s.dry_run else "3000,7000", s.left(),
+                  banked_as="paper_run*")
+    s.benchmark("1280x960", 150, with_cpu=False)
 
 
 def _cal7k(room_scale: float):

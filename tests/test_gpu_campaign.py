@@ -43,18 +43,22 @@ def test_dry_run_of_verify_banks_every_step_then_skips(tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     (steps_csv,) = out.glob("*_verify_cpu-dry-run.csv")
     steps = rows(steps_csv)
-    assert [r["step"] for r in steps] == ["versions", "compile", "pytest_gpu", "benchmark", "build_books", "paper_run"]
+    assert [r["step"] for r in steps] == ["versions", "compile", "pytest_gpu", "benchmark_320x240", "build_books",
+                                          "paper_run_strings", "paper_run_3dgs", "benchmark_1280x960"]
     assert all(r["status"] == "ok" for r in steps), steps
     import torch
 
     assert {(r["gpu"], r["torch"], r["dry_run"]) for r in steps} == {("cpu (dry run)", torch.__version__, "true")}
     assert steps[0]["gsplat"] not in ("", "none")
     assert "skipped" in steps[2]["detail"]  # pytest -m gpu ran and skipped ("no CUDA")
-    (results_csv,) = out.glob("*_verify_paper_run_cpu-dry-run.csv")
-    results = rows(results_csv)
-    assert sorted(r["method"] for r in results) == ["3dgs", "strings"]
+    results = [r for m in ("strings", "3dgs") for r in rows(next(out.glob(f"*_verify_paper_run_{m}_cpu-dry-run.csv")))]
+    assert [r["method"] for r in results] == ["strings", "3dgs"]  # each step banks its own method's cell
     assert all(float(r["peak_memory_mb"]) > 0 and r["gpu"] == "cpu (dry run)" for r in results)
     assert all(r["iteration"] == "35" for r in results)  # 7K on the tiny schedule (x0.005)
+    for size in ("320x240", "1280x960"):  # the benchmark's rows, versions added
+        (bench,) = rows(next(out.glob(f"*_verify_benchmark_{size}_cpu-dry-run.csv")))
+        assert bench["method"] == "3dgs" and bench["device"] == "cpu" and float(bench["steps_per_s"]) > 0
+        assert bench["gpu"] == "cpu (dry run)" and bench["size"] == "64x48"
     before = steps_csv.read_bytes()
     again = campaign("--dry-run", out, "verify", timeout=60)
     assert again.returncode == 0 and "banked" in again.stdout and "skipped" in again.stdout
@@ -110,18 +114,40 @@ def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
     mod = _module()
     earlier = [{"date": "2026-12-01", "stage": "verify", "step": step, "status": status, "seconds": "1",
                 "detail": "", "dry_run": "true"} for step, status in
-               (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark", "ok"), ("paper_run", "partial"))]
+               (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark_320x240", "partial"),
+                ("paper_run", "partial"))]
     mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
+    # the earlier sitting's steps were cut, but after the 320x240 benchmark's rows and STRinGS' 7K cell
+    (out / "2026-12-01_verify_benchmark_320x240_cpu-dry-run.csv").write_text(
+        "method,size,device,steps_per_s,dry_run\n3dgs,64x48,cpu,9.0,true\n")
+    (out / "2026-12-01_verify_paper_run_cpu-dry-run.csv").write_text(
+        "method,iteration,label,cer,dry_run\nstrings,35,7K,0.9,true\n3dgs,15,3K,0.9,true\n")
     # A budget that leaves the compile step and the scene build room on a slow clean clone (a 4 s budget
-    # cut the compile step itself there: cold imports) and may or may not cut the paper run (a stage cut
-    # by its budget: test_a_stage_cut_by_its_budget_is_partial_and_not_banked).
+    # cut the compile step itself there: cold imports) and may or may not cut 3DGS' run and the last
+    # benchmark (a stage cut by its budget: test_a_stage_cut_by_its_budget_is_partial_and_not_banked).
     done = campaign("--dry-run", "--budget", "45", out, "verify", timeout=180)
     (today,) = [p for p in out.glob("*_verify_cpu-dry-run.csv") if not p.name.startswith("2026-12-01")]
     steps = {r["step"]: r for r in rows(today)}
     assert steps["compile"]["status"] == "ok", steps["compile"]
     assert steps["compile"]["detail"] != "" and "banked" not in steps["compile"]["detail"]  # a fresh machine compiles
-    for name in ("pytest_gpu", "benchmark"):
+    for name in ("pytest_gpu", "benchmark_320x240", "paper_run_strings"):
         assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith("banked in 2026-12-01"), steps[name]
-    # the earlier sitting's partial paper run is not banked: it runs again (to the end, or cut: partial)
-    assert steps["paper_run"]["status"] in ("ok", "partial") and "banked" not in steps["paper_run"]["detail"]
-    assert done.returncode == (0 if steps["paper_run"]["status"] == "ok" else 1)
+    # 3DGS has only a 3K row banked: its run goes again (to the end, or cut: partial)
+    ran = [steps[n]["status"] for n in ("paper_run_3dgs", "benchmark_1280x960") if n in steps]
+    assert ran and set(ran) <= {"ok", "partial"} and "banked" not in steps["paper_run_3dgs"]["detail"]
+    assert done.returncode == (0 if ran == ["ok", "ok"] else 1)
+
+
+def test_the_next_real_sitting_skips_what_the_first_one_banked():
+    """On the CSVs committed in docs/measurements/gpu (the first sitting, an H200, cut by its step limits):
+    STRinGS' 7K run on books and the 320x240 benchmark are banked; 3DGS' run, the 1280x960 benchmark and
+    pytest -m gpu (cut) are not."""
+    mod = _module()
+    out = ROOT / "docs" / "measurements" / "gpu"
+    assert mod.banked_run(out, "verify", "paper_run*", ["strings"], "7K", False)
+    assert mod.banked_run(out, "verify", "paper_run*", ["3dgs"], "7K", False) is None
+    both = {(m, d) for m in ("3dgs", "strings") for d in ("cuda", "cpu")}
+    assert mod.banked_benchmark(out, "verify", "benchmark_320x240", both, False)
+    assert mod.banked_benchmark(out, "verify", "benchmark_1280x960", {("3dgs", "cuda")}, False) is None
+    assert "pytest_gpu" not in mod.banked_steps(out, "verify", False)
+    assert mod.banked(out, "verify", False) is None
