@@ -114,6 +114,24 @@ def test_decided_paper_figures_and_ablations_come_from_the_specs(tmp_path):
     assert 'id="table-compare_cer"' in html and 'class="undecided"' in html and 'class="decided"' in html
 
 
+
+def test_an_ablation_whose_checkpoint_the_folder_lacks_is_shown_at_the_last_one_both_have(tmp_path):
+    """strings-pos-lr's spec reads its ablation at 3K (the end of phase 1); a folder trained to 7K and 30K has no 3K,
+    so the table shows it at 30K and says so, rather than n/a (figures by hand)."""
+    run = tmp_path / "run"
+    for method, (at7, at30) in (("strings", (0.8, 0.3)), ("strings-pos-lr", (0.6, 0.2))):
+        _cell(run, method, "pantry", "7K", 350, at7, at7)
+        _cell(run, method, "pantry", "30K", 1500, at30, at30 / 2)
+    c = cmp.compare([run])
+    assert c.ablations() == [("strings-pos-lr", "strings", "30K", "3K")]
+    abl = {t.name: t for t in cmp.comparison_tables(c)}["compare_ablations"]
+    by = {col.sub_plain: col.values["strings-pos-lr"] for col in abl.columns}
+    assert by["checkpoint"] == 30000 and by["w/o: OCR-CER"] == 0.2 and by["full method: OCR-CER"] == pytest.approx(0.3)
+    assert by["w/o: known-text CER"] == pytest.approx(0.1) and "its spec names 3K, which this comparison lacks" in abl.caption
+    _cell(run, "strings", "pantry", "3K", 150, 0.95, 0.9)  # with 3K for both, the spec's checkpoint again
+    _cell(run, "strings-pos-lr", "pantry", "3K", 150, 0.9, 0.85)
+    assert cmp.compare([run]).ablations() == [("strings-pos-lr", "strings", "3K", "3K")]
+
 # docs/strings.md, "On synthetic360-cpu": known-text CER per room at seed 0 (office / pantry / storeroom), 7K and
 # 30K, and the mean of the rooms its CER table prints. The run folders it was made from are not kept in the
 # repository; this fixture holds the per-room figures as the doc prints them (rounded to 3 decimals).

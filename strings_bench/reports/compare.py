@@ -13,7 +13,7 @@ from its own settings (0 when none was given). For each method, in the registry'
   (folders measured under different load are not comparable: say so beside the table);
 - PSNR, SSIM, LPIPS and Gaussians at 30K (the paper's appendix table);
 - the ablations (its Table "Ablations"): every method whose spec names `ablation_of`, beside that method, at the
-  checkpoint the spec names (`ablation_at`);
+  checkpoint the spec names (`ablation_at`), or the last both have where the folders lack it (the caption says so);
 - "decided / not decided": each method against STRinGS (the spec of group "ours") where both have several seeds:
   decided when the seeds' ranges do not overlap. Beside it, the (seed, draw) replicates in which the method is below STRinGS
   (`paired_lower`), which never changes the verdict.
@@ -232,13 +232,18 @@ class Comparison:
         """The method the others are held against: the one of group "ours" (STRinGS)."""
         return next((m for m in self.methods if self.names.info(m)["group"] == "ours"), None)
 
-    def ablations(self) -> list[tuple[str, str, str]]:
-        """(ablation, the method it ablates, checkpoint label) for every ablation both of which are compared."""
+    def ablations(self) -> list[tuple[str, str, str, str]]:
+        """(ablation, the method it ablates, checkpoint label, the label its spec names) for every ablation both
+        of which are compared: at the spec's checkpoint (`ablation_at`) where both have a CER there, else at the
+        last checkpoint both have (a folder trained to 7K and 30K has no 3K: n/a would hide the ablation)."""
         out = []
         for m in self.methods:
             info = self.names.info(m)
             if info["group"] == "ablation" and info["ablation_of"] in self.methods:
-                out.append((m, info["ablation_of"], iteration_label(int(info["ablation_at"]))))
+                of, named = info["ablation_of"], iteration_label(int(info["ablation_at"]))
+                both = [lab for lab in self.numbers.get(m, {}) if self.get(m, lab, "cer") and self.get(of, lab, "cer")]
+                label = named if named in both or not both else max(both, key=label_value)
+                out.append((m, of, label, named))
         return out
 
     def left_out(self) -> list[str]:
@@ -351,11 +356,13 @@ def comparison_tables(c: Comparison) -> list[Table]:
                         "load) and image quality at 30K." + note, heading="Training time and image quality"))
     ablations = c.ablations()
     if ablations:
-        rows = [m for m, _, _ in ablations]
-        cols = [Column("", "checkpoint", "checkpoint", True, "K", {m: label_value(lab) for m, _, lab in ablations})]
+        rows = [m for m, _, _, _ in ablations]
+        cols = [Column("", "checkpoint", "checkpoint", True, "K", {m: label_value(lab) for m, _, lab, _ in ablations})]
+        moved = [f"{c.names.title(m)} at {lab} (its spec names {named}, which this comparison lacks)"
+                 for m, _, lab, named in ablations if lab != named]
         for value, name in CER_VALUES[:2]:
             wo, full = {}, {}
-            for m, of, label in ablations:
+            for m, of, label, _ in ablations:
                 for target, src in ((wo, m), (full, of)):
                     s = c.get(src, label, value)
                     if s is not None:
@@ -364,7 +371,8 @@ def comparison_tables(c: Comparison) -> list[Table]:
                      Column("", f"full method: {name}", f"full method: {name}", True, ".3f", full)]
         tables.append(Table("compare_ablations", "Ablation", "Ablation", cols, rows,
                             "Each ablation beside the method it ablates (its spec's ablation_of), at the checkpoint its "
-                            "spec names (ablation_at)." + note, shade=False, heading="Ablations"))
+                            "spec names (ablation_at)" + (f"; {'; '.join(moved)}" if moved else "") + "." + note,
+                            shade=False, heading="Ablations"))
     if drawn:
         tables += draws_tables(c)
     for t in tables:
