@@ -214,8 +214,9 @@ class Sitting:
         """Train and evaluate `methods` on `scene`; banked when every method's last checkpoint has a row in
         a results CSV of a step named `banked_as` (a glob; default `name`), an earlier sitting's cut after
         that cell included."""
-        last = max(int(c) for c in checkpoints.split(","))
-        label = f"{last // 1000}K" if last % 1000 == 0 else str(last)
+        from strings_bench.core.schedules import iteration_label  # the label results.csv gives the last checkpoint
+
+        label = iteration_label(max(int(c) for c in checkpoints.split(",")))
         banked_in = banked_run(self.out, self.stage, banked_as or name, methods.split(","), label, self.dry_run)
         run_dir = self.runs / self.stage / name
         schedule = ["--schedule", "tiny"] if self.dry_run else ["--schedule", "paper"]
