@@ -291,6 +291,52 @@ def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path
     assert _cell(out, "edc-absgs")["config"]["budget"]["max_gaussians"] == n
 
 
+def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
+    import json
+
+    import strings_bench.bench.runner as runner
+    from strings_bench.bench.check import tiny_scene
+
+    ref_dir = _run(tmp_path, ["3dgs"], None, out="seed0")  # the reference, uncapped, in its own folder
+    n = _cell(ref_dir, "3dgs")["gaussians"]
+    assert n > 1429
+    out = _run(tmp_path, ["absgs"], "3dgs", out="seed1", budget_from=ref_dir)
+    capped = _cell(out, "absgs")
+    assert capped["config"]["budget"] == {"rule": "3dgs", "max_gaussians": n, "reference": {
+        "method": "3dgs", "iteration": 20, "folder": str(ref_dir.resolve())}}
+    assert capped["config"]["method"]["settings"]["max_gaussians"] == n and capped["gaussians"] <= n
+    assert not (out / "cells" / "3dgs").exists()  # the reference is not trained again
+    assert json.loads((out / "run.json").read_text())["budget_from"] == str(ref_dir.resolve())
+    # the folder resumes only with the same reference folder
+    with pytest.raises(StringsBenchError, match="made with --budget-from .*: give it again to resume"):
+        _run(tmp_path, ["absgs"], "3dgs", out="seed1")
+    other = tmp_path / "seed0-copy"
+    __import__("shutil").copytree(ref_dir, other)
+    with pytest.raises(StringsBenchError, match="holds results made with --budget 3dgs --budget-from .*seed0; this "
+                                                "run asks for --budget 3dgs --budget-from .*seed0-copy"):
+        _run(tmp_path, ["absgs"], "3dgs", out="seed1", budget_from=other)
+
+    scene = str(tiny_scene())
+
+    def plan(**kw):
+        return runner.plan_run(["absgs"], [scene], schedule="tiny", steps_scale=0.02, checkpoints=[1000], **kw)
+
+    with pytest.raises(StringsBenchError, match="goes with --budget METHOD"):
+        plan(run_dir=tmp_path / "e1", budget=2000, budget_from=ref_dir)
+    with pytest.raises(StringsBenchError, match="3dgs is not trained in this run"):
+        runner.plan_run(["3dgs", "absgs"], [scene], run_dir=tmp_path / "e2", schedule="tiny", steps_scale=0.02,
+                        budget="3dgs", budget_from=ref_dir)
+    with pytest.raises(StringsBenchError, match="not a run folder"):
+        plan(run_dir=tmp_path / "e3", budget="3dgs", budget_from=tmp_path / "nowhere")
+    with pytest.raises(StringsBenchError, match="holds no mcmc cells"):
+        plan(run_dir=tmp_path / "e4", budget="mcmc", budget_from=ref_dir)
+    with pytest.raises(StringsBenchError, match="--steps-scale 0.02; this run asks for 0.05"):
+        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "e5", schedule="tiny", steps_scale=0.05,
+                        budget="3dgs", budget_from=ref_dir)
+    with pytest.raises(StringsBenchError, match="were capped"):  # a budgeted folder's counts are no reference
+        plan(run_dir=tmp_path / "e6", budget="3dgs", budget_from=_run(tmp_path, ["3dgs"], 1500, out="capped"))
+
+
 def test_numeric_budget_caps_every_method(tmp_path):
     out = _run(tmp_path, ["3dgs", "mcmc"], 1600)
     for m in ("3dgs", "mcmc"):
@@ -322,7 +368,9 @@ def test_cli_run_takes_budget():
     from strings_bench.cli.run import run_config
 
     args = build_parser().parse_args(["run", "--methods", "3dgs,absgs", "--budget", "3dgs"])
-    assert run_config(args).budget == "3dgs"
+    assert run_config(args).budget == "3dgs" and run_config(args).budget_from is None
+    args = build_parser().parse_args(["run", "--methods", "absgs", "--budget", "3dgs", "--budget-from", "runs/a"])
+    assert run_config(args).budget_from == "runs/a"
 
 
 # ---- the report's size/accuracy front ------------------------------------------------------------------------------

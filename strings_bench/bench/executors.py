@@ -43,6 +43,8 @@ class Job:
     # this job's budget (resolved where the job runs: bench/runner.py resolve_budget); None: no such budget (a
     # numeric --budget is in method_overrides as max_gaussians already)
     budget: str | None = None
+    # `--budget-from FOLDER`: the run folder that holds the reference method's cells (None: this job's run folder)
+    budget_from: str | None = None
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

@@ -54,6 +54,9 @@ class RunConfig:
         every other method is capped at the Gaussian count it reaches on the same scene at the job's last
         checkpoint; its cells may also be in the run folder already). Reaches each method as its
         `max_gaussians` setting (`parse_budget`).
+    budget_from: with a method name as `budget`, another run folder that holds that method's cells (trained there
+        uncapped), read in place of this run's own: e.g. a seed-1 run at the count 3DGS reached at seed 0, without
+        training 3DGS again. The reference method is then not among this run's methods.
     """
 
     methods: list[str] = field(default_factory=list)
@@ -80,6 +83,7 @@ class RunConfig:
     progress: bool = True
     write_report: bool = True
     budget: int | str | None = None
+    budget_from: Path | str | None = None
 
     @classmethod
     def of(cls, config: "RunConfig | list[str] | None" = None, datasets=None, **given) -> "RunConfig":
@@ -140,8 +144,42 @@ def parse_budget(value) -> int | str | None:
 
 def budget_reference(job: "Job") -> "CellKey":
     """The cell whose Gaussian count is the budget of `job` under `--budget METHOD`: METHOD's cell on the job's
-    scene at the job's last checkpoint."""
+    scene at the job's last checkpoint (in `budget_folder(job)`)."""
     return CellKey(str(job.budget), job.dataset, job.scene, max(job.checkpoints))
+
+
+def budget_folder(job: "Job") -> Path:
+    """The run folder that holds `job`'s budget reference: `--budget-from`'s, else the job's own."""
+    return Path(job.budget_from or job.run_dir)
+
+
+def check_budget_from(folder: Path, reference: str, schedule_now: dict, downscale: float) -> Path:
+    """`--budget-from FOLDER` with `--budget METHOD`: FOLDER must be a run folder whose METHOD cells were trained
+    uncapped, at this run's schedule and image scale (so a count at an iteration means the same model size).
+    Returns the folder resolved."""
+    from strings_bench.reports.results import read_manifest
+
+    folder = Path(folder).expanduser().resolve()
+    old = read_manifest(folder) if folder.is_dir() else None
+    if old is None:
+        raise StringsBenchError(f"--budget-from {folder}: not a run folder (no run.json)",
+                                hint="give the --out folder of a finished run that trained the reference method")
+    if not (folder / "cells" / reference).is_dir():
+        raise StringsBenchError(f"--budget-from {folder} holds no {reference} cells",
+                                hint=f"the folder must hold {reference}'s cells (--budget {reference})")
+    if old.get("budget") not in (None, reference):
+        raise StringsBenchError(f"--budget-from {folder}: its {reference} cells were capped (--budget "
+                                f"{old.get('budget')}), so their counts are no reference",
+                                hint="give a folder where the reference method trained uncapped")
+    was = old.get("schedule") or {}
+    for key, option in (("steps_scale", "--steps-scale"), ("name", "--schedule")):
+        if was.get(key) != schedule_now.get(key):
+            raise StringsBenchError(f"--budget-from {folder} was run with {option} {was.get(key)}; this run asks for "
+                                    f"{schedule_now.get(key)}", hint="the reference must come from the same schedule")
+    if old.get("downscale") is not None and float(old["downscale"]) != float(downscale):
+        raise StringsBenchError(f"--budget-from {folder} was run at downscale {old['downscale']}; this run asks for "
+                                f"{downscale}", hint="the reference must come from the same image scale")
+    return folder
 
 
 def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given) -> RunPlan:
@@ -181,10 +219,25 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         raise StringsBenchError(f"--presets names method(s) {', '.join(unknown)} that this run does not train",
                                 hint=f"methods of this run: {', '.join(methods)}")
     budget = parse_budget(c.budget)
-    if isinstance(budget, str) and budget not in methods and not (Path(c.run_dir) / "cells" / budget).is_dir():
+    budget_from = None
+    if c.budget_from is not None:
+        if not isinstance(budget, str):
+            raise StringsBenchError("--budget-from goes with --budget METHOD (the method whose cells it holds)",
+                                    hint="e.g. --budget 3dgs --budget-from runs/seed0")
+        if budget in methods:
+            raise StringsBenchError(f"--budget {budget} --budget-from: {budget}'s cells come from that folder, so "
+                                    f"{budget} is not trained in this run",
+                                    hint=f"leave {budget} out of --methods, or drop --budget-from")
+        budget_from = check_budget_from(Path(c.budget_from), budget, asdict(p), float(
+            c.downscale if c.downscale is not None else p.downscale))
+    elif isinstance(budget, str) and budget not in methods and not (Path(c.run_dir) / "cells" / budget).is_dir():
+        from strings_bench.reports.results import read_manifest
+
+        made_from = (read_manifest(Path(c.run_dir)) or {}).get("budget_from") if Path(c.run_dir).is_dir() else None
         raise StringsBenchError(f"--budget {budget} needs {budget} among the run's methods: it trains first, uncapped, "
                                 f"and its Gaussian count on each scene is the others' budget",
-                                hint=f"add it: --methods {budget},{','.join(methods)}")
+                                hint=(f"{c.run_dir} was made with --budget-from {made_from}: give it again to resume"
+                                      if made_from else f"add it: --methods {budget},{','.join(methods)}"))
     for_all = dict(overrides.get(ALL_METHODS, {}))
     if BUDGET_SETTING in for_all or any(BUDGET_SETTING in v for v in overrides.values()):
         raise StringsBenchError(f"{BUDGET_SETTING} is set with --budget, not --set",
@@ -235,7 +288,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
             jobs.append(Job(str(run_dir), m, ref.dataset, ref.scene, str(ref.path), dict(ref.settings), tuple(steps),
                             labels, p.name, ds, ocr, m_over, c.cer_profile, c.device, str(c.save_every),
                             bool(c.keep_models), presets, dense,
-                            budget if isinstance(budget, str) and m != budget else None))
+                            budget if isinstance(budget, str) and m != budget else None,
+                            None if budget_from is None else str(budget_from)))
     manifest = {
         "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
         # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
@@ -254,6 +308,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         # The equal Gaussian budget (--budget): a count, or the reference method's name; absent when none, so that
         # folders made without it keep resuming.
         **({"budget": budget} if budget is not None else {}),
+        # --budget-from: the folder the reference's counts are read from; absent when they are this folder's own
+        **({"budget_from": str(budget_from)} if budget_from is not None else {}),
     }
     return RunPlan(run_dir, jobs, manifest)
 
@@ -313,11 +369,12 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
                                 hint="use another --out folder, or the same --dense-eval to resume")
     # Cells are keyed by method, scene and iteration only: a budgeted cell must never be taken for an unbudgeted
     # one (or one of another budget), so a folder holds one budget.
-    if old.get("budget") != manifest.get("budget"):
-        def _b(b):
-            return "no budget" if b is None else f"--budget {b}"
-        raise StringsBenchError(f"{run_dir} holds results made with {_b(old.get('budget'))}; this run asks for "
-                                f"{_b(manifest.get('budget'))}",
+    if (old.get("budget"), old.get("budget_from")) != (manifest.get("budget"), manifest.get("budget_from")):
+        def _b(m):
+            b = m.get("budget")
+            return ("no budget" if b is None else f"--budget {b}") + (
+                f" --budget-from {m['budget_from']}" if m.get("budget_from") else "")
+        raise StringsBenchError(f"{run_dir} holds results made with {_b(old)}; this run asks for {_b(manifest)}",
                                 hint="use another --out folder for each budget (e.g. runs/NAME-budget-3dgs), or the "
                                      "same --budget to resume")
     # A finished cell is skipped on resume, so cells trained with other --set values must not be

@@ -64,25 +64,28 @@ def resolve_budget(job: Job) -> dict | None:
 
     `--budget N` is in the job's settings already; `--budget METHOD` is read here, where the job runs, from the
     reference method's cell on the same scene at the job's last checkpoint (`plan.budget_reference`), which must be
-    finished (the reference's jobs run first)."""
-    from strings_bench.bench.plan import BUDGET_SETTING, budget_reference
+    finished (the reference's jobs run first), in the run folder or in `--budget-from`'s."""
+    from strings_bench.bench.plan import BUDGET_SETTING, budget_folder, budget_reference
     from strings_bench.reports.results import read_cell
 
     if job.budget is None:
         n = job.method_overrides.get(BUDGET_SETTING)
         return None if n is None else {"rule": str(n), "max_gaussians": int(n), "reference": None}
-    ref = budget_reference(job)
-    if not is_finished(Path(job.run_dir), ref):
+    ref, folder = budget_reference(job), budget_folder(job)
+    if not is_finished(folder, ref):
+        where = f"--budget-from {folder}" if job.budget_from else "the run folder"
         raise StringsBenchError(
             f"--budget {job.budget}: {job.method} on {job.dataset}/{job.scene} needs {job.budget}'s cell at iteration "
-            f"{ref.iteration} ({ref.path(Path(job.run_dir))}), which is not in the run folder",
-            hint=f"add {job.budget} to --methods (its jobs run first, uncapped), or give a number: --budget N")
-    count = (read_cell(job.run_dir, ref) or {}).get("gaussians")
+            f"{ref.iteration} ({ref.path(folder)}), which is not in {where}",
+            hint=(f"train {job.budget} on this scene into {folder} first" if job.budget_from else
+                  f"add {job.budget} to --methods (its jobs run first, uncapped), or give a number: --budget N"))
+    count = (read_cell(folder, ref) or {}).get("gaussians")
     if not count:
-        raise StringsBenchError(f"--budget {job.budget}: the reference cell {ref.path(Path(job.run_dir))} records no "
+        raise StringsBenchError(f"--budget {job.budget}: the reference cell {ref.path(folder)} records no "
                                 "Gaussian count", hint="the reference must be a method that trains Gaussians")
     return {"rule": job.budget, "max_gaussians": int(count),
-            "reference": {"method": ref.method, "iteration": ref.iteration}}
+            "reference": {"method": ref.method, "iteration": ref.iteration,
+                          **({"folder": str(folder)} if job.budget_from else {})}}
 
 
 def job_overrides(job: Job, budget: dict | None) -> dict:

@@ -80,6 +80,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "as the reference; it must be in --methods or its cells in the run folder). Each method keeps "
                         "to it by its own rules (docs/baselines.md); recorded in run.json and every result.json, and a "
                         "run folder holds one budget (docs/running.md)")
+    p.add_argument("--budget-from", default=None, metavar="FOLDER",
+                   help="with --budget METHOD: read METHOD's counts from the cells of another run folder (trained "
+                        "there uncapped, same schedule and image scale) instead of training METHOD in this run, e.g. "
+                        "other seeds at the count 3DGS reached at seed 0")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
     p.add_argument("--lpips-at", default="last", choices=["last", "all"],
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
@@ -134,7 +138,7 @@ def run_config(args: argparse.Namespace):
                      checkpoints=checkpoints, dense_every=dense_every,
                      dense_eval=args.dense_eval,
                      device=args.device, save_every=args.save_every, keep_models=args.keep_models,
-                     budget=args.budget)
+                     budget=args.budget, budget_from=args.budget_from)
 
 
 def parse_presets(items: list[str]) -> dict[str, list[str]]:
