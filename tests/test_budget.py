@@ -293,6 +293,7 @@ def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path
 
 def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
     import json
+    import shutil
 
     import strings_bench.bench.runner as runner
     from strings_bench.bench.check import tiny_scene
@@ -311,7 +312,7 @@ def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
     with pytest.raises(StringsBenchError, match="made with --budget-from .*: give it again to resume"):
         _run(tmp_path, ["absgs"], "3dgs", out="seed1")
     other = tmp_path / "seed0-copy"
-    __import__("shutil").copytree(ref_dir, other)
+    shutil.copytree(ref_dir, other)
     with pytest.raises(StringsBenchError, match="holds results made with --budget 3dgs --budget-from .*seed0; this "
                                                 "run asks for --budget 3dgs --budget-from .*seed0-copy"):
         _run(tmp_path, ["absgs"], "3dgs", out="seed1", budget_from=other)

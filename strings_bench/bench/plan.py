@@ -228,8 +228,7 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
             raise StringsBenchError(f"--budget {budget} --budget-from: {budget}'s cells come from that folder, so "
                                     f"{budget} is not trained in this run",
                                     hint=f"leave {budget} out of --methods, or drop --budget-from")
-        budget_from = check_budget_from(Path(c.budget_from), budget, asdict(p), float(
-            c.downscale if c.downscale is not None else p.downscale))
+        budget_from = check_budget_from(Path(c.budget_from), budget, asdict(p), ds)
     elif isinstance(budget, str) and budget not in methods and not (Path(c.run_dir) / "cells" / budget).is_dir():
         from strings_bench.reports.results import read_manifest
 
