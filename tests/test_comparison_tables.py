@@ -336,3 +336,38 @@ def test_methods_and_scenes_choose_the_cells_before_the_common_scenes(tmp_path, 
     assert "| STRinGS |" in md and "Improved-GS" not in md
     with pytest.raises(SystemExit):
         _compare(run, "--methods", ",")
+
+
+def test_against_holds_every_method_against_the_method_named(tmp_path, capsys):
+    """`--against METHOD`: "Decided or not" against METHOD rather than STRinGS (issue 42: the newer methods against
+    EDC-AbsGS); a name without cells among the compared is an error that lists those there are."""
+    rooms = ("office", "pantry")
+    # known-text CER per seed (both rooms at it): EDC 0.10/0.12, Improved-GS 0.20/0.22 (apart from EDC), Perceptual-GS
+    # 0.11/0.25 (overlaps EDC), STRinGS 0.15/0.16
+    per_seed = {"edc-absgs": (0.10, 0.12), "improved-gs": (0.20, 0.22), "perceptual-gs": (0.11, 0.25),
+                "strings": (0.15, 0.16)}
+    runs = [tmp_path / f"seed{s}" for s in (0, 1)]
+    for s, run in enumerate(runs):
+        for method, ks in per_seed.items():
+            for room in rooms:
+                _cell(run, method, room, "30K", 1500, 0.5, ks[s], seed=s)
+    c = cmp.compare(runs, against="edc-absgs")
+    assert c.reference == "edc-absgs"
+    rows = {r["method"]: r for r in cmp.decided_rows(c) if (r["value"], r["label"]) == ("cer_known", "30K")}
+    assert set(rows) == {"improved-gs", "perceptual-gs", "strings"} and {r["against"] for r in rows.values()} == {"edc-absgs"}
+    assert rows["improved-gs"]["verdict"] == "decided" and rows["improved-gs"]["difference"] == pytest.approx(0.10)
+    assert rows["perceptual-gs"]["verdict"] == "not decided" and rows["strings"]["verdict"] == "decided"
+    assert rows["perceptual-gs"]["paired"] == "0 of 2"
+    # without it, STRinGS is the reference as before: EDC-AbsGS is held against it, decided
+    default = {r["method"]: r for r in cmp.decided_rows(cmp.compare(runs)) if r["value"] == "cer_known"}
+    assert "strings" not in default and default["edc-absgs"]["against"] == "strings"
+    assert _compare(*runs, "--against", "edc-absgs", "--out", tmp_path / "cmp") == 0
+    md = capsys.readouterr().out
+    assert "## Decided or not, against EDC-AbsGS" in md
+    assert "| Improved-GS | EDC-AbsGS | known-text CER | 30K | +0.100 | 2 / 2 | decided | 0 of 2 |" in md
+    assert "Decided or not, against EDC-AbsGS" in (tmp_path / "cmp" / "index.html").read_text()
+    with pytest.raises(StringsBenchError, match="--against mcmc") as e:
+        cmp.compare(runs, against="mcmc")
+    assert "edc-absgs" in e.value.hint and "strings" in e.value.hint
+    with pytest.raises(StringsBenchError, match="--against edc-absgs"):  # chosen away by --methods
+        cmp.compare(runs, methods=["strings", "improved-gs"], against="edc-absgs")

@@ -16,7 +16,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "compare", help=command_help("compare"),
         description="The paper's tables (CER at 7K/30K, training time, PSNR/SSIM/LPIPS/Gaussians, ablations) over run "
                     "folders of one seed each: mean over scenes, then over seeds with the seeds' range, the paper's "
-                    "figures beside, and whether the seeds decide each method against STRinGS (reports/compare.py). "
+                    "figures beside, and whether the seeds decide each method against STRinGS (or --against METHOD; "
+                    "reports/compare.py). "
                     "Scene draws (ROOM@N, docs/datasets.md) count like seeds: the mean over draws with the range over "
                     "seeds and draws, and per room and over all rooms the mean over draws with the draws' range.")
     p.add_argument("run_dirs", nargs="+", type=Path, help="run folders, one seed each")
@@ -34,6 +35,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help=f"the paper's dataset whose figures stand beside (default {PAPER_DATASET})")
     p.add_argument("--per-scene", metavar="VALUE", default=None, choices=VALUES,
                    help="also list VALUE (cer, cer_known, word_cer, ...) per method, checkpoint and scene, every seed")
+    p.add_argument("--against", metavar="METHOD", default=None,
+                   help="hold every method against METHOD in 'Decided or not' (a spec name, e.g. edc-absgs; "
+                        "default: STRinGS)")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON instead of Markdown")
     p.set_defaults(func=run)
     return p
@@ -49,7 +53,7 @@ def _names(text: str) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from strings_bench.reports.compare import compare, comparison_markdown, write_comparison
 
-    c = compare(args.run_dirs, args.dataset, args.paper_dataset, args.methods, args.scenes)
+    c = compare(args.run_dirs, args.dataset, args.paper_dataset, args.methods, args.scenes, args.against)
     out = args.out or args.run_dirs[0] / "comparison"
     written = write_comparison(c, out, args.per_scene)
     print(json.dumps(c.numbers, indent=1) if args.json else comparison_markdown(c, args.per_scene))

@@ -223,13 +223,16 @@ class Comparison:
     cells: dict | None = None
     not_common: dict | None = None
     unshared: set | None = None  # checkpoints whose methods share no scene
+    against: str | None = None  # the reference `decided_rows` holds the others against; None: STRinGS
 
     def get(self, method: str, label: str, value: str) -> dict | None:
         return (self.numbers.get(method) or {}).get(label, {}).get(value)
 
     @property
     def reference(self) -> str | None:
-        """The method the others are held against: the one of group "ours" (STRinGS)."""
+        """The method the others are held against: `against` where given, else the one of group "ours" (STRinGS)."""
+        if self.against:
+            return self.against
         return next((m for m in self.methods if self.names.info(m)["group"] == "ours"), None)
 
     def ablations(self) -> list[tuple[str, str, str, str]]:
@@ -258,10 +261,11 @@ class Comparison:
 
 
 def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str = PAPER_DATASET,
-            methods: list[str] | None = None, scenes: list[str] | None = None) -> Comparison:
+            methods: list[str] | None = None, scenes: list[str] | None = None,
+            against: str | None = None) -> Comparison:
     """The comparison of the fully evaluated cells of `run_dirs` (one seed each), of `methods` and `scenes` only
     when given: the scenes all methods share are found after that choice, so a method left out does not narrow
-    the others."""
+    the others. `against`: the method every other is held against in "Decided or not" (default: STRinGS)."""
     # Seeds are averaged: folders of different equal-Gaussian budgets (run --budget; none is one of them) are
     # different conditions, never seeds of one.
     budgets = {str(d): (read_manifest(d) or {}).get("budget") for d in run_dirs}
@@ -281,7 +285,11 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
     methods = names.order(m for m, _ in data)
     numbers = {m: {label: {v: summarise(data[(m, label)], v) for v in VALUES} for (mm, label) in data if mm == m}
                for m in methods}
-    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset, cells, not_common, unshared)
+    if against is not None and against not in methods:
+        raise StringsBenchError(f"--against {against}: no fully evaluated cells of {against} among the compared",
+                                hint="give one of " + ", ".join(methods))
+    return Comparison(data, numbers, methods, [Path(d) for d in run_dirs], names, paper_dataset, cells, not_common,
+                      unshared, against)
 
 
 # ---- tables --------------------------------------------------------------------------------------------
@@ -426,8 +434,8 @@ def draws_tables(c: Comparison, labels=("7K", "30K")) -> list[Table]:
 
 
 def decided_rows(c: Comparison) -> list[dict]:
-    """Each method against the reference (STRinGS) per CER value and checkpoint: the difference of the seeds' means
-    and whether the seeds' ranges separate them."""
+    """Each method against the reference (`Comparison.reference`: STRinGS unless `against` names another) per CER
+    value and checkpoint: the difference of the seeds' means and whether the seeds' ranges separate them."""
     ref = c.reference
     rows = []
     if ref is None:
@@ -508,7 +516,8 @@ def comparison_markdown(c: Comparison, per_scene: str | None = None) -> str:
         parts += [f"## {t.title}", "", t.markdown(), t.caption, ""]
     rows, left = _shown(decided_rows(c))
     if rows or left:
-        parts += ["## Decided or not", "", _decided_markdown(c, rows),
+        parts += ["## Decided or not" + ("" if c.against is None else f", against {c.names.title(c.reference)}"), "",
+                  _decided_markdown(c, rows),
                   DECIDED_CAPTION + left, ""]
     if c.left_out():
         parts += c.left_out() + [""]
