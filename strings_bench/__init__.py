@@ -7,3 +7,9 @@ import os as _os
 # onnxruntime (RapidOCR) writes a device-id file under ~/.cache at import unless telemetry is off;
 # set it before anything can import onnxruntime. The user's own setting wins.
 _os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+
+# torch, MKL and oneDNN on the AVX2 kernels on every x86-64 CPU with AVX2, so that a run gives the same
+# figures on any such machine (strings_bench/core/cpus.py; STRINGS_BENCH_NATIVE_ISA=1 opts out).
+from strings_bench.core.cpus import pin_portable_isa as _pin_portable_isa  # noqa: E402
+
+_pin_portable_isa()

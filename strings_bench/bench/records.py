@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from strings_bench import __version__
+from strings_bench.core.cpus import isa_record
 from strings_bench.core.results import safe_name
 from strings_bench.reports.results import render_file_name, write_png
 
@@ -30,7 +31,7 @@ def versions() -> dict:
     import torch
 
     out = {"strings_bench": __version__, "python": platform.python_version(), "numpy": np.__version__,
-           "torch": torch.__version__, "platform": platform.platform()}
+           "torch": torch.__version__, "platform": platform.platform(), "cpu_kernels": isa_record()}
     try:
         from importlib.metadata import version
 

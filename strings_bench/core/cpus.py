@@ -11,3 +11,94 @@ def usable_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not Linux
         return max(1, os.cpu_count() or 1)
+
+
+# --- The instruction set of the CPU kernels -------------------------------------------------------------
+# torch, MKL and oneDNN each choose their CPU kernels by the host's instruction set (torch: DEFAULT, AVX2 or
+# AVX512), and kernels of different vector widths add in different orders: the same training gave other
+# bits on an AVX-512 CPU than on an AVX2 one, and densification's thresholds turned those bits into
+# other models. Pinning all three to AVX2 runs the same kernels on every x86-64 CPU that has AVX2 (Intel
+# since 2013, AMD since 2015), so a run's figures are the same on each of them. Each library reads its
+# variable at its first kernel call, so setting them at the package's import is early enough even
+# after `import torch`. The numba kernels need no pin: none of them leaves an operation's order to the
+# compiler (no fastmath reassociation or contraction; vector sums kept in fixed lanes), so they give the
+# same bits at any vector width (tests/test_reproducible.py runs a training under lower targets).
+PORTABLE_ISA = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"}
+# Set to 1 to let torch, MKL and oneDNN use the host's widest kernels (e.g. AVX-512): faster there, but a
+# run's figures then differ in the last digits from those of other machines.
+NATIVE_ISA_ENV = "STRINGS_BENCH_NATIVE_ISA"
+
+
+def host_has_avx2() -> bool:
+    """True on an x86-64 CPU with AVX2 and FMA (read from /proc/cpuinfo, else from LLVM's host features)."""
+    import platform
+
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    return {"avx2", "fma"} <= flags
+    except OSError:
+        pass
+    try:
+        from llvmlite import binding as llvm
+
+        features = llvm.get_host_cpu_features()
+        return bool(features.get("avx2")) and bool(features.get("fma"))
+    except Exception:  # noqa: BLE001 - no way to tell: leave the libraries to choose
+        return False
+
+
+def isa_mode(environ=None) -> str:
+    """'portable' (torch, MKL and oneDNN on AVX2 kernels: the same figures on every AVX2 CPU), 'native'
+    (STRINGS_BENCH_NATIVE_ISA=1) or 'host' (not an x86-64 CPU with AVX2: the libraries choose)."""
+    environ = os.environ if environ is None else environ
+    if environ.get(NATIVE_ISA_ENV, "0") not in ("", "0"):
+        return "native"
+    return "portable" if host_has_avx2() else "host"
+
+
+def pin_portable_isa(environ=None) -> dict:
+    """In the portable mode, set PORTABLE_ISA's variables that the user has not set; returns those set.
+    A variable the user set wins (and `isa_record` shows it)."""
+    environ = os.environ if environ is None else environ
+    if isa_mode(environ) != "portable":
+        return {}
+    done = {}
+    for key, value in PORTABLE_ISA.items():
+        if key not in environ:
+            environ[key] = value
+            done[key] = value
+    return done
+
+
+def isa_record() -> dict:
+    """What a run records of the CPU kernels: the mode, torch's kernel set in use, the variables of
+    PORTABLE_ISA as the process has them, and the CPU's model name."""
+    import platform
+
+    import torch
+
+    out = {"isa_mode": isa_mode(), "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
+    out.update({key.lower(): os.environ.get(key) for key in PORTABLE_ISA})
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            model = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), model)
+    except OSError:
+        pass
+    out["cpu_model"] = model
+    return out
+
+
+def portable_isa_in_effect() -> bool:
+    """False when the portable mode is asked for but torch already runs other kernels (torch computed on
+    the CPU before strings_bench was imported, so its variable came too late)."""
+    if isa_mode() != "portable":
+        return True
+    import torch
+
+    return torch.backends.cpu.get_cpu_capability() == "AVX2"

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Iterator
 import numpy as np
 import torch
 
+from strings_bench.core.cpus import portable_isa_in_effect
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CheckpointResult
 
@@ -295,6 +296,11 @@ class Trainer:
 
         seed = self.seed if self.seed is not None else getattr(getattr(self.method, "config", None), "seed", 0)
         seed_everything(int(seed))
+        if str(self.device).startswith("cpu") and not portable_isa_in_effect():
+            log.warning("torch runs its %s CPU kernels, not the AVX2 ones that make a run's figures the same "
+                        "on every machine: torch computed before strings_bench was imported (import "
+                        "strings_bench first, or set ATEN_CPU_CAPABILITY=avx2)",
+                        torch.backends.cpu.get_cpu_capability())
         self.method.progress = self.progress
         t0 = self._clock()
         self.method.setup(self.scene, downscale=self.downscale, device=self.device, seed=self.seed)

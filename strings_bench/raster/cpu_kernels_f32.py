@@ -19,14 +19,13 @@ loop on the vector units:
 - `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
   (`pow2_f32`), inlined, branch-free;
 - the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
-  3DGS evaluates lazily from the previous splat) and keeps each Gaussian's gradient sums in vector
-  registers over its loop.
+  3DGS evaluates lazily from the previous splat) and keeps each Gaussian's gradient sums in LANES (16)
+  partial sums, pixel q of its loop adding into sum q % 16, the 16 added in a fixed tree at the end.
 
-Sums over lanes (the backward's gradients, the forward's count of pixels done) are vector
-reductions (fastmath `reassoc`): their order is fixed by the compiled code, not by threads, so a run
-is bit-identical for the same inputs and machine at any thread count. Each tile is one thread's, and
-the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections` (float64, in intersection
-order).
+Every addition's order is written in the code (no fastmath flags; the forward's count of pixels done
+is an integer sum): the kernels give the same bits at any vector width and thread count, on any CPU.
+Each tile is one thread's, and the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections`
+(float64, in intersection order).
 """
 
 from __future__ import annotations
@@ -61,14 +60,14 @@ E2 = F32(8.3334519073e-3)
 E3 = F32(4.1665795894e-2)
 E4 = F32(1.6666665459e-1)
 E5 = F32(5.0000001201e-1)
-# reassoc (vector reductions) and nothing else. No nnan/ninf: NaN checks keep their meaning. No `contract`
-# (fused multiply-adds), `arcp` or `nsz`: with them LLVM compiled differently on the JIT path and in the
-# object code numba caches, so a kernel compiled in the process and the same kernel loaded from the cache
-# gave other bits (tests/test_raster_f32.py; a clean clone's first run differed from every later one:
-# `contract` in the backward's gradients, `arcp`/`nsz` in one checkpoint render of tests/test_ray.py).
-# Measured cost without `contract`: within the noise of a loaded 2-core machine (fwd+bwd 320x240x50k
-# 590 -> 612 ms, 640x480x200k 1156 -> 1068 ms, ABBA).
-FASTMATH = {"reassoc"}
+# No fastmath flag at all: every float operation is done in the order the code writes it, so the kernels
+# give the same bits at every vector width (SSE, AVX2, AVX-512) and target CPU, i.e. on every machine.
+# `reassoc` let LLVM sum a Gaussian's gradients in one partial sum per vector lane, so the sums depended
+# on the host's vector width (16 lanes on AVX-512, 8 on AVX2: other bits, hence other models after
+# densification); the backward now keeps LANES partial sums itself. `contract` (fused multiply-adds),
+# `arcp` and `nsz` made LLVM compile the JIT path and numba's cached object code differently (a kernel
+# compiled in the process and the same kernel loaded from the cache gave other bits).
+FASTMATH: set = set()
 
 
 @intrinsic
@@ -148,6 +147,12 @@ F_T, F_A0, F_A1, F_A2, F_A3, F_DONE, F_ROWS = (np.uint64(r * NPIX) for r in rang
 # backward rows: transmittance, final transmittance x dL/dalpha, dL/dfeatures (4), the features
 # blended behind the current splat (4)
 B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(r * NPIX) for r in range(11))
+# The backward's per-Gaussian sums, in their own buffer (one buffer apart from S: LLVM then vectorises
+# the pixel loop with one alias check): N_GRAD rows of LANES partial sums; pixel q of a box's flat loop
+# adds into lane q % LANES, and the lanes are added in one fixed tree at the end. The order of every
+# addition is thus the code's, not the compiler's choice for the host's vector width.
+LANES = 16
+L1, L2, L3, L4, L5, L6, L7, L8, L9, L10, L11 = (np.uint64(j * LANES) for j in range(1, 12))
 
 
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
@@ -168,8 +173,8 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             S[F_T + np.uint64(q)] = ONE
             if (q // HSZ) * HW + q % HW >= pw:  # columns outside the image: done from the start
                 S[F_DONE + np.uint64(q)] = ONE
-        n_pix = F32(pw * ph)
-        n_done = ZERO
+        n_pix = np.int32(pw * ph)
+        n_done = np.int32(0)
         cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
@@ -205,7 +210,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
             i_hi = F32(ye - py0 - r0) + HALF
             cy0 = F32(py0 + r0) + HALF
-            nd = ZERO
+            nd = np.int32(0)
             for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
                 base = np.uint64(h * HSZ + r0 * HW)
                 cxh = cx0 + F32(h * HW)
@@ -233,7 +238,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                     S[F_T + p] = test_T if blend else Tp
                     last[p] = k1 if blend else last[p]
                     S[F_DONE + p] = ONE if stop else S[F_DONE + p]
-                    nd += ONE if stop else ZERO
+                    nd += np.int32(1) if stop else np.int32(0)  # an integer sum: exact in any order
             n_done += nd
             if n_done == n_pix:
                 break
@@ -264,6 +269,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         pw = min(TILE, W - px0)
         ph = min(TILE, H - py0)
         S = np.zeros(B_ROWS, np.float32)
+        A = np.zeros(N_GRAD * LANES, np.float32)  # the per-Gaussian partial sums (row j: lanes of sum j)
         lastk = np.zeros(NPIX, np.int32)
         kmax = tile_start[t]
         for py in range(ph):
@@ -298,18 +304,8 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             f2 = P[i, 8]
             f3 = P[i, 9]
             k32 = np.int32(k)
-            g_mx = ZERO
-            g_my = ZERO
-            g_ca = ZERO
-            g_cb = ZERO
-            g_cc = ZERO
-            g_op = ZERO
-            gf0 = ZERO
-            gf1 = ZERO
-            gf2 = ZERO
-            gf3 = ZERO
-            abs_x = ZERO
-            abs_y = ZERO
+            for j in range(N_GRAD * LANES):
+                A[j] = ZERO
             if xs <= xe and ys <= ye:
                 r0 = ys - py0
                 r1 = ye - py0
@@ -323,64 +319,88 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                 i_lo = F32(ys - py0 - r0) - HALF
                 i_hi = F32(ye - py0 - r0) + HALF
                 cy0 = F32(py0 + r0) + HALF
-                # as the forward: each half the box touches as one flat loop, two rows a vector; the
-                # sums stay in vector registers over the loop
+                # as the forward: each half the box touches as flat loops over its pixels (two rows a
+                # vector: an even row count is a whole number of LANES), each pixel's terms added into
+                # its lane's partial sums
                 for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
                     base = np.uint64(h * HSZ + r0 * HW)
                     cxh = cx0 + F32(h * HW)
                     fjh = F32(h * HW)
-                    for q in range((r1 - r0 + 1) * HW):
-                        p = base + np.uint64(q)
-                        fc = F32(q & (HW - 1))
-                        fr = F32(q >> 3)
-                        fj = fjh + fc
-                        dx = mx - (cxh + fc)
-                        dy = my - (cy0 + fr)
-                        power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                        G = exp_neg32(min(power, ZERO))
-                        alpha = min(op * G, AMAX)
-                        act = ((k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
-                               & (power <= ZERO) & (alpha >= AMIN))
-                        one_m = ONE - alpha
-                        inv_one_m = ONE / one_m
-                        Tp = S[B_T + p]
-                        Tn = Tp * inv_one_m
-                        # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
-                        # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
-                        c0 = S[B_S0 + p]
-                        c1 = S[B_S1 + p]
-                        c2 = S[B_S2 + p]
-                        c3 = S[B_S3 + p]
-                        g0 = S[B_G0 + p]
-                        g1 = S[B_G1 + p]
-                        g2 = S[B_G2 + p]
-                        g3 = S[B_G3 + p]
-                        dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
-                        dL_da += S[B_TGA + p] * inv_one_m
-                        dL_da = dL_da if act else ZERO
-                        wa = alpha * Tn if act else ZERO
-                        S[B_T + p] = Tn if act else Tp
-                        S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
-                        S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
-                        S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
-                        S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
-                        # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
-                        # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
-                        qg = op * G * dL_da
-                        gx = -qg * (ca * dx + cb * dy)
-                        gy = -qg * (cc * dy + cb * dx)
-                        g_mx += gx
-                        g_my += gy
-                        g_ca += qg * dx * dx
-                        g_cb += qg * dx * dy
-                        g_cc += qg * dy * dy
-                        g_op += G * dL_da
-                        gf0 += wa * g0
-                        gf1 += wa * g1
-                        gf2 += wa * g2
-                        gf3 += wa * g3
-                        abs_x += abs(gx)
-                        abs_y += abs(gy)
+                    for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
+                        for ln in range(LANES):
+                            q = q0 + ln
+                            p = base + np.uint64(q)
+                            a = np.uint64(ln)
+                            fc = F32(q & (HW - 1))
+                            fr = F32(q >> 3)
+                            fj = fjh + fc
+                            dx = mx - (cxh + fc)
+                            dy = my - (cy0 + fr)
+                            power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                            G = exp_neg32(min(power, ZERO))
+                            alpha = min(op * G, AMAX)
+                            act = ((k32 < lastk[p]) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                                   & (power <= ZERO) & (alpha >= AMIN))
+                            one_m = ONE - alpha
+                            inv_one_m = ONE / one_m
+                            Tp = S[B_T + p]
+                            Tn = Tp * inv_one_m
+                            # S: the features blended behind this splat (3DGS's accum_rec, updated eagerly:
+                            # the same expression alpha_b f_b + (1 - alpha_b) S that 3DGS evaluates lazily)
+                            c0 = S[B_S0 + p]
+                            c1 = S[B_S1 + p]
+                            c2 = S[B_S2 + p]
+                            c3 = S[B_S3 + p]
+                            g0 = S[B_G0 + p]
+                            g1 = S[B_G1 + p]
+                            g2 = S[B_G2 + p]
+                            g3 = S[B_G3 + p]
+                            dL_da = ((f0 - c0) * g0 + (f1 - c1) * g1 + (f2 - c2) * g2 + (f3 - c3) * g3) * Tn
+                            dL_da += S[B_TGA + p] * inv_one_m
+                            dL_da = dL_da if act else ZERO
+                            wa = alpha * Tn if act else ZERO
+                            S[B_T + p] = Tn if act else Tp
+                            S[B_S0 + p] = alpha * f0 + one_m * c0 if act else c0
+                            S[B_S1 + p] = alpha * f1 + one_m * c1 if act else c1
+                            S[B_S2 + p] = alpha * f2 + one_m * c2 if act else c2
+                            S[B_S3 + p] = alpha * f3 + one_m * c3 if act else c3
+                            # 3DGS: dL/dalpha (with the clamped alpha) reaches opacity and G as if alpha = o G;
+                            # dL/dG = o dL/dalpha, and qg = G dL/dG carries it to the conic and the mean
+                            qg = op * G * dL_da
+                            gx = -qg * (ca * dx + cb * dy)
+                            gy = -qg * (cc * dy + cb * dx)
+                            A[a] += gx
+                            A[a + L1] += gy
+                            A[a + L2] += qg * dx * dx
+                            A[a + L3] += qg * dx * dy
+                            A[a + L4] += qg * dy * dy
+                            A[a + L5] += G * dL_da
+                            A[a + L6] += wa * g0
+                            A[a + L7] += wa * g1
+                            A[a + L8] += wa * g2
+                            A[a + L9] += wa * g3
+                            A[a + L10] += abs(gx)
+                            A[a + L11] += abs(gy)
+            # the lanes of every sum in one fixed tree: lane l += lane l + w for w = 8, 4, 2, 1
+            w = LANES // 2
+            while w > 0:
+                for j in range(N_GRAD):
+                    for ln in range(w):
+                        a = np.uint64(j * LANES + ln)
+                        A[a] += A[a + np.uint64(w)]
+                w //= 2
+            g_mx = A[0]
+            g_my = A[L1]
+            g_ca = A[L2]
+            g_cb = A[L3]
+            g_cc = A[L4]
+            g_op = A[L5]
+            gf0 = A[L6]
+            gf1 = A[L7]
+            gf2 = A[L8]
+            gf3 = A[L9]
+            abs_x = A[L10]
+            abs_y = A[L11]
             buf[k, 0] = g_mx
             buf[k, 1] = g_my
             buf[k, 2] = -HALF * g_ca

@@ -1,0 +1,134 @@
+"""The same figures on every x86-64 CPU with AVX2, at any thread count.
+
+A machine with other vector units is emulated on this one: numba compiles for a lower target when a
+process sets NUMBA_CPU_NAME / NUMBA_CPU_FEATURES (here SSE4.2: 4-lane float vectors, no AVX, no FMA,
+against the host's 8 or 16 lanes), and torch, MKL and oneDNN take their kernel set from environment
+variables, which strings_bench pins to AVX2 (strings_bench/core/cpus.py). Short trainings of 3DGS and
+STRinGS (densification on, SH degree 3, SSIM) run in fresh processes under each target and thread count,
+and every bit of every parameter and loss is compared. A kernel that leaves an addition's order to the
+compiler (fastmath `reassoc`: a vector sum with one partial sum per lane) gives other bits at another
+vector width, and this test fails.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from _engine_helpers import make_tiny_scene  # noqa: E402
+from strings_bench.core.cpus import PORTABLE_ISA, host_has_avx2  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+TRAIN = textwrap.dedent("""
+    import hashlib, json, sys
+    import numpy as np
+    import strings_bench  # first, as the command line does: it pins torch's kernel set
+    import torch
+    from strings_bench.engine.trainer import Trainer
+    from strings_bench.methods.registry import get_method
+    from strings_bench.scene.scene import Scene
+
+    out = {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
+    for name, settings in json.loads(sys.argv[2]).items():
+        method = get_method(name).build(None, **settings)
+        losses = []
+        real = method.train_step
+        method.train_step = lambda step: losses.append(real(step)) or losses[-1]
+        for result in Trainer(method, Scene.load(sys.argv[1]), [240], device="cpu", progress=False).train():
+            pass
+        digest = {k: hashlib.sha256(v.detach().numpy().tobytes()).hexdigest()
+                  for k, v in method.model.params.items()}
+        digest["losses"] = hashlib.sha256(np.asarray(losses, np.float64).tobytes()).hexdigest()
+        digest["gaussians"] = method.num_gaussians()
+        out[name] = digest
+    print("RESULT " + json.dumps(out))
+""")
+# 240 steps: densification from step 10, every 50 steps (the schedule's floor); STRinGS' phase 1 is 60 steps
+SETTINGS = {"3dgs": dict(steps_scale=0.02, sh_degree=3),
+            "strings": dict(steps_scale=0.02, sh_degree=3, mask_dilation_fraction=0.0, n_max=3)}
+# The lower target: Nehalem's instruction set (SSE4.2), whatever the host has
+SSE42 = {"NUMBA_CPU_NAME": "nehalem", "NUMBA_CPU_FEATURES": "+sse4.2"}
+
+
+@pytest.fixture(scope="module")
+def scene_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("reproducible") / "scene"
+    scene = make_tiny_scene(root, n_views=6, width=96, height=72, n_points=400)
+    (root / "masks").mkdir()
+    for c in scene.model.cameras:
+        m = np.zeros((c.height, c.width), np.uint8)
+        m[20:44, 24:72] = 255
+        Image.fromarray(m).save(root / "masks" / c.name)
+    return root
+
+
+def _train(scene_root: Path, env: dict, tmp_path: Path) -> dict:
+    full = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA and not k.startswith("NUMBA_CPU")}
+    full.update(env)
+    full["STRINGS_BENCH_CACHE"] = str(tmp_path / "cache")
+    full["PYTHONPATH"] = os.pathsep.join([str(REPO), full.get("PYTHONPATH", "")])
+    proc = subprocess.run([sys.executable, "-c", TRAIN, str(scene_root), json.dumps(SETTINGS)], env=full,
+                          capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT "))
+    return json.loads(line[len("RESULT "):])
+
+
+@pytest.mark.skipif(not host_has_avx2(), reason="the portable kernels are those of x86-64 CPUs with AVX2")
+def test_training_is_bit_identical_under_another_instruction_set_and_thread_count(scene_root, tmp_path):
+    host = _train(scene_root, {"NUMBA_NUM_THREADS": "2"}, tmp_path)
+    lower = _train(scene_root, {**SSE42, "NUMBA_NUM_THREADS": "1"}, tmp_path)
+    assert host["torch_cpu_capability"] == lower["torch_cpu_capability"] == "AVX2"
+    for name in SETTINGS:
+        assert host[name]["gaussians"] > 400, "densification did not run: the check would be weak"
+        differ = [k for k in host[name] if host[name][k] != lower[name][k]]
+        assert not differ, f"{name}: {differ} differ between the host's target and SSE4.2"
+
+
+def test_portable_mode_pins_torch_mkl_and_onednn_to_avx2(tmp_path):
+    """On any host: importing strings_bench sets the three libraries' variables (unless the user did), and
+    torch then runs its AVX2 kernels even where the CPU has AVX-512; STRINGS_BENCH_NATIVE_ISA=1 leaves
+    them alone."""
+    probe = ("import os, json, strings_bench, torch; print(json.dumps({'cap': torch.backends.cpu.get_cpu_capability(),"
+             " 'env': {k: os.environ.get(k) for k in " + repr(sorted(PORTABLE_ISA)) + "}}))")
+    base = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA}
+    base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
+
+    def run(extra):
+        proc = subprocess.run([sys.executable, "-c", probe], env={**base, **extra}, capture_output=True, text=True,
+                              timeout=300, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    portable = run({"STRINGS_BENCH_NATIVE_ISA": "0"})
+    native = run({"STRINGS_BENCH_NATIVE_ISA": "1"})
+    if not host_has_avx2():
+        pytest.skip("not an x86-64 CPU with AVX2: the libraries choose their own kernels")
+    assert portable["env"] == PORTABLE_ISA
+    assert portable["cap"] == "AVX2"
+    assert native["env"] == {k: None for k in PORTABLE_ISA}
+    # a variable the user set wins
+    assert run({"MKL_CBWR": "COMPATIBLE"})["env"]["MKL_CBWR"] == "COMPATIBLE"
+
+
+def test_no_cpu_kernel_leaves_the_order_of_additions_to_the_compiler():
+    """The numba kernels on the training path compile without fastmath reassociation or contraction (the
+    flags that let LLVM reorder or fuse float operations per target)."""
+    import strings_bench.raster.cpu_kernels_f32 as K32
+
+    assert not ({"reassoc", "contract", "fast"} & set(K32.FASTMATH))
+    for fn in (K32.forward, K32.backward, K32.pack):
+        flags = fn.targetoptions.get("fastmath")
+        flags = set(flags) if isinstance(flags, (set, frozenset, dict, list, tuple)) else ({"fast"} if flags else set())
+        assert not ({"reassoc", "contract", "fast"} & flags), (fn.__name__, flags)
