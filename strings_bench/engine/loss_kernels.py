@@ -39,16 +39,17 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.nd
 
 @njit(cache=True, inline="always")
 def _filter_rows(src, dst, g, H, W):
-    """dst[r, c] = sum_k g[k] src[r, c + k - R] (zero outside), each row of the (n, H, W) planes."""
+    """dst[c] = sum_k g[k] src[c + k - R] over the taps inside the row (zero padding), k ascending: one
+    pass over the row per tap, so that the columns run on the vector units and each output still adds
+    its taps in the same order."""
     R = g.shape[0] // 2
-    K = g.shape[0]
     for c in range(W):
-        acc = np.float32(0.0)
-        for k in range(K):
-            cc = c + k - R
-            if 0 <= cc < W:
-                acc += g[k] * src[cc]
-        dst[c] = acc
+        dst[c] = 0.0
+    for k in range(g.shape[0]):
+        gk = g[k]
+        off = k - R
+        for c in range(max(0, -off), min(W, W - off)):
+            dst[c] += gk * src[c + off]
 
 
 @njit(parallel=True, cache=True)

@@ -39,7 +39,7 @@ class _FusedCpuGsLoss(torch.autograd.Function):
         y = target.detach().to(torch.float32).contiguous().numpy()
         loss, _, partial = gs_loss_forward(x, y, float(lambda_dssim), pred.requires_grad)
         ctx.saved = (x, y, partial, float(lambda_dssim))
-        return torch.tensor(loss, dtype=torch.float32)
+        return torch.tensor(loss, dtype=torch.float32, device="cpu")  # (a caller's default device, e.g. meta, must not reach it)
 
     @staticmethod
     def backward(ctx, grad_out):

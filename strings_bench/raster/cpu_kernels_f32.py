@@ -22,8 +22,8 @@ loop on the vector units:
   3DGS evaluates lazily from the previous splat) and keeps each Gaussian's gradient sums in LANES (16)
   partial sums, pixel q of its loop adding into sum q % 16, the 16 added in a fixed tree at the end.
 
-Every addition's order is written in the code (no fastmath flags; the forward's count of pixels done
-is an integer sum): the kernels give the same bits at any vector width and thread count, on any CPU.
+Every addition's order is written in the code (no fastmath flags; the forward counts the pixels done in
+LANES partial counts too, which keeps its pixel loop on the vector units): the kernels give the same bits at any vector width and thread count, on any CPU.
 Each tile is one thread's, and the per-Gaussian sums over tiles are `cpu_kernels.reduce_intersections`
 (float64, in intersection order).
 """
@@ -173,8 +173,9 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             S[F_T + np.uint64(q)] = ONE
             if (q // HSZ) * HW + q % HW >= pw:  # columns outside the image: done from the start
                 S[F_DONE + np.uint64(q)] = ONE
-        n_pix = np.int32(pw * ph)
-        n_done = np.int32(0)
+        n_pix = F32(pw * ph)
+        n_done = ZERO
+        D = np.zeros(LANES, np.float32)  # the pixels stopped by the current Gaussian, per lane
         cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
@@ -210,35 +211,41 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
             i_hi = F32(ye - py0 - r0) + HALF
             cy0 = F32(py0 + r0) + HALF
-            nd = np.int32(0)
+            for ln in range(LANES):
+                D[ln] = ZERO
             for h in range((xs - px0) // HW, (xe - px0) // HW + 1):
                 base = np.uint64(h * HSZ + r0 * HW)
                 cxh = cx0 + F32(h * HW)
                 fjh = F32(h * HW)
-                for q in range((r1 - r0 + 1) * HW):
-                    p = base + np.uint64(q)
-                    fc = F32(q & (HW - 1))
-                    fr = F32(q >> 3)
-                    fj = fjh + fc
-                    dx = mx - (cxh + fc)
-                    dy = my - (cy0 + fr)
-                    power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                    alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
-                    Tp = S[F_T + p]
-                    test_T = Tp * (ONE - alpha)
-                    ok = ((S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
-                          & (power <= ZERO) & (alpha >= AMIN))
-                    stop = ok & (test_T < TMIN)
-                    blend = ok & (test_T >= TMIN)
-                    w = alpha * Tp if blend else ZERO
-                    S[F_A0 + p] += w * f0
-                    S[F_A1 + p] += w * f1
-                    S[F_A2 + p] += w * f2
-                    S[F_A3 + p] += w * f3
-                    S[F_T + p] = test_T if blend else Tp
-                    last[p] = k1 if blend else last[p]
-                    S[F_DONE + p] = ONE if stop else S[F_DONE + p]
-                    nd += np.int32(1) if stop else np.int32(0)  # an integer sum: exact in any order
+                for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
+                    for ln in range(LANES):
+                        q = q0 + ln
+                        p = base + np.uint64(q)
+                        fc = F32(q & (HW - 1))
+                        fr = F32(q >> 3)
+                        fj = fjh + fc
+                        dx = mx - (cxh + fc)
+                        dy = my - (cy0 + fr)
+                        power = -HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        alpha = min(op * exp_neg32(min(power, ZERO)), AMAX)
+                        Tp = S[F_T + p]
+                        test_T = Tp * (ONE - alpha)
+                        ok = ((S[F_DONE + p] == ZERO) & (fj > j_lo) & (fj < j_hi) & (fr > i_lo) & (fr < i_hi)
+                              & (power <= ZERO) & (alpha >= AMIN))
+                        stop = ok & (test_T < TMIN)
+                        blend = ok & (test_T >= TMIN)
+                        w = alpha * Tp if blend else ZERO
+                        S[F_A0 + p] += w * f0
+                        S[F_A1 + p] += w * f1
+                        S[F_A2 + p] += w * f2
+                        S[F_A3 + p] += w * f3
+                        S[F_T + p] = test_T if blend else Tp
+                        last[p] = k1 if blend else last[p]
+                        S[F_DONE + p] = ONE if stop else S[F_DONE + p]
+                        D[ln] += ONE if stop else ZERO  # pixels stopped, per lane (whole numbers: exact)
+            nd = ZERO
+            for ln in range(LANES):
+                nd += D[ln]
             n_done += nd
             if n_done == n_pix:
                 break
