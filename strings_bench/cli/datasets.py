@@ -192,9 +192,12 @@ def _stats(scene_id: str, path, seconds: float) -> dict:
     from strings_bench.datasets.synthetic import read_meta
     from strings_bench.datasets.synthetic.generate import META_FILE, count_text_points
 
+    from strings_bench.datasets.difficulty import recorded_difficulty
+
     scene = Scene.load(path)
     row = {"id": scene_id, "path": str(path), "views": scene.num_views, "points": scene.model.num_points,
-           "seconds": seconds, "text_points": None, "build_seconds": None, "fallback": None}
+           "seconds": seconds, "text_points": None, "build_seconds": None, "fallback": None,
+           "difficulty": recorded_difficulty(scene)}
     if (path / META_FILE).exists():
         meta = read_meta(path)
         row.update(text_points=meta["text_points"], build_seconds=meta["timings_s"]["total"], fallback=meta["fallback"])
@@ -208,8 +211,12 @@ def _format(row: dict) -> str:
     text = "n/a (no masks)" if row["text_points"] is None else str(row["text_points"])
     build = "" if row["build_seconds"] is None else f", built in {row['build_seconds']:.1f} s"
     warn = f"  WARNING: fallback point cloud ({row['fallback']})" if row["fallback"] else ""
+    d = row.get("difficulty")
+    rho = ("\n  rho n/a (no known words and no text masks to measure strokes on)" if d is None or d.rho is None else
+           f"\n  rho {d.rho:.3f} (one 3DGS position step = {100 * d.rho:.1f} % of a text stroke: extent {d.extent:.3g}, "
+           f"median stroke {d.stroke_world:.3g} in world units, {d.stroke_px:.2f} px, {d.words} words)")
     return (f"{row['id']}: {row['path']}\n  views {row['views']}, points {row['points']}, points in text masks {text}, "
-            f"{row['seconds']:.1f} s{build}{warn}")
+            f"{row['seconds']:.1f} s{build}{warn}{rho}")
 
 
 # ---- add / check / download ----------------------------------------------------------------

@@ -1,0 +1,88 @@
+"""rho, the scene's position step in text strokes: the stroke-width measure on drawn strokes of known
+width (anti-aliased, sub-pixel), and the scene figure from known words or text masks against the formula
+rho = 1.6e-4 x extent / (stroke px x depth / fx) worked out by hand."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from PIL import Image, ImageDraw
+
+from strings_bench.datasets.difficulty import mask_regions, scene_difficulty, stroke_width_px
+
+SUPER = 8  # supersampling of the drawn strokes: their edges are anti-aliased as a renderer's are
+
+
+def strokes_image(width_px: float, size=(60, 30)) -> np.ndarray:
+    """Four vertical bars and one horizontal one, `width_px` wide, dark on light, box-filtered from 8x."""
+    W, H = size
+    im = Image.new("L", (W * SUPER, H * SUPER), 230)
+    d = ImageDraw.Draw(im)
+    w = round(width_px * SUPER)
+    for x in (8, 22, 36, 50):
+        d.rectangle([x * SUPER, 5 * SUPER, x * SUPER + w - 1, 25 * SUPER - 1], fill=20)
+    d.rectangle([8 * SUPER, 14 * SUPER, 50 * SUPER, 14 * SUPER + w - 1], fill=20)
+    return np.asarray(im.resize((W, H), Image.BOX), np.float64)
+
+
+BOX = np.array([[2, 2], [58, 2], [58, 28], [2, 28]], float)
+
+
+@pytest.mark.parametrize("width", [1.0, 1.5, 2.0, 3.0, 5.0])
+def test_stroke_width_reads_drawn_strokes(width):
+    assert stroke_width_px(strokes_image(width), BOX) == pytest.approx(width, rel=0.08)
+    # light ink on a dark ground reads the same
+    assert stroke_width_px(250 - strokes_image(width), BOX) == pytest.approx(width, rel=0.08)
+
+
+def test_stroke_width_refuses_what_it_cannot_measure():
+    assert stroke_width_px(np.full((30, 60), 128.0), BOX) is None  # one grey level: no ink
+    assert stroke_width_px(strokes_image(2.0), np.array([[2, 2], [5, 2], [5, 5], [2, 5]], float)) is None  # tiny box
+
+
+def fake_scene(tmp_path: Path, width_px: float, distance: float | None, fx: float = 100.0, extent: float = 3.0,
+               with_mask: bool = False):
+    img = strokes_image(width_px)
+    path = tmp_path / "view.png"
+    Image.fromarray(img.astype(np.uint8)).save(path)
+    word = SimpleNamespace(polygon=BOX, distance=distance)
+    mask = np.zeros(img.shape, np.uint8)
+    mask[3:28, 4:57] = 255
+    return SimpleNamespace(
+        extent=extent, num_views=1, image_path=lambda i: path,
+        model=SimpleNamespace(cameras=[SimpleNamespace(fx=fx)]),
+        known_text=None if with_mask else {"view.png": [word]},
+        known_words=lambda i: None if with_mask else [word],
+        load_mask=lambda i: mask if with_mask else None)
+
+
+def test_rho_from_known_words_follows_the_formula(tmp_path):
+    d = scene_difficulty(fake_scene(tmp_path, 3.0, distance=2.0))
+    assert d.words == 1
+    stroke = d.stroke_px * 2.0 / 100.0  # pixels x depth / fx
+    assert d.stroke_world == pytest.approx(stroke)
+    assert d.rho == pytest.approx(1.6e-4 * 3.0 / stroke)
+    assert d.stroke_px == pytest.approx(3.0, rel=0.08)
+    # the same text twice as far is twice as wide in the world (same pixels): rho halves
+    far = scene_difficulty(fake_scene(tmp_path, 3.0, distance=4.0))
+    assert far.rho == pytest.approx(d.rho / 2)
+
+
+def test_rho_from_text_masks_where_no_word_is_known(tmp_path, monkeypatch):
+    import strings_bench.datasets.difficulty as D
+
+    monkeypatch.setattr(D, "_sfm_depth", lambda scene, view, polygon: 2.0)
+    d = scene_difficulty(fake_scene(tmp_path, 2.0, distance=None, with_mask=True))
+    assert d.words == 1 and d.stroke_px == pytest.approx(2.0, rel=0.1)
+    assert d.rho == pytest.approx(1.6e-4 * 3.0 / (d.stroke_px * 2.0 / 100.0))
+
+
+def test_mask_regions_are_the_components_boxes():
+    m = np.zeros((20, 30), np.uint8)
+    m[2:5, 3:9] = 1
+    m[10:18, 20:25] = 1
+    boxes = sorted(mask_regions(m), key=lambda b: b[0, 0])
+    assert [b.min(0).tolist() + b.max(0).tolist() for b in boxes] == [[3, 2, 8, 4], [20, 10, 24, 17]]
