@@ -1,6 +1,6 @@
 """What the reproducible kernels cost, and what the numba loss saves, measured side by side in one process.
 
-    python benchmarks/loss_and_blend_order.py [--old 142d0ce] [--sizes 62000,337000] [--reps 7]
+    python benchmarks/loss_and_blend_order.py [--old 142d0ce] [--sizes 62000,337000] [--reps 7] [--csv DIR]
 
 1. The float32 blends of this checkout (every sum in a written order: the backward's gradient sums in 16
    fixed lanes, no fastmath) against those of `--old` (their vector sums left to LLVM under fastmath
@@ -12,7 +12,8 @@
    training.
 
 Prints medians of process CPU time per call and the ratio old / new (and torch / numba), as this
-machine is shared and noisy.
+machine is shared and noisy; `--csv DIR` also writes them as DIR/blends.csv and DIR/loss.csv (the tables of
+docs/results/engine-speed.md).
 """
 
 from __future__ import annotations
@@ -143,7 +144,9 @@ def main(argv=None) -> int:
     ap.add_argument("--old", default="142d0ce", help="commit whose float32 blend kernels are the reference arm")
     ap.add_argument("--sizes", default="62000,337000", help="Gaussian counts of the blend inputs")
     ap.add_argument("--reps", type=int, default=7)
+    ap.add_argument("--csv", type=Path, default=None, help="folder to write blends.csv and loss.csv into")
     args = ap.parse_args(argv)
+    blend_rows, loss_rows = [], []
     print(f"numba threads {numba.get_num_threads()}, torch CPU kernels {torch.backends.cpu.get_cpu_capability()}")
     with tempfile.TemporaryDirectory() as tmp:
         old = old_kernels(args.old, Path(tmp))
@@ -154,12 +157,26 @@ def main(argv=None) -> int:
             for part in ("fwd", "bwd"):
                 o, nw = r[("old", part)], r[("new", part)]
                 print(f"| {n} | {r['intersections']} | {part} | {o:.1f} | {nw:.1f} | {o / nw:.2f} |")
+                blend_rows.append([n, r["intersections"], {"fwd": "forward", "bwd": "backward"}[part],
+                                   f"{o:.1f}", f"{nw:.1f}", f"{o / nw:.2f}"])
     print()
     print("| image | torch loss ms (CPU) | numba loss ms (CPU) | torch / numba |")
     print("|---|---|---|---|")
     for H, W in ((240, 320), (480, 640)):
         r = bench_loss(H, W, args.reps)
         print(f"| {W}x{H} | {r['torch']:.1f} | {r['numba']:.1f} | {r['torch'] / r['numba']:.2f} |")
+        loss_rows.append([f"{W}x{H}", f"{r['torch']:.1f}", f"{r['numba']:.1f}", f"{r['torch'] / r['numba']:.2f}"])
+    if args.csv is not None:
+        from strings_bench.core.io import atomic_write_text
+
+        def csv_text(header, rows):
+            return "\n".join(",".join(str(c) for c in row) for row in [header, *rows]) + "\n"
+
+        atomic_write_text(args.csv / "blends.csv", csv_text(
+            ["Gaussians", "tile intersections", "blend", f"{args.old} ms (CPU)", "this version ms (CPU)",
+             f"{args.old} / this"], blend_rows))
+        atomic_write_text(args.csv / "loss.csv", csv_text(
+            ["image", "torch's loss ms (CPU)", "numba loss ms (CPU)", "torch / numba"], loss_rows))
     return 0
 
 

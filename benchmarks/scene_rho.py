@@ -1,0 +1,46 @@
+"""rho (one 3DGS position step in text strokes) of named scenes, as a CSV.
+
+    python benchmarks/scene_rho.py [SCENE ...] [--csv FILE]
+
+SCENE is a dataset id with a scene (default: the three synthetic360-cpu rooms, draw 0), built or located as
+`strings-bench datasets prepare` does. Prints one row per scene (extent, median stroke in world units and
+pixels, words measured, rho; strings_bench/datasets/difficulty.py) and, with `--csv`, writes them (the table
+of docs/results/difficulty.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from strings_bench.core.io import atomic_write_text
+from strings_bench.datasets.difficulty import recorded_difficulty
+from strings_bench.datasets.registry import resolve_scenes
+from strings_bench.scene.scene import Scene
+
+DEFAULT = ["synthetic360-cpu/storeroom", "synthetic360-cpu/pantry", "synthetic360-cpu/office"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenes", nargs="*", default=DEFAULT)
+    ap.add_argument("--csv", type=Path, default=None)
+    args = ap.parse_args(argv)
+    rows = [["scene", "extent", "median stroke (world)", "median stroke (px)", "words", "rho"]]
+    for spec in args.scenes:
+        ref = resolve_scenes([spec])[0]
+        d = recorded_difficulty(Scene.load(ref.path, settings=ref.settings))
+        if d.rho is None:
+            rows.append([spec, f"{d.extent:.3g}", "", "", "0", ""])
+        else:
+            rows.append([spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
+                         f"{d.rho:.3f}"])
+        print(",".join(rows[-1]))
+    if args.csv is not None:
+        atomic_write_text(args.csv, "\n".join(",".join(r) for r in rows) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
