@@ -74,7 +74,8 @@ def test_rho_from_known_words_follows_the_formula(tmp_path):
 def test_rho_from_text_masks_where_no_word_is_known(tmp_path, monkeypatch):
     import strings_bench.datasets.difficulty as D
 
-    monkeypatch.setattr(D, "_sfm_depth", lambda scene, view, polygon: 2.0)
+    monkeypatch.setattr(D, "_sfm_depth", lambda scene, view, polygon, points=None: 2.0)
+    monkeypatch.setattr(D, "_view_points", lambda scene, view: (np.zeros(0, int), np.zeros((0, 2))))
     d = scene_difficulty(fake_scene(tmp_path, 2.0, distance=None, with_mask=True))
     assert d.words == 1 and d.stroke_px == pytest.approx(2.0, rel=0.1)
     assert d.rho == pytest.approx(1.6e-4 * 3.0 / (d.stroke_px * 2.0 / 100.0))
@@ -86,3 +87,25 @@ def test_mask_regions_are_the_components_boxes():
     m[10:18, 20:25] = 1
     boxes = sorted(mask_regions(m), key=lambda b: b[0, 0])
     assert [b.min(0).tolist() + b.max(0).tolist() for b in boxes] == [[3, 2, 8, 4], [20, 10, 24, 17]]
+
+
+def test_sfm_depth_is_the_median_depth_of_the_points_seen_inside(tmp_path):
+    """On a tiny SfM scene (tests/_engine_helpers.py): against the points' depths computed directly."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _engine_helpers import make_tiny_scene
+    import strings_bench.datasets.difficulty as D
+
+    scene = make_tiny_scene(tmp_path / "scene", n_views=3, n_points=80)
+    cam = scene.model.cameras[1]
+    box = np.array([[4, 4], [28, 4], [28, 20], [4, 20]], float)
+    z = []
+    for p in range(scene.model.num_points):
+        lo, hi = scene.model.track_ptr[p], scene.model.track_ptr[p + 1]
+        for k in range(lo, hi):
+            x, y = scene.model.track_xy[k]
+            if scene.model.track_view[k] == 1 and 4 < x < 28 and 4 < y < 20:
+                z.append((np.asarray(cam.R) @ scene.model.xyz[p] + np.asarray(cam.t))[2])
+    assert len(z) > 3
+    assert D._sfm_depth(scene, 1, box) == pytest.approx(float(np.median(z)))

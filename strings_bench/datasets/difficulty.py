@@ -84,26 +84,28 @@ def stroke_width_px(gray: np.ndarray, polygon: np.ndarray) -> float | None:
     return float(coverage.sum() / length)
 
 
-def _sfm_depth(scene, view: int, polygon: np.ndarray) -> float | None:
-    """Median camera-space depth of the SfM points observed in `view` inside `polygon`."""
+def _view_points(scene, view: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices and image positions of the SfM points observed in `view`."""
+    model = scene.model
+    track_view = np.asarray(model.track_view)
+    hits = np.nonzero(track_view == view)[0]
+    point_of = np.searchsorted(np.asarray(model.track_ptr), hits, side="right") - 1
+    return point_of, np.asarray(model.track_xy)[hits]
+
+
+def _sfm_depth(scene, view: int, polygon: np.ndarray, points=None) -> float | None:
+    """Median camera-space depth of the SfM points observed in `view` inside `polygon`; `points` is
+    `_view_points(scene, view)` when the caller has it."""
     from matplotlib.path import Path as PolyPath
 
-    model = scene.model
-    obs = []
-    for p in range(model.num_points):
-        lo, hi = model.track_ptr[p], model.track_ptr[p + 1]
-        hit = np.nonzero(model.track_view[lo:hi] == view)[0]
-        if hit.size:
-            obs.append((p, model.track_xy[lo + hit[0]]))
-    if not obs:
+    idx, xy = points if points is not None else _view_points(scene, view)
+    if idx.size == 0:
         return None
-    idx = np.array([p for p, _ in obs])
-    xy = np.array([q for _, q in obs])
     inside = PolyPath(polygon).contains_points(xy)
     if not inside.any():
         return None
-    cam = model.cameras[view]
-    z = (np.asarray(model.xyz)[idx[inside]] @ np.asarray(cam.R).T + np.asarray(cam.t))[:, 2]
+    cam = scene.model.cameras[view]
+    z = (np.asarray(scene.model.xyz)[idx[inside]] @ np.asarray(cam.R).T + np.asarray(cam.t))[:, 2]
     z = z[z > 0]
     return float(np.median(z)) if z.size else None
 
@@ -145,11 +147,14 @@ def scene_difficulty(scene, words=None, views=None) -> Difficulty:
     for i, items in sorted(words.items()):
         gray = np.asarray(Image.open(scene.image_path(i)).convert("L"), np.float64)
         fx = float(scene.model.cameras[i].fx)
+        points = None
         for polygon, distance in items:
             w = stroke_width_px(gray, polygon)
             if w is None or w <= 0:
                 continue
-            depth = distance if distance is not None else _sfm_depth(scene, i, polygon)
+            if distance is None and points is None:
+                points = _view_points(scene, i)
+            depth = distance if distance is not None else _sfm_depth(scene, i, polygon, points)
             if depth is None:
                 continue
             strokes_px.append(w)
