@@ -59,36 +59,34 @@ def _stats(x, y, g, out):
     R = g.shape[0] // 2
     K = g.shape[0]
     tmp = np.empty((C, 5, H, W), np.float32)
-    # rows: per (channel, row), the five products, then the row filter
-    for job in prange(C * H):
-        ch = job // H
-        r = job - ch * H
+    # rows: per image row, each channel's five products, then the row filter
+    for r in prange(H):
         row = np.empty((5, W), np.float32)
-        for c in range(W):
-            a = x[r, c, ch]
-            b = y[r, c, ch]
-            row[0, c] = a
-            row[1, c] = b
-            row[2, c] = a * a
-            row[3, c] = b * b
-            row[4, c] = a * b
-        for s in range(5):
-            _filter_rows(row[s], tmp[ch, s, r], g, H, W)
-    # columns: per (channel, statistic, row), each tap in order
-    for job in prange(C * 5 * H):
-        ch = job // (5 * H)
-        rest = job - ch * 5 * H
-        s = rest // H
-        r = rest - s * H
-        for c in range(W):
-            out[ch, s, r, c] = 0.0
-        for k in range(K):
-            rr = r + k - R
-            if 0 <= rr < H:
-                gk = g[k]
-                src = tmp[ch, s, rr]
+        for ch in range(C):
+            for c in range(W):
+                a = x[r, c, ch]
+                b = y[r, c, ch]
+                row[0, c] = a
+                row[1, c] = b
+                row[2, c] = a * a
+                row[3, c] = b * b
+                row[4, c] = a * b
+            for s in range(5):
+                _filter_rows(row[s], tmp[ch, s, r], g, H, W)
+    # columns: per image row, each (channel, statistic) row summed over the taps in order
+    for r in prange(H):
+        for ch in range(C):
+            for s in range(5):
+                dst = out[ch, s, r]
                 for c in range(W):
-                    out[ch, s, r, c] += gk * src[c]
+                    dst[c] = 0.0
+                for k in range(K):
+                    rr = r + k - R
+                    if 0 <= rr < H:
+                        gk = g[k]
+                        src = tmp[ch, s, rr]
+                        for c in range(W):
+                            dst[c] += gk * src[c]
 
 
 @njit(parallel=True, cache=True)
