@@ -85,6 +85,30 @@ def tight_box(mx, my, ca, cb, cc, qmin, x0, x1, y0, y1):
     return x0, x1, y0, y1
 
 
+@njit(cache=True, inline="always")
+def tile_rect(t, tiles_x, W, H):
+    """Tile t's first pixel column and row and its width and height inside the W x H image (both precisions'
+    blends; inlined, so the compiled kernels are as if written out)."""
+    ty = t // tiles_x
+    tx = t - ty * tiles_x
+    px0 = tx * TILE
+    py0 = ty * TILE
+    return px0, py0, min(TILE, W - px0), min(TILE, H - py0)
+
+
+@njit(cache=True, inline="always")
+def box_in_tile(BB, i, px0, py0, pw, ph):
+    """Gaussian i's pixel box clipped to the tile: first and last column, first and last row (empty when a
+    first exceeds its last)."""
+    return (max(BB[i, 0], px0), min(BB[i, 1], px0 + pw - 1), max(BB[i, 2], py0), min(BB[i, 3], py0 + ph - 1))
+
+
+@njit(cache=True, inline="always")
+def splat_params(P, i):
+    """Row i of P: mean2d x, y, conic a, b, c, opacity."""
+    return P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4], P[i, 5]
+
+
 @njit(parallel=True, cache=True)
 def pack(order, means2d, conics, opacities, feats, bbox):
     """P (V, N_PARAM) float64 and BB (V, 4) int64 of the Gaussians `order` (front to back): the
@@ -166,12 +190,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
     one past the lst position of the last Gaussian blended into the pixel (0 = none)."""
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        px0 = tx * TILE
-        py0 = ty * TILE
-        pw = min(TILE, W - px0)
-        ph = min(TILE, H - py0)
+        px0, py0, pw, ph = tile_rect(t, tiles_x, W, H)
         T = np.ones(TILE * TILE, np.float64)
         acc = np.zeros((TILE * TILE, NF), np.float64)
         done = np.zeros(TILE * TILE, np.bool_)
@@ -180,16 +199,8 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
         n_pix = pw * ph
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
-            xs = max(BB[i, 0], px0)
-            xe = min(BB[i, 1], px0 + pw - 1)
-            ys = max(BB[i, 2], py0)
-            ye = min(BB[i, 3], py0 + ph - 1)
-            mx = P[i, 0]
-            my = P[i, 1]
-            ca = P[i, 2]
-            cb = P[i, 3]
-            cc = P[i, 4]
-            op = P[i, 5]
+            xs, xe, ys, ye = box_in_tile(BB, i, px0, py0, pw, ph)
+            mx, my, ca, cb, cc, op = splat_params(P, i)
             qmin = P[i, 6 + NF]
             power_min = -0.5 * qmin  # below it alpha < 1/255 for sure: skip the exp
             inv_ca = 1.0 / ca
@@ -237,12 +248,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
     gradient w.r.t. the Gaussian's row of P (summed over the tile's pixels) and the sums of |dL/dmean2d|."""
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        px0 = tx * TILE
-        py0 = ty * TILE
-        pw = min(TILE, W - px0)
-        ph = min(TILE, H - py0)
+        px0, py0, pw, ph = tile_rect(t, tiles_x, W, H)
         T = np.zeros(TILE * TILE, np.float64)
         Tfin = np.zeros(TILE * TILE, np.float64)
         lastk = np.zeros(TILE * TILE, np.int64)
@@ -269,16 +275,8 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         g_feat = np.empty(NF, np.float64)
         for k in range(kmax - 1, tile_start[t] - 1, -1):
             i = lst[k]
-            xs = max(BB[i, 0], px0)
-            xe = min(BB[i, 1], px0 + pw - 1)
-            ys = max(BB[i, 2], py0)
-            ye = min(BB[i, 3], py0 + ph - 1)
-            mx = P[i, 0]
-            my = P[i, 1]
-            ca = P[i, 2]
-            cb = P[i, 3]
-            cc = P[i, 4]
-            op = P[i, 5]
+            xs, xe, ys, ye = box_in_tile(BB, i, px0, py0, pw, ph)
+            mx, my, ca, cb, cc, op = splat_params(P, i)
             for c in range(NF):
                 feat[c] = P[i, 6 + c]
                 g_feat[c] = 0.0

@@ -39,7 +39,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
-                                              TILE, tight_box)
+                                              TILE, box_in_tile, splat_params, tight_box, tile_rect)
 
 F32 = np.float32
 ZERO = F32(0.0)
@@ -155,18 +155,27 @@ LANES = 16
 L1, L2, L3, L4, L5, L6, L7, L8, L9, L10, L11 = (np.uint64(j * LANES) for j in range(1, 12))
 
 
+@njit(cache=True, inline="always")
+def even_rows(ys, ye, py0):
+    """The box's first and last row in the tile, widened by one row (down, else up) to an even count: two
+    rows a 16-lane vector, a whole number of LANES pixels per half."""
+    r0 = ys - py0
+    r1 = ye - py0
+    if (r1 - r0) % 2 == 0:  # odd row count
+        if r1 < TILE - 1:
+            r1 += 1
+        else:
+            r0 -= 1
+    return r0, r1
+
+
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
 def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
     """out_f (H, W, NF) float32, out_T (H, W) float32 final transmittance, out_last (H, W) int32: one
     past the lst position of the last Gaussian blended into the pixel (0 = none)."""
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        px0 = tx * TILE
-        py0 = ty * TILE
-        pw = min(TILE, W - px0)
-        ph = min(TILE, H - py0)
+        px0, py0, pw, ph = tile_rect(t, tiles_x, W, H)
         S = np.zeros(F_ROWS, np.float32)
         last = np.zeros(NPIX, np.int32)
         for q in range(NPIX):
@@ -179,16 +188,8 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
         cx0 = F32(px0) + HALF  # pixel-centre x of the tile's column 0
         for k in range(tile_start[t], tile_start[t + 1]):
             i = lst[k]
-            xs = max(BB[i, 0], px0)
-            xe = min(BB[i, 1], px0 + pw - 1)
-            ys = max(BB[i, 2], py0)
-            ye = min(BB[i, 3], py0 + ph - 1)
-            mx = P[i, 0]
-            my = P[i, 1]
-            ca = P[i, 2]
-            cb = P[i, 3]
-            cc = P[i, 4]
-            op = P[i, 5]
+            xs, xe, ys, ye = box_in_tile(BB, i, px0, py0, pw, ph)
+            mx, my, ca, cb, cc, op = splat_params(P, i)
             f0 = P[i, 6]
             f1 = P[i, 7]
             f2 = P[i, 8]
@@ -199,13 +200,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             # the box's rows in the tile as flat loops over (row, column) of each half it touches, 8
             # lanes a row, an even number of rows (two rows a 16-lane vector; a row outside the box is
             # added and masked when needed); the mask keeps the box's columns and rows
-            r0 = ys - py0
-            r1 = ye - py0
-            if (r1 - r0) % 2 == 0:  # odd row count
-                if r1 < TILE - 1:
-                    r1 += 1
-                else:
-                    r0 -= 1
+            r0, r1 = even_rows(ys, ye, py0)
             j_lo = F32(xs - px0) - HALF
             j_hi = F32(xe - px0) + HALF
             i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
@@ -269,12 +264,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
     clamp passed through), in float32 with masks."""
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        px0 = tx * TILE
-        py0 = ty * TILE
-        pw = min(TILE, W - px0)
-        ph = min(TILE, H - py0)
+        px0, py0, pw, ph = tile_rect(t, tiles_x, W, H)
         S = np.zeros(B_ROWS, np.float32)
         A = np.zeros(N_GRAD * LANES, np.float32)  # the per-Gaussian partial sums (row j: lanes of sum j)
         lastk = np.zeros(NPIX, np.int32)
@@ -296,16 +286,8 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         cx0 = F32(px0) + HALF
         for k in range(kmax - 1, tile_start[t] - 1, -1):
             i = lst[k]
-            xs = max(BB[i, 0], px0)
-            xe = min(BB[i, 1], px0 + pw - 1)
-            ys = max(BB[i, 2], py0)
-            ye = min(BB[i, 3], py0 + ph - 1)
-            mx = P[i, 0]
-            my = P[i, 1]
-            ca = P[i, 2]
-            cb = P[i, 3]
-            cc = P[i, 4]
-            op = P[i, 5]
+            xs, xe, ys, ye = box_in_tile(BB, i, px0, py0, pw, ph)
+            mx, my, ca, cb, cc, op = splat_params(P, i)
             f0 = P[i, 6]
             f1 = P[i, 7]
             f2 = P[i, 8]
@@ -314,13 +296,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
             for j in range(N_GRAD * LANES):
                 A[j] = ZERO
             if xs <= xe and ys <= ye:
-                r0 = ys - py0
-                r1 = ye - py0
-                if (r1 - r0) % 2 == 0:
-                    if r1 < TILE - 1:
-                        r1 += 1
-                    else:
-                        r0 -= 1
+                r0, r1 = even_rows(ys, ye, py0)
                 j_lo = F32(xs - px0) - HALF
                 j_hi = F32(xe - px0) + HALF
                 i_lo = F32(ys - py0 - r0) - HALF
