@@ -1,9 +1,10 @@
 """rho (one 3DGS position step in text strokes) of named scenes, as a CSV.
 
-    python benchmarks/scene_rho.py [SCENE ...] [--csv FILE]
+    python benchmarks/scene_rho.py [[LABEL=]SCENE ...] [--csv FILE]
 
 SCENE is a dataset id with a scene (default: the three synthetic360-cpu rooms, draw 0), built or located as
-`strings-bench datasets prepare` does. Prints one row per scene (extent, median stroke in world units and
+`strings-bench datasets prepare` does, or a scene folder (e.g. a room built with other difficulty settings,
+named by LABEL in the table). Prints one row per scene (extent, median stroke in world units and
 pixels, words measured, rho; strings_bench/datasets/difficulty.py) and, with `--csv`, writes them (the table
 of docs/results/difficulty.md).
 """
@@ -28,13 +29,15 @@ def main(argv=None) -> int:
     ap.add_argument("--csv", type=Path, default=None)
     args = ap.parse_args(argv)
     rows = [["scene", "extent", "median stroke (world)", "median stroke (px)", "words", "rho"]]
-    for spec in args.scenes:
+    for arg in args.scenes:
+        label, _, spec = arg.rpartition("=")
+        spec = spec or arg
         ref = resolve_scenes([spec])[0]
         d = recorded_difficulty(Scene.load(ref.path, settings=ref.settings))
         if d.rho is None:
-            rows.append([spec, f"{d.extent:.3g}", "", "", "0", ""])
+            rows.append([label or spec, f"{d.extent:.3g}", "", "", "0", ""])
         else:
-            rows.append([spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
+            rows.append([label or spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
                          f"{d.rho:.3f}"])
         print(",".join(rows[-1]))
     if args.csv is not None:
