@@ -1,5 +1,5 @@
 """Training speed on the CPU: this suite's engine against OpenSplat, at 3 000, 40 000 and 300 000
-Gaussians, on the same scene, cameras, images and step count (issue 28).
+Gaussians, on the same scene, cameras, images and step count.
 
     python benchmarks/opensplat_compare.py --opensplat /path/to/opensplat [--sizes 3000,40000,300000]
                                            [--steps 60,30,12] [--short 3] [--reps 2] [--json]

@@ -1,4 +1,4 @@
-"""What an OCR engine reads on a real scene's GT test views (issue 31: saharov32 with Tesseract rus).
+"""What an OCR engine reads on a real scene's GT test views (e.g. saharov32 with Tesseract rus).
 
 For each downscale and engine: the test views read through the evaluation text mask as the runner reads
 them (and, for comparison, the whole image): words and characters read per view, and the texts. A scene

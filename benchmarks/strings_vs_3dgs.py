@@ -1,4 +1,4 @@
-"""STRinGS vs vanilla 3DGS on the five synthetic scenes (evidence for issue 5).
+"""STRinGS vs vanilla 3DGS on the five synthetic scenes.
 
 Runs `strings` and `3dgs` through the suite's runner (training, renders, OCR, CER, PSNR) and prints,
 per scene and checkpoint: known-text CER (OCR of the render scored against the known words),

@@ -1,4 +1,4 @@
-"""Readability analysis of a run (issue 30): CER by text size, time to legibility, and the speed/accuracy front.
+"""Readability analysis of a run: CER by text size, time to legibility, and the speed/accuracy front.
 
 The paper argues three things its tables do not measure: that STRinGS reconstructs *small* text better (its
 Appendix D.2), that text becomes readable *early* (its text-evolution figure), and that it is best in both
@@ -17,7 +17,7 @@ efficiency and accuracy (its teaser scatter). Each becomes a measured table here
 - **Speed/accuracy front** (`pareto_front`): at each checkpoint, the methods that no other method beats on both
   mean training time and mean CER (lower is better on both; a method equal on both to another is on the front
   with it).
-- **Size/accuracy front** (issue 42; `fronts(..., x="gaussians")`): the same with the mean Gaussian count at the
+- **Size/accuracy front** (`fronts(..., x="gaussians")`): the same with the mean Gaussian count at the
   checkpoint in place of the training time: which methods read best for their model size (the question of an
   equal-budget run, `run --budget`).
 """
@@ -310,7 +310,7 @@ class Analysis:
     by_size: pd.DataFrame  # cer_by_size at `label`
     spread: pd.DataFrame
     label: str | None
-    size_fronts: list[dict] = dataclasses.field(default_factory=list)  # CER against the Gaussian count (issue 42)
+    size_fronts: list[dict] = dataclasses.field(default_factory=list)  # CER against the Gaussian count
 
 
 def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Analysis:
