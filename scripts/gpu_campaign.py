@@ -12,7 +12,7 @@ Stages (in order of value; `list` prints them):
   cal30k         3DGS to 30K on the banked 7K point closest to the paper's 3DGS OCR-CER (0.736);
   strings-frozen STRinGS to 7K and 30K on that setting.
 
-Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/measurements/gpu/): one row
+Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
 versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
 whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
@@ -346,7 +346,7 @@ def main(argv=None) -> int:
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
     ap.add_argument("--runs", type=Path, default=None,
                     help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
-                         "docs/measurements/gpu)")
+                         "docs/results/data/gpu)")
     args = ap.parse_args(argv)
     if args.stage == "list":
         print("\n".join(STAGES))

@@ -139,11 +139,11 @@ def test_a_later_round_skips_the_steps_already_banked(tmp_path):
 
 
 def test_the_next_real_round_skips_what_the_first_one_banked():
-    """On the CSVs committed in docs/measurements/gpu (the first round, an H200, cut by its step limits):
+    """On the CSVs committed in docs/results/data/gpu (the first round, an H200, cut by its step limits):
     STRinGS' 7K run on books and the 320x240 benchmark are banked; 3DGS' run, the 1280x960 benchmark and
     pytest -m gpu (cut) are not."""
     mod = _module()
-    out = ROOT / "docs" / "measurements" / "gpu"
+    out = ROOT / "docs" / "results" / "data" / "gpu"
     assert mod.banked_run(out, "verify", "paper_run*", ["strings"], "7K", False)
     assert mod.banked_run(out, "verify", "paper_run*", ["3dgs"], "7K", False) is None
     both = {(m, d) for m in ("3dgs", "strings") for d in ("cuda", "cpu")}
