@@ -1,4 +1,4 @@
-"""OCR character error rate (OCR-CER) as the STRinGS authors compute it (docs/ocr.md, "The authors' OCR-CER").
+"""OCR character error rate (OCR-CER) as the STRinGS authors compute it (docs/sources.md, section 3).
 
 Size (~540 lines): the authors' CER rules and every named profile in one file, so that the exact `paper` profile reads against each deviation from it.
 
