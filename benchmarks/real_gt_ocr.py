@@ -2,7 +2,7 @@
 
 For each downscale and engine: the test views read through the evaluation text mask as the runner reads
 them (and, for comparison, the whole image): words and characters read per view, and the texts. A scene
-whose GT reads few characters cannot rank methods by OCR-CER (docs/datasets.md, "saharov32").
+whose GT reads few characters cannot rank methods by OCR-CER (docs/guide/datasets.md, "saharov32").
 
     python benchmarks/real_gt_ocr.py SCENE --ocr tesseract:lang=rus --ocr tesseract:lang=rus:upscale=3:mask_fill=128 \\
         --downscale 1,2,4

@@ -22,7 +22,7 @@ Gaussian count, then the mean over the scenes next to the paper's figures (withi
         --methods strings,3dgs,strings-no-densify,strings-pos-lr,absgs,mip-splatting,mcmc,edc-absgs
 
 Draws: `--draws 0,1,2` trains every room of `--scenes` at each generator seed (scene draws
-ROOM@N, docs/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
+ROOM@N, docs/guide/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
 A grid axis `seed=0,1,2` is read the same way: its points are draws of one setting in the tables.
 
     # 3DGS on the three rooms of synthetic360-cpu at draws 0, 1, 2, schedule x0.1, checkpoints 3K and 7K
@@ -235,7 +235,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     ap.add_argument("--budget", default=None, metavar="N|METHOD",
                     help="cap every method at N Gaussians, or at the count METHOD (e.g. 3dgs, trained first, uncapped) "
                          "reaches on the same scene at the last checkpoint; a budget needs its own --out folder "
-                         "(docs/running.md, \"Equal Gaussian budget\")")
+                         "(docs/guide/running.md, \"Equal Gaussian budget\")")
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
     ap.add_argument("--target", choices=sorted(TARGET_NAMES), default=None,
                     help="the metric whose mean is held against the paper's 3DGS figures (paper: cer, cpu: cer_known)")

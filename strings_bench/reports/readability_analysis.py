@@ -45,7 +45,7 @@ from strings_bench.reports.table_model import (GT_CEILING, RANK_NOTE, REGISTERED
 HEIGHT_BINS: tuple[tuple[str, float, float], ...] = (
     ("<6", 0.0, 6.0), ("6-9", 6.0, 9.0), ("9-13", 9.0, 13.0), ("13-20", 13.0, 20.0), (">=20", 20.0, math.inf))
 MIN_BIN_WORDS = 10  # a bin with fewer reference words is greyed and never ranked
-# Time to legibility: when a CER first falls below each. 0.5 and 0.2 are the (half the characters, and
+# Time to legibility: when a CER first falls below each. 0.5 and 0.2 are the design's (half the characters, and
 # most words, read); 0.8 is added because CPU schedules rarely get below 0.5 (docs/readability.md).
 THRESHOLDS = (0.8, 0.5, 0.2)
 LEGIBILITY_METRICS = {"word_cer": "word CER", "cer": "OCR-CER"}
