@@ -1,4 +1,4 @@
-"""The GPU verification in rounds of at most ~8 minutes each (docs/guide/gpu.md, "Verifying a GPU machine").
+"""The GPU verification in rounds of at most ~8 minutes each (docs/guide/gpu.md, "Verifying a GPU machine in stages").
 
     bash scripts/gpu_campaign.sh [--dry-run] [--force] [--budget S] OUT_DIR STAGE
 

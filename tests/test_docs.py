@@ -143,7 +143,7 @@ def test_results_tables_are_all_generated():
     for page in [ROOT / "README.md", *RESULTS]:
         text = BLOCK_RE.sub("", page.read_text(encoding="utf-8"))
         text = re.sub(r"```.*?```", "", text, flags=re.S)
-        for table in re.findall(r"^\|.*\|\s*\n\|\s*:?-{2,}.*?(?:\n(?!\|)|\Z)", text, re.M | re.S):
+        for table in re.findall(r"^ *\|.*\|\s*\n *\|\s*:?-{2,}.*?(?:\n(?! *\|)|\Z)", text, re.M | re.S):
             if re.search(r"\d\.\d", table):  # figures, not a table of links
                 loose.append(str(page.relative_to(ROOT)))
     assert not loose, f"hand-written tables in {loose}"

@@ -1,4 +1,4 @@
-"""Run a benchmark's jobs as Ray tasks: `strings-bench run --executor ray` (docs/guide/running.md, "Ray").
+"""Run a benchmark's jobs as Ray tasks: `strings-bench run --executor ray` (docs/guide/cluster.md, "Ray").
 
 One job, a (method, scene) with all its checkpoints, is one Ray task. The run folder is the single
 source of truth: workers write cells into it (atomically, as a local run does) and the driver

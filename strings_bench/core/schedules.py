@@ -14,7 +14,7 @@ steps. Measured on 2 CPU cores (synthetic scenes, 320x240; see README and docs/e
   captures, in about 10 minutes (README, "What the default run shows");
 - early (0.15: 450/1 050 steps for 3K/7K, synthetic/extinguisher), the default before: the paper's
   "readable early" checkpoints on an easy object-centred scene where 3DGS reads early
-  (docs/ocr.md, "The default run");
+  (docs/results/default-run.md, "The default run");
 - quick (0.01: 70/300 steps for 7K/30K) runs all five synthetic scenes, two methods, in about 10
   minutes, but text stays illegible (every CER ~1.0): the pipeline end to end, not a comparison;
 - standard (0.05: 350/1500 steps) gives visibly sharper text, at several minutes per method and scene;

@@ -54,7 +54,7 @@ There are three kinds of implementation.
    `external` methods; docs/guide/running.md).
 
 In every case the runner does the metrics, OCR, CER and files. Check a new method with
-`strings-bench methods check NAME` (docs/guide/running.md, "Checking a method").
+`strings-bench methods check NAME` (docs/guide/methods.md, "Checking a method").
 """
 
 from strings_bench.core.method import CheckpointResult, MethodAdapter
