@@ -205,3 +205,21 @@ def test_doc_paths_named_in_code_and_docs_exist():
             if not (ROOT / name).exists():
                 missing.add(f"{path.relative_to(ROOT)}: {name}")
     assert not missing, sorted(missing)
+
+
+def test_paper_figures_in_sources_match_the_method_specs():
+    """docs/sources.md's table of the paper's headline figures (generated from its CSV) and the figures the reports
+    print beside the measured ones (each method spec's `paper_figures`) are the same numbers."""
+    import csv
+
+    from strings_bench.methods.registry import list_methods
+
+    rows = {r["method"]: r for r in csv.DictReader((DOCS / "results" / "data" / "paper" / "headline.csv").open())}
+    specs = {s.title or s.name: s.paper_figures for s in list_methods() if s.paper_figures and not s.ablation_of}
+    assert set(rows) == set(specs)
+    columns = {"CER TandT 7K/30K": "tandt_cer", "CER DL3DV 7K/30K": "dl3dv_cer",
+               "CER STRinGS-360 7K/30K": "strings360_cer", "minutes 7K/30K (STRinGS-360)": "strings360_minutes"}
+    for title, figures in specs.items():
+        for column, field in columns.items():
+            at7, at30 = (float(v) for v in rows[title][column].split("/"))
+            assert (at7, at30) == (getattr(figures, f"{field}_7k"), getattr(figures, f"{field}_30k")), (title, column)
