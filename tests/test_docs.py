@@ -22,7 +22,7 @@ DOCS = ROOT / "docs"
 GUIDE = sorted((DOCS / "guide").glob("*.md"))
 DESIGN = sorted(p for p in DOCS.glob("*.md") if p.name != "README.md")
 RESULTS = sorted((DOCS / "results").glob("*.md"))
-RESULTS_DATA_NOTES = sorted((DOCS / "results" / "data").rglob("*.md"))
+RESULTS_DATA_NOTES = sorted(p for p in (DOCS / "results" / "data").rglob("*") if p.suffix in (".md", ".csv"))
 USER_PAGES = [ROOT / "README.md", DOCS / "README.md", *GUIDE, *DESIGN]
 
 # Words of how the project is worked on, which a user has no context for. Results pages and the CHANGELOG may
