@@ -3,6 +3,8 @@
 Adding a method
 ===============
 
+A worked example, step by step: docs/guide/adding-a-method.md, whose code is examples/opacity-splat/.
+
 A method is one keyword `MethodSpec` (`registry.py`): its name (the one place it is written: a built method
 gets it), a lazy `"module:Class"` implementation (imported only when the method is built or shown), a
 description, the paper, a title and group for the tables, `defaults`, `presets` (named variants of its settings:
