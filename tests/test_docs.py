@@ -155,7 +155,7 @@ def test_refresh_check_catches_a_table_that_differs_from_its_data(tmp_path):
     (root / "docs" / "data").mkdir(parents=True)
     (root / "docs" / "data" / "t.csv").write_text("method,label,cer_known\n3dgs,30K,0.54\nstrings,30K,0.23\n")
     page = root / "docs" / "p.md"
-    page.write_text("x\n<!-- table: data/t.csv kind=results bold=1 columns=method,label,cer_known -->\n<!-- end table -->\n")
+    page.write_text("x\n<!-- table (strings-bench docs refresh): data/t.csv kind=results bold=1 columns=method,label,cer_known -->\n<!-- end table -->\n")
     assert refresh_page(page) is True  # filled from the data
     text = page.read_text()
     assert "| strings | 30K | **0.230** |" in text and "| 3dgs | 30K | 0.540 |" in text
@@ -171,7 +171,7 @@ def test_compare_tables_show_mean_and_range(tmp_path):
     data.write_text("method,label,value,mean,min,max,seeds\n"
                     "3dgs,30K,cer_known,0.2,0.19,0.21,3\nstrings,30K,cer_known,0.15,0.14,0.18,3\n")
     page = tmp_path / "p.md"
-    out = refresh_text("<!-- table: c.csv kind=compare values=cer_known labels=30K -->\n<!-- end table -->", page)
+    out = refresh_text("<!-- table (strings-bench docs refresh): c.csv kind=compare values=cer_known labels=30K -->\n<!-- end table -->", page)
     assert "| strings | 3 | 0.150 (0.140-0.180) |" in out
 
 
@@ -224,3 +224,19 @@ def test_paper_figures_in_sources_match_the_method_specs():
         for column, field in columns.items():
             at7, at30 = (float(v) for v in rows[title][column].split("/"))
             assert (at7, at30) == (getattr(figures, f"{field}_7k"), getattr(figures, f"{field}_30k")), (title, column)
+
+
+def test_pages_have_generated_blocks():
+    """The block finder finds the README's table and every results page's (a broken marker would hide them all)."""
+    from strings_bench.reports.doc_tables import blocks
+
+    for page in [ROOT / "README.md", DOCS / "results" / "default-run.md"]:
+        assert blocks(page.read_text(encoding="utf-8")), page
+
+
+def test_a_marker_without_its_end_is_an_error(tmp_path):
+    from strings_bench.core.errors import StringsBenchError
+
+    (tmp_path / "t.csv").write_text("a,b\n1,2\n")
+    with pytest.raises(StringsBenchError, match="table markers"):
+        refresh_text("<!-- table (strings-bench docs refresh): t.csv -->\n| a | b |\n", tmp_path / "p.md")

@@ -2,8 +2,8 @@
 
 Two kinds of generated text, both in a source checkout:
 
-- every table block of README.md and docs/**/*.md (`<!-- table: DATA ... -->` ... `<!-- end table -->`), from the
-  CSV it names (strings_bench.reports.doc_tables);
+- every table block of README.md and docs/**/*.md (`<!-- table (strings-bench docs refresh): DATA ... -->` ...
+  `<!-- end table -->`), from the CSV it names (strings_bench.reports.doc_tables);
 - the command-line reference, docs/guide/cli.md, from the argument parsers themselves (`cli_reference`).
 
 `--check` writes nothing and exits with status 1, naming the files, when one differs from its sources.

@@ -3,7 +3,7 @@ beside it, so that a table cannot drift from its data.
 
 A generated block in a page is an HTML comment naming its data, the table, and a closing comment:
 
-    <!-- table: data/default-run.csv kind=results columns=method,label,cer,cer_known -->
+    <!-- table (strings-bench docs refresh): data/default-run.csv kind=results columns=method,label,cer,cer_known -->
     | method | ckpt | OCR-CER | known-text CER |
     |---|---|---|---|
     ...
@@ -36,7 +36,9 @@ from pathlib import Path
 
 from strings_bench.core.errors import StringsBenchError
 
-BLOCK_RE = re.compile(r"(?P<open><!-- table: (?P<spec>[^>]*?) -->\n)(?P<body>.*?)(?P<close><!-- end table -->)", re.S)
+OPEN = "<!-- table (strings-bench docs refresh): "
+CLOSE = "<!-- end table -->"
+BLOCK_RE = re.compile(rf"(?P<open>{re.escape(OPEN)}(?P<spec>[^>]*?) -->\n)(?P<body>.*?)(?P<close>{re.escape(CLOSE)})", re.S)
 
 # results.csv columns: heading, number format, and which way is better ("min", "max" or None).
 RESULT_COLUMNS: dict[str, tuple[str, str, str | None]] = {
@@ -80,7 +82,7 @@ def parse_spec(spec: str) -> tuple[str, dict[str, list[str]]]:
     """`"data/x.csv kind=results columns=a,b"` -> ("data/x.csv", {"kind": ["results"], "columns": ["a,b"]})."""
     words = spec.split()
     if not words:
-        raise StringsBenchError("a table block names no data file", hint="<!-- table: data/FILE.csv [kind=...] -->")
+        raise StringsBenchError("a table block names no data file", hint="<!-- table (strings-bench docs refresh): data/FILE.csv [kind=...] -->")
     options: dict[str, list[str]] = {}
     for word in words[1:]:
         key, eq, value = word.partition("=")
@@ -232,8 +234,12 @@ def blocks(text: str) -> list[Block]:
 
 def refresh_text(text: str, page: Path) -> str:
     """`text` (the content of `page`) with every generated block rewritten from its data."""
+    found = blocks(text)
+    if text.count(OPEN) != len(found):
+        raise StringsBenchError(f"{page}: {text.count(OPEN)} table markers but {len(found)} whole blocks",
+                                hint=f"every '{OPEN}...-->' line needs a '{CLOSE}' after its table")
     out, pos = [], 0
-    for b in blocks(text):
+    for b in found:
         out += [text[pos:b.start], render_block(b.spec, page)]
         pos = b.end
     out.append(text[pos:])
