@@ -60,7 +60,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS),
                    help="where jobs run: local (default; one after another in this process) or ray (each method x scene "
-                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/guide/running.md)")
+                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/guide/cluster.md)")
     p.add_argument("--ray-address", default=None, metavar="ADDRESS",
                    help="with --executor ray: the Ray cluster to join (e.g. auto, HEAD_IP:6379, ray://HEAD_IP:10001); "
                         "default: RAY_ADDRESS, else a local Ray is started")
