@@ -1,9 +1,9 @@
 """The float32 blend kernels (backend "cpu") against the float64 ones ("cpu-f64") on blend inputs
-captured from real training steps: agreement and speed of each blend (issue 37).
+captured from real training steps: agreement and speed of each blend.
 
     python benchmarks/blend_precision.py [--at 450,1050] [--big-at 450] [--views 3] [--reps 5] [--json]
 
-The captured steps are those of issue 28 (docs/engine.md): the default run's 3DGS of issue 28
+The captured steps are those of docs/engine.md's profile: the former default run's 3DGS
 (schedule `early`, synthetic/extinguisher) restored from engine_profile's cached states after 450
 and 1 050 steps at 320x240, and the 450-step state at 640x480 (`downscale=0.5`); for each, `--views`
 consecutive training steps are run and the inputs of `RasterizeTiles` (means2d, conics, opacities,
@@ -14,7 +14,7 @@ Per captured step, both precisions run the forward and the backward blend on the
 output gradients:
 - agreement: colour and alpha max absolute difference (values on [0, 1]); relative norm-wise error
   ||f32 - f64|| / ||f64|| of the depth feature and of every gradient (means2d, conics, opacities,
-  features) and of absgrad — issue 37's tolerances are 1e-4 and 1e-3;
+  features) and of absgrad — the tolerances are 1e-4 and 1e-3;
 - speed: the blend kernels alone (`forward`, and `backward` + the per-Gaussian reduction), process
   CPU time (all threads) and wall time, arms alternating f64 / f32 / f32 / f64 ..., medians over
   `--reps`; the ratios f64 / f32 are printed (the machine is shared: ratios, not absolute times).

@@ -1,8 +1,8 @@
-"""3DGS training speed of an older commit against this checkout, interleaved in one run (issue 28).
+"""3DGS training speed of an older commit against this checkout, interleaved in one run.
 
     python benchmarks/engine_ab.py --old COMMIT [--at 0,450,1050] [--steps 12,8,5] [--reps 2] [--json]
 
-The 3DGS of the default run of issue 28 (schedule `early`, synthetic/extinguisher, 320x240) is sampled at the sizes it
+The 3DGS of the former default run (schedule `early`, synthetic/extinguisher, 320x240) is sampled at the sizes it
 passes through: its initial model (step 0) and the trained states of benchmarks/engine_profile.py
 (cached; after steps 450 and 1 050, about 40 000 and 300 000 Gaussians). From each, both code
 versions run the same training steps (`train_step` + `refine`, each under its own Trainer's CPU
@@ -11,7 +11,7 @@ from its own tree. Arms alternate within every repetition (old first in even rep
 
 Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
 and process CPU time of all threads, which a loaded machine disturbs less), and whether both arms
-ended with bit-identical parameters (not expected across issue 37: the float32 blends follow another
+ended with bit-identical parameters (not expected across the float32 blend change: the float32 blends follow another
 trajectory; `--new-backend cpu-f64` runs the new arm on the float64 kernels, whose parameters should
 then be identical to the old commit's). Then an estimate of the whole training of
 the default run: the per-step time of each arm interpolated linearly in the Gaussian count between

@@ -1,15 +1,15 @@
 """Where a 3DGS training step's milliseconds go at the default run's sizes, stage by stage, each beside
-a lower bound measured in the same run (issue 28).
+a lower bound measured in the same run.
 
     python benchmarks/engine_profile.py [--scene synthetic/extinguisher] [--schedule early]
                                         [--at 450,1050] [--steps 8] [--big-at 450] [--json]
 
-Models: the 3DGS of the default run of issue 28 (schedule `early`, synthetic/extinguisher, 320x240) trained with the
+Models: the 3DGS of the former default run (schedule `early`, synthetic/extinguisher, 320x240) trained with the
 suite's own loop to the 3K and 7K checkpoints (steps 450 and 1 050 by default; about 40 000 and
 300 000 Gaussians), then one more case: the 3K model trained at 640x480 (the scene's images upsampled
 x2 and its cameras resized, `downscale=0.5`). The trained states are cached under
 `--state-dir` (default `cache_root()/engine_profile`; training to 1 050 steps takes minutes); results
-are bit-identical before and after the engine work of issue 28, so one cache serves both.
+are bit-identical before and after the engine's speed work, so one cache serves both.
 
 At each size the benchmark runs `--steps` ordinary training steps (`train_step` + `refine`, as the
 Trainer does) and splits each step's wall time into the stages, by timing the functions that do them:
@@ -30,7 +30,7 @@ Lower bounds, measured in this run on this machine:
 - copy bandwidth: a parallel numba copy of 256 MiB with the kernels' thread count, counted as bytes
   read + written per second;
 - peak arithmetic: float32 matrix products (torch.mm 2048^2) at the same thread count, for SSIM;
-- float32 vector peak (issue 37), for the two blends: a numba kernel of independent float32
+- float32 vector peak, for the two blends: a numba kernel of independent float32
   multiply-add chains over arrays that LLVM vectorises (`vector_peak`), at the kernels' thread count:
   what vectorised float32 code on this CPU can reach, without a matmul's cache blocking.
 Each stage's bound is max(bytes it must move / bandwidth, flops it must do / peak), with bytes

@@ -1,5 +1,5 @@
 """Training speed, peak memory and the evaluation share of wall time, for every trainable method, on the
-device under test next to the CPU backend on the same machine (docs/gpu.md).
+device under test next to the CPU backend on the same machine (docs/guide/gpu.md).
 
     python benchmarks/gpu.py                      # CUDA: 320x240 and 1280x960, 200 steps (CPU rows: 20 steps)
     python benchmarks/gpu.py --methods 3dgs,strings --steps 500

@@ -123,7 +123,7 @@ def run_bare(scene, steps: int, steps_scale: float) -> dict:
 
 def raster_reference_step(iters: int) -> float:
     """benchmarks/raster.py's full step at 320x240x5000 (random Gaussians, SH degree 3), median ms:
-    the figure the issue compared the trainer with."""
+    the figure the trainer was compared with."""
     from raster import run_one  # benchmarks/raster.py: this script's own folder is on the path when it runs
 
     return run_one(320, 240, 5000, iters, "cpu", reference=False)["step_ms"]

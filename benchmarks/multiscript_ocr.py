@@ -1,4 +1,4 @@
-"""OCR of the multilingual synthetic scenes' GT test views (issue 31): known-text CER per script.
+"""OCR of the multilingual synthetic scenes' GT test views: known-text CER per script.
 
 For each `synthetic-multi` scene (built on first use): its test views (every 8th), each read through its
 dilated text mask as the runner reads them, by Tesseract with the scene's language and, where its

@@ -1,4 +1,4 @@
-"""OCR of a cell's views one at a time against eval.ocr.read_many's thread pool (issue 13, item 5).
+"""OCR of a cell's views one at a time against eval.ocr.read_many's thread pool.
 
 Reads what the runner's Evaluator reads for one cell of a synthetic scene, the GT test views and the
 renders (here the GT views blurred with sigma 1 px), each with its dilated text mask, by RapidOCR

@@ -1,10 +1,10 @@
 """Training speed on the CPU: this suite's engine against OpenSplat, at 3 000, 40 000 and 300 000
-Gaussians, on the same scene, cameras, images and step count (issue 28).
+Gaussians, on the same scene, cameras, images and step count.
 
     python benchmarks/opensplat_compare.py --opensplat /path/to/opensplat [--sizes 3000,40000,300000]
                                            [--steps 60,30,12] [--short 3] [--reps 2] [--json]
 
-OpenSplat is not part of this project: build it yourself (docs/engine.md, "Against OpenSplat", gives
+OpenSplat is not part of this project: build it yourself (docs/results/engine-speed.md, "Against OpenSplat", gives
 the commands) and pass the binary. Without `--opensplat` the script says so and stops.
 
 For each size a COLMAP project is written under `--work-dir` (default

@@ -1,4 +1,4 @@
-"""Do the readability metrics tell `strings` and `3dgs` apart beyond seed-to-seed spread? (issue 14)
+"""Do the readability metrics tell `strings` and `3dgs` apart beyond seed-to-seed spread?
 
 Runs the methods through the suite's runner on the given schedule and scenes once per seed (seeds 0, 1, 2
 by default; `--set seed=N` for every method), one run folder per seed (resumable), then prints, per

@@ -1,4 +1,4 @@
-"""Do the word-crop readability metrics rank cells as the paper's CER does? (issue 14, item 5)
+"""Do the word-crop readability metrics rank cells as the paper's CER does?
 
 Trains the methods on the scenes through the suite's runner with a schedule long enough for OCR to
 read (default: x0.2 of the paper's schedule, 7K = 1 400 steps, evaluated at five checkpoints), then

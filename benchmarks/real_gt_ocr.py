@@ -1,8 +1,8 @@
-"""What an OCR engine reads on a real scene's GT test views (issue 31: saharov32 with Tesseract rus).
+"""What an OCR engine reads on a real scene's GT test views (e.g. saharov32 with Tesseract rus).
 
 For each downscale and engine: the test views read through the evaluation text mask as the runner reads
 them (and, for comparison, the whole image): words and characters read per view, and the texts. A scene
-whose GT reads few characters cannot rank methods by OCR-CER (docs/datasets.md, "saharov32").
+whose GT reads few characters cannot rank methods by OCR-CER (docs/guide/datasets.md, "saharov32").
 
     python benchmarks/real_gt_ocr.py SCENE --ocr tesseract:lang=rus --ocr tesseract:lang=rus:upscale=3:mask_fill=128 \\
         --downscale 1,2,4

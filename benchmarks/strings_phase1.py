@@ -1,4 +1,4 @@
-"""Where STRinGS' text stands at the end of phase 1, against 3DGS at the same step (issue 5 diagnostics).
+"""Where STRinGS' text stands at the end of phase 1, against 3DGS at the same step (diagnostics).
 
 On one synthetic scene (whose ray-traced geometry is known) and one schedule scale, prints:
 

@@ -1,4 +1,4 @@
-"""The paper's phase-1 mechanism, measured: does "drift away from text" happen without the lock? (issue 39)
+"""The paper's phase-1 mechanism, measured: does "drift away from text" happen without the lock?
 
 On a synthetic scene, whose surfaces are known exactly, trains STRinGS' phase 1 (T1 = 3000 x scale
 steps) with the position lock (`strings`) and without it (`strings-pos-lr`), and every `--every`
@@ -16,7 +16,7 @@ steps measures, over the text Gaussians:
     python benchmarks/strings_phase1_drift.py --set init_scales_from=text --set prune_outside_masks=false
     python benchmarks/strings_phase1_drift.py --csv out.csv                       # every sample as a row
 
-`--set KEY=VALUE` is given to both runs (e.g. the phase 1 before issue 39). Runs start from the same
+`--set KEY=VALUE` is given to both runs (e.g. an older phase 1's settings). Runs start from the same
 seed; the CSV has one row per run and sampled step.
 """
 

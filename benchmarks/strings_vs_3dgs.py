@@ -1,9 +1,9 @@
-"""STRinGS vs vanilla 3DGS on the five synthetic scenes (evidence for issue 5).
+"""STRinGS vs vanilla 3DGS on the five synthetic scenes.
 
 Runs `strings` and `3dgs` through the suite's runner (training, renders, OCR, CER, PSNR) and prints,
 per scene and checkpoint: known-text CER (OCR of the render scored against the known words),
 the paper-protocol CER (OCR of the render vs OCR of the ground-truth view, both masked), PSNR,
-training time (optimisation, and total = preprocessing + optimisation) and the Gaussian count; then the check the issue asks for: at the 7K checkpoint,
+training time (optimisation, and total = preprocessing + optimisation) and the Gaussian count; then the check: at the 7K checkpoint,
 STRinGS has lower known-text CER than 3DGS on >= 4 of 5 scenes and on their mean, and reaches 7K
 in less training time.
 

@@ -1,24 +1,24 @@
-"""The GPU campaign in sittings of at most ~8 minutes (docs/gpu.md, "Running a sitting").
+"""The GPU verification in rounds of at most ~8 minutes each (docs/guide/gpu.md, "Verifying a GPU machine in stages").
 
     bash scripts/gpu_campaign.sh [--dry-run] [--force] [--budget S] OUT_DIR STAGE
 
-Stages (issue 25's order of value; `list` prints them):
+Stages (in order of value; `list` prints them):
   verify         versions, gsplat's first-use compilation (timed), pytest -m gpu, benchmarks/gpu.py
                  (3dgs, strings) at 320x240 with the CPU backend's rows, strings then 3dgs on synthetic/books
                  at 1280x960 to 7K (paper schedule, checkpoints 3K and 7K) with the peak GPU memory of each
-                 cell, and the benchmark at 1280x960 (CUDA rows only); it takes two sittings on an H200;
+                 cell, and the benchmark at 1280x960 (CUDA rows only); it takes two rounds on an H200;
   cal7k-rs1.5    3DGS on synthetic360/storeroom built at 1280x960 with 100 views, room_scale 1.5, the
   cal7k-rs2      card's photometric settings, to 7K (room_scale 2 for the second point);
   cal30k         3DGS to 30K on the banked 7K point closest to the paper's 3DGS OCR-CER (0.736);
   strings-frozen STRinGS to 7K and 30K on that setting.
 
-Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/measurements/gpu/): one row
+Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
 versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
 whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
-short, the steps already banked ok are skipped at the next sitting (gsplat's compilation and scene
-builds excepted: a sitting starts on a fresh machine), and so is a run or benchmark step whose every
-result row an earlier sitting banked, though that sitting cut the step after them. Runs train under RUNS/<stage> (--runs, default
+short, the steps already banked ok are skipped at the next round (gsplat's compilation and scene
+builds excepted: a round starts on a fresh machine), and so is a run or benchmark step whose every
+result row an earlier round banked, though that round cut the step after them. Runs train under RUNS/<stage> (--runs, default
 OUT_DIR/runs) and resume there while the machine is the same; each step's log is RUNS/logs/<stage>_<step>.log.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PAPER_3DGS_CER_7K = 0.736  # the paper's 3DGS row (issue 25)
+PAPER_3DGS_CER_7K = 0.736  # the paper's 3DGS row (Table 1, STRinGS-360, 7K)
 STEP_COLUMNS = ["date", "stage", "step", "status", "seconds", "detail", "gpu", "torch", "cuda", "gsplat", "python",
                 "dry_run"]
 
@@ -66,7 +66,7 @@ def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "-", text).strip("-").lower() or "none"
 
 
-# Steps that a later sitting does again even when an earlier one banked them: each sitting starts on a
+# Steps that a later round does again even when an earlier one banked them: each round starts on a
 # fresh machine, where gsplat compiles and scenes build anew.
 ALWAYS = ("versions", "compile")
 
@@ -107,7 +107,7 @@ def banked_benchmark(out: Path, stage: str, name: str, want: set[tuple[str, str]
     return ", ".join(sorted({f for r, f in rows if (r.get("method"), r.get("device")) in want})) if want <= have else None
 
 
-class Sitting:
+class Round:
     def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None):
         self.out, self.stage, self.dry_run = out, stage, dry_run
         self.runs = runs or out / "runs"
@@ -127,9 +127,9 @@ class Sitting:
     def step(self, name: str, argv: list[str], limit_s: float, env: dict | None = None,
              banked_in: str | None = None) -> str:
         """Run one step (its own process group), at most `limit_s` and never past the stage's budget.
-        A step an earlier sitting banked as ok is not run again (except ALWAYS and scene builds), nor one
-        whose results an earlier sitting banked whole (`banked_in`: the CSV that holds them), even where
-        that sitting's step was cut after them."""
+        A step an earlier round banked as ok is not run again (except ALWAYS and scene builds), nor one
+        whose results an earlier round banked whole (`banked_in`: the CSV that holds them), even where
+        that round's step was cut after them."""
         where = banked_in or (self.done.get(name) if name not in ALWAYS and not name.startswith("build_") else None)
         if where:
             self.record(name, "ok", 0.0, f"banked in {where}")
@@ -188,7 +188,7 @@ class Sitting:
             w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
             w.writeheader()
             w.writerows(rows)
-        os.replace(tmp, path)  # atomic: a sitting cut anywhere leaves a whole file
+        os.replace(tmp, path)  # atomic: a round cut anywhere leaves a whole file
 
     # ---- shared pieces ----------------------------------------------------------------------------
     def size(self) -> tuple[int, int]:
@@ -212,7 +212,7 @@ class Sitting:
     def run(self, name: str, methods: str, scene: str, checkpoints: str, limit_s: float, extra=(),
             banked_as: str | None = None) -> None:
         """Train and evaluate `methods` on `scene`; banked when every method's last checkpoint has a row in
-        a results CSV of a step named `banked_as` (a glob; default `name`), an earlier sitting's cut after
+        a results CSV of a step named `banked_as` (a glob; default `name`), an earlier round's cut after
         that cell included."""
         from strings_bench.core.schedules import iteration_label  # the label results.csv gives the last checkpoint
 
@@ -231,7 +231,7 @@ class Sitting:
 
     def benchmark(self, size: str, limit_s: float, with_cpu: bool) -> None:
         """benchmarks/gpu.py for 3dgs and strings at one size (the CPU backend's rows beside it when
-        `with_cpu`); banked when every (method, device) row of an earlier sitting is in a CSV."""
+        `with_cpu`); banked when every (method, device) row of an earlier round is in a CSV."""
         name, methods = f"benchmark_{size}", ("3dgs",) if self.dry_run else ("3dgs", "strings")
         want = {(m, d) for m in methods for d in (self.device,) + (("cpu",) if with_cpu and not self.dry_run else ())}
         banked_in = banked_benchmark(self.out, self.stage, name, want, self.dry_run)
@@ -247,7 +247,7 @@ class Sitting:
 
 # ---- stages ----------------------------------------------------------------------------------------
 
-def stage_verify(s: Sitting) -> None:
+def stage_verify(s: Round) -> None:
     s.record("versions", "ok", 0.0, json.dumps(s.v))
     if s.dry_run:
         compile_code = "import gsplat, strings_bench.raster.gsplat_backend; print('import only (dry run)')"
@@ -263,7 +263,7 @@ def stage_verify(s: Sitting) -> None:
                                 "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
     if s.step("compile", [s.py, "-c", compile_code], 180, env) != "ok":
         return  # nothing else can run without gsplat
-    # Measured on an H200 (docs/gpu.md, first sitting): pytest -m gpu needs more than 150 s (14 tests, each a
+    # Measured on an H200 (docs/results/gpu.md): pytest -m gpu needs more than 150 s (14 tests, each a
     # run with its OCR); the CPU rows of the benchmark at 1280x960 cost minutes, so its CPU ratio is the
     # 320x240 one. Order: correctness, the 320x240 ratio, the paper runs, then the large benchmark.
     s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_gpu.py",
@@ -272,14 +272,14 @@ def stage_verify(s: Sitting) -> None:
     scene = s.build("books")
     if scene:
         for method in ("strings", "3dgs"):
-            # banked_as: the first sitting's `paper_run` step (both methods in one) banked STRinGS' cells
+            # banked_as: the first round's `paper_run` step (both methods in one) banked STRinGS' cells
             s.run(f"paper_run_{method}", method, scene, "7000" if s.dry_run else "3000,7000", s.left(),
                   banked_as="paper_run*")
     s.benchmark("1280x960", 150, with_cpu=False)
 
 
 def _cal7k(room_scale: float):
-    def stage(s: Sitting) -> None:
+    def stage(s: Round) -> None:
         s.record("versions", "ok", 0.0, json.dumps(s.v))
         scene = s.build("storeroom", n_views=100, room_scale=room_scale)
         if scene:
@@ -300,7 +300,7 @@ def _banked_7k(out: Path) -> list[tuple[float, float]]:
     return sorted(points)
 
 
-def _frozen(s: Sitting) -> float | None:
+def _frozen(s: Round) -> float | None:
     points = _banked_7k(s.out)
     if not points:
         s.record("choose_setting", "failed", 0.0, "no banked 7K calibration point with an OCR-CER: run cal7k-* first")
@@ -309,14 +309,14 @@ def _frozen(s: Sitting) -> float | None:
     return points[0][1]
 
 
-def stage_cal30k(s: Sitting) -> None:
+def stage_cal30k(s: Round) -> None:
     rs = _frozen(s)
     scene = s.build("storeroom", n_views=100, room_scale=rs) if rs else None
     if scene:
         s.run("run", "3dgs", scene, "7000,30000", s.left())
 
 
-def stage_strings_frozen(s: Sitting) -> None:
+def stage_strings_frozen(s: Round) -> None:
     rs = _frozen(s)
     scene = s.build("storeroom", n_views=100, room_scale=rs) if rs else None
     if scene:
@@ -346,7 +346,7 @@ def main(argv=None) -> int:
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
     ap.add_argument("--runs", type=Path, default=None,
                     help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
-                         "docs/measurements/gpu)")
+                         "docs/results/data/gpu)")
     args = ap.parse_args(argv)
     if args.stage == "list":
         print("\n".join(STAGES))
@@ -364,7 +364,7 @@ def main(argv=None) -> int:
             print("gpu_campaign: torch sees no CUDA device (use --dry-run to check the script on the CPU)",
                   file=sys.stderr)
             return 2
-    s = Sitting(out, args.stage, args.dry_run, args.budget, args.runs)
+    s = Round(out, args.stage, args.dry_run, args.budget, args.runs)
     STAGES[args.stage](s)
     bad = [r for r in s.rows if r["status"] != "ok"]
     print(f"{args.stage}: {len(s.rows) - len(bad)}/{len(s.rows)} steps ok in {time.monotonic() - s.t0:.0f} s; "

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU verification of docs/gpu.md in one command, on a CUDA machine with the suite installed
+# The GPU verification of docs/guide/gpu.md in one command, on a CUDA machine with the suite installed
 # (`pip install -e .[cuda]`), writing every log into OUT_DIR:
 #
 #   bash scripts/gpu_check.sh [OUT_DIR] [--quick]
@@ -22,7 +22,7 @@ py=${PYTHON:-python}
 export PYTHONUNBUFFERED=1
 
 if ! $py -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)"; then
-    echo "gpu_check: torch sees no CUDA device; nothing to verify here (docs/gpu.md)" >&2
+    echo "gpu_check: torch sees no CUDA device; nothing to verify here (docs/guide/gpu.md)" >&2
     exit 2
 fi
 export TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-$($py -c 'import torch; M, m = torch.cuda.get_device_capability(); print(f"{M}.{m}")')}

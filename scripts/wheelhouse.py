@@ -19,7 +19,7 @@ downloaded. A requirement with no wheel for the target is fetched as an sdist in
 end, with what to do about it. The script prints the total size.
 
 For a machine that already has part of the set and takes files in limited loads (the lent GPU
-machines: docs/gpu.md, "Running a sitting"): `--skip NAME,...` leaves out distributions the node
+machines: docs/guide/gpu.md, "Installing on an offline GPU node"): `--skip NAME,...` leaves out distributions the node
 already has (and what only they need), `--no-weights` the LPIPS weight carriers, and `--split MIB`
 moves the files into DIR/part1, DIR/part2, ... of at most MIB each, to carry one part per call.
 """

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Wheels for an offline GPU node: every wheel strings-bench[cuda] needs beyond an installed torch.
 #   bash scripts/wheelhouse.sh DIR [--python 3.12] [--platform manylinux_2_28_x86_64 ...] [--extras cuda]
-# Then on the node: pip install --no-index --find-links DIR -e .[cuda]   (docs/gpu.md, "Installing on an
+# Then on the node: pip install --no-index --find-links DIR -e .[cuda]   (docs/guide/gpu.md, "Installing on an
 # offline GPU node"). Needs Python >= 3.11 and pip here, and access to the package index.
 set -euo pipefail
 cd "$(dirname "$0")/.."

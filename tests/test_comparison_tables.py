@@ -132,7 +132,7 @@ def test_an_ablation_whose_checkpoint_the_folder_lacks_is_shown_at_the_last_one_
     _cell(run, "strings-pos-lr", "pantry", "3K", 150, 0.9, 0.85)
     assert cmp.compare([run]).ablations() == [("strings-pos-lr", "strings", "3K", "3K")]
 
-# docs/strings.md, "On synthetic360-cpu": known-text CER per room at seed 0 (office / pantry / storeroom), 7K and
+# docs/results/strings-cpu.md, "On `synthetic360-cpu`": known-text CER per room at seed 0 (office / pantry / storeroom), 7K and
 # 30K, and the mean of the rooms its CER table prints. The run folders it was made from are not kept in the
 # repository; this fixture holds the per-room figures as the doc prints them (rounded to 3 decimals).
 DOC_PER_ROOM = {

@@ -1,4 +1,4 @@
-"""Device correctness without a GPU (docs/gpu.md).
+"""Device correctness without a GPU (docs/raster.md, "Device correctness without a GPU").
 
 With `torch.set_default_device("meta")` in effect and the parameters on the CPU (device="cpu" given
 explicitly), every tensor that code creates without naming a device lands on `meta`, and the first

@@ -1,5 +1,5 @@
 """GPU tests (marker `gpu`; the default run deselects them, `pytest -m gpu` runs them; without CUDA
-they skip with reason "no CUDA"). What they check is in docs/gpu.md:
+they skip with reason "no CUDA"). What they check is in docs/guide/gpu.md:
 
 - the gsplat backend against the CPU backend: images and gradients on 2 000 random Gaussians;
 - every registered trainable method trains 100 steps on CUDA through `strings-bench run --device cuda`;

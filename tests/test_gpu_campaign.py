@@ -108,7 +108,7 @@ def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
     assert row["step"] == "choose_setting" and row["status"] == "failed" and "cal7k" in row["detail"]
 
 
-def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
+def test_a_later_round_skips_the_steps_already_banked(tmp_path):
     out = tmp_path / "gpu"
     out.mkdir()
     mod = _module()
@@ -116,8 +116,8 @@ def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
                 "detail": "", "dry_run": "true"} for step, status in
                (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark_320x240", "partial"),
                 ("paper_run", "partial"))]
-    mod.Sitting.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
-    # the earlier sitting's steps were cut, but after the 320x240 benchmark's rows and STRinGS' 7K cell
+    mod.Round.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
+    # the earlier round's steps were cut, but after the 320x240 benchmark's rows and STRinGS' 7K cell
     (out / "2026-12-01_verify_benchmark_320x240_cpu-dry-run.csv").write_text(
         "method,size,device,steps_per_s,dry_run\n3dgs,64x48,cpu,9.0,true\n")
     (out / "2026-12-01_verify_paper_run_cpu-dry-run.csv").write_text(
@@ -138,12 +138,12 @@ def test_a_later_sitting_skips_the_steps_already_banked(tmp_path):
     assert done.returncode == (0 if ran == ["ok", "ok"] else 1)
 
 
-def test_the_next_real_sitting_skips_what_the_first_one_banked():
-    """On the CSVs committed in docs/measurements/gpu (the first sitting, an H200, cut by its step limits):
+def test_the_next_real_round_skips_what_the_first_one_banked():
+    """On the CSVs committed in docs/results/data/gpu (the first round, an H200, cut by its step limits):
     STRinGS' 7K run on books and the 320x240 benchmark are banked; 3DGS' run, the 1280x960 benchmark and
     pytest -m gpu (cut) are not."""
     mod = _module()
-    out = ROOT / "docs" / "measurements" / "gpu"
+    out = ROOT / "docs" / "results" / "data" / "gpu"
     assert mod.banked_run(out, "verify", "paper_run*", ["strings"], "7K", False)
     assert mod.banked_run(out, "verify", "paper_run*", ["3dgs"], "7K", False) is None
     both = {(m, d) for m in ("3dgs", "strings") for d in ("cuda", "cpu")}

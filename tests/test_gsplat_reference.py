@@ -1,7 +1,7 @@
 """The gsplat backend (strings_bench/raster/gsplat_backend.py) run on the CPU through gsplat's own
 pure-PyTorch reference stages (tests/_gsplat_cpu.py), against the CPU rasterizer.
 
-What agrees and what differs, with the measurements, is in docs/gpu.md ("The CUDA path on the CPU").
+What agrees and what differs, with the measurements, is in docs/raster.md ("The CUDA path on the CPU").
 Tolerance TOL = 1e-5 (relative L2 norm, as tests/test_raster.py): gsplat's reference path in float32
 differs from itself in float64 by at most 5e-6 on these scenes, so the bound is the level of gsplat's
 own float32 rounding, and each comparison also checks that.
@@ -147,7 +147,7 @@ def test_gsplat_path_matches_cpu_where_conventions_agree(case):
                         ("gsplat f32 vs f64", errors(g32, g32_leaves, g64, g64_leaves))):
         bad = {k: v for k, v in errs.items() if k not in skip and not v <= TOL}
         assert not bad, f"{label}: relative errors above {TOL}: {bad}"
-    # radii > 0 differ (docs/gpu.md: opacity-aware boxes, o < 1/255 culled, box-vs-image test), but
+    # radii > 0 differ (docs/raster.md: opacity-aware boxes, o < 1/255 culled, box-vs-image test), but
     # only for Gaussians that neither path draws: their gradients are zero on both
     differ = g32.visible ^ cpu.visible
     for leaves in (cpu_leaves, g32_leaves):
@@ -222,7 +222,7 @@ def test_alpha_clamp_convention_measured():
     assert max(errors(g, gl, cpu, cl).values()) <= TOL
 
 
-# measured on this machine (docs/gpu.md); the bounds are these x ~2: they catch a change, not noise
+# measured on this machine (docs/raster.md); the bounds are these x ~2: they catch a change, not noise
 DIFFER = {
     "sh3_default_opacity": (lambda: random_scene(seed=0), dict(color=2e-4, grads=6e-3)),
     "opaque": (lambda: random_scene(seed=2, n=80, opacity_mean=3.0, opacity_std=2.0), dict(color=1e-3, grads=3e-2)),

@@ -115,7 +115,7 @@ def detect_layout(root: Path) -> Predictions:
         return Predictions("folder", root, [Checkpoint(0, renders)])
     raise PredictionsError(
         f"{root} holds no renders: no images, no test/ours_<N>/renders (Inria 3DGS), no color/ + gt-color/ "
-        f"(nerfbaselines)", hint="point evaluate at the folder of renders (see docs/evaluate.md)")
+        f"(nerfbaselines)", hint="point evaluate at the folder of renders (see docs/guide/evaluate.md)")
 
 
 def _safe_members(names: list[str], archive: Path) -> None:

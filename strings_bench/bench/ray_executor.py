@@ -1,4 +1,4 @@
-"""Run a benchmark's jobs as Ray tasks: `strings-bench run --executor ray` (docs/running.md, "Ray").
+"""Run a benchmark's jobs as Ray tasks: `strings-bench run --executor ray` (docs/guide/cluster.md, "Ray").
 
 One job, a (method, scene) with all its checkpoints, is one Ray task. The run folder is the single
 source of truth: workers write cells into it (atomically, as a local run does) and the driver
@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 INSTALL_HINT = "install the Ray extra: pip install -e '.[ray]' (or pip install 'ray>=2.9')"
 SHARED_FS_HINT = ("the run folder (--out) and the scene folders must be on a filesystem that every Ray node mounts "
-                  "at the same path (docs/running.md, 'Ray'); synthetic scenes live in STRINGS_BENCH_CACHE")
+                  "at the same path (docs/guide/running.md, 'Ray'); synthetic scenes live in STRINGS_BENCH_CACHE")
 WORKER_FILE = "worker.json"  # in a job's state folder: the host, pid and attempt of the worker that ran it last
 # Environment a worker takes from the driver when the driver sets it: where scenes and caches are.
 FORWARDED_ENV = ("STRINGS_BENCH_CACHE", "NUMBA_CACHE_DIR")

@@ -21,8 +21,8 @@ Gaussian count, then the mean over the scenes next to the paper's figures (withi
     strings-bench calibrate --regime cpu --dataset synthetic360-cpu --out runs/s360cpu-compare \
         --methods strings,3dgs,strings-no-densify,strings-pos-lr,absgs,mip-splatting,mcmc,edc-absgs
 
-Draws (issue 40): `--draws 0,1,2` trains every room of `--scenes` at each generator seed (scene draws
-ROOM@N, docs/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
+Draws: `--draws 0,1,2` trains every room of `--scenes` at each generator seed (scene draws
+ROOM@N, docs/guide/datasets.md), at every grid point and on `--dataset`; draw 0 is the room itself (today's cells).
 A grid axis `seed=0,1,2` is read the same way: its points are draws of one setting in the tables.
 
     # 3DGS on the three rooms of synthetic360-cpu at draws 0, 1, 2, schedule x0.1, checkpoints 3K and 7K
@@ -36,7 +36,7 @@ per-scene rows; every row carries the scene's SfM points and those on text (its 
 Grid: `KEY=V1,V2,...` per generator setting (any field of SyntheticSettings; text_px values as
 LO:HI); the grid is their product, each point on top of `--base` (default: the synthetic360 card's
 photometric settings) and `--width/--height/--views`. Each point becomes a dataset `s360-<label>`
-in one run folder (resumable: run the same command again). Calibrate on 3DGS alone (issue 20):
+in one run folder (resumable: run the same command again). Calibrate on 3DGS alone:
 choose the settings before looking at STRinGS, then measure STRinGS once with `--methods strings`.
 
 `--regime` picks the defaults of the size, views, schedule scale, device, grid and run folder:
@@ -71,7 +71,7 @@ REGIMES = {
               "grid": DEFAULT_GRID, "out": "runs/calibrate", "target": "cer"},
     "cpu": {"device": "cpu", "width": 320, "height": 240, "views": 48, "steps_scale": 0.05,
             "grid": ["room_scale=0.7,1"], "out": "runs/calibrate-cpu",
-            # OCR-CER saturates at 320x240 (docs/synthetic.md): the CPU target is the known-text CER (issue 27)
+            # OCR-CER saturates at 320x240 (docs/synthetic.md): the CPU target is the known-text CER
             "target": "cer_known"},
 }
 COLUMNS = ["setting", "scene", "room", "draw", "label", "iteration", "cer", "cer_known", "word_cer", "word_cer_gt",
@@ -235,7 +235,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     ap.add_argument("--budget", default=None, metavar="N|METHOD",
                     help="cap every method at N Gaussians, or at the count METHOD (e.g. 3dgs, trained first, uncapped) "
                          "reaches on the same scene at the last checkpoint; a budget needs its own --out folder "
-                         "(docs/running.md, \"Equal Gaussian budget\")")
+                         "(docs/guide/running.md, \"Equal Gaussian budget\")")
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
     ap.add_argument("--target", choices=sorted(TARGET_NAMES), default=None,
                     help="the metric whose mean is held against the paper's 3DGS figures (paper: cer, cpu: cer_known)")

@@ -59,7 +59,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     pp = sub.add_parser("prepare", help="build (synthetic) or locate scenes and print their statistics",
                         description="SPEC is a dataset id (all its scenes) or DATASET/SCENE, e.g. synthetic/books; on "
                                     "the synthetic360 datasets DATASET/SCENE@N is draw N of a room (generator seed N) "
-                                    "and DATASET@N every room at draw N (docs/datasets.md, 'Scene draws').")
+                                    "and DATASET@N every room at draw N (docs/guide/datasets.md, 'Scene draws').")
     pp.add_argument("specs", nargs="*", metavar="SPEC",
                     help="e.g. synthetic/books, synthetic, synthetic360-cpu/pantry@1 or synthetic360-cpu@2")
     pp.add_argument("--all", action="store_true", help="every scene of the synthetic benchmark")

@@ -1,4 +1,4 @@
-"""CLI: `strings-bench evaluate PRED`: the suite's metrics on renders made anywhere (docs/evaluate.md)."""
+"""CLI: `strings-bench evaluate PRED`: the suite's metrics on renders made anywhere (docs/guide/evaluate.md)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                     "checkpoint, results.csv and the report. Layouts, detected and named: a plain folder of renders "
                     "named after the test views; Inria 3DGS output (MODEL/test/ours_<N>/renders, gt, masks); "
                     "nerfbaselines predictions (color/, gt-color/, mask/, info.json; folder, .zip or .tar.gz). "
-                    "See docs/evaluate.md.")
+                    "See docs/guide/evaluate.md.")
     p.add_argument("pred", help="the predictions: a folder of renders, an Inria 3DGS model folder (or its test/ or "
                                 "test/ours_<N>/), or nerfbaselines predictions (folder, .zip, .tar.gz)")
     src = p.add_mutually_exclusive_group()

@@ -60,7 +60,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS),
                    help="where jobs run: local (default; one after another in this process) or ray (each method x scene "
-                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/running.md)")
+                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/guide/cluster.md)")
     p.add_argument("--ray-address", default=None, metavar="ADDRESS",
                    help="with --executor ray: the Ray cluster to join (e.g. auto, HEAD_IP:6379, ray://HEAD_IP:10001); "
                         "default: RAY_ADDRESS, else a local Ray is started")
@@ -79,7 +79,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "reaches on the same scene at the last checkpoint (--budget 3dgs: 3dgs trains first, uncapped, "
                         "as the reference; it must be in --methods or its cells in the run folder). Each method keeps "
                         "to it by its own rules (docs/baselines.md); recorded in run.json and every result.json, and a "
-                        "run folder holds one budget (docs/running.md)")
+                        "run folder holds one budget (docs/guide/running.md)")
     p.add_argument("--budget-from", default=None, metavar="FOLDER",
                    help="with --budget METHOD: read METHOD's counts from the cells of another run folder (trained "
                         "there uncapped, same schedule and image scale) instead of training METHOD in this run, e.g. "

@@ -1,4 +1,4 @@
-"""Scene draws: the same synthetic room generated at another generator seed (issue 40).
+"""Scene draws: the same synthetic room generated at another generator seed.
 
 A draw of a room is named `ROOM@N` (e.g. `pantry@1`: the room `pantry` built with generator seed N: other
 words, other places, the same kind of room). Draw 0 is the room's own name: `pantry@0` is an alias of `pantry`,
@@ -15,7 +15,7 @@ from strings_bench.core.errors import DatasetError
 
 DRAW_SEP = "@"
 # The draws every synthetic360 card registers (`datasets list`, the card's notes): the calibration over draws
-# of issue 40 uses these three. Any other non-negative integer is a draw too.
+# uses these three. Any other non-negative integer is a draw too.
 REGISTERED_DRAWS = (0, 1, 2)
 
 

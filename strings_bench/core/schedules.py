@@ -14,7 +14,7 @@ steps. Measured on 2 CPU cores (synthetic scenes, 320x240; see README and docs/e
   captures, in about 10 minutes (README, "What the default run shows");
 - early (0.15: 450/1 050 steps for 3K/7K, synthetic/extinguisher), the default before: the paper's
   "readable early" checkpoints on an easy object-centred scene where 3DGS reads early
-  (docs/ocr.md, "The default run");
+  (docs/results/default-run.md, "The default run");
 - quick (0.01: 70/300 steps for 7K/30K) runs all five synthetic scenes, two methods, in about 10
   minutes, but text stays illegible (every CER ~1.0): the pipeline end to end, not a comparison;
 - standard (0.05: 350/1500 steps) gives visibly sharper text, at several minutes per method and scene;
@@ -96,14 +96,14 @@ SCHEDULES: dict[str, Schedule] = {
     # standard and quick leave out 3K: OCR of every test view costs ~1 s per view and cell on a CPU.
     "standard": Schedule("standard", 0.05, paper_checkpoints=(7000, 30000),
                        description="the paper's schedule scaled by 0.05 (350/1500 iterations for 7K/30K)"),
-    # The default run (issue 27): the CPU regime on one frozen synthetic360-cpu room, where 3DGS reads late as on
+    # The default run: the CPU regime on one frozen synthetic360-cpu room, where 3DGS reads late as on
     # the paper's captures and the methods separate at 30K beyond seed noise (README, docs/strings.md).
     "cpu": Schedule("cpu", 0.05, paper_checkpoints=PAPER_CHECKPOINTS,
                     datasets=("synthetic360-cpu/storeroom",),
                     description="the default: the CPU regime, the paper's schedule scaled by 0.05 (150/350/1500 "
                                 "iterations for 3K/7K/30K) on synthetic360-cpu/storeroom, ~10 min on 2 CPU cores; "
                                 "3DGS reads late there, as on the paper's captures"),
-    # The longer CPU regime (issue 40), frozen on 3DGS alone before any other method ran on it: at x0.1 3DGS's
+    # The longer CPU regime, frozen on 3DGS alone before any other method ran on it: at x0.1 3DGS's
     # known-text CER at 7K is 0.755 (draws 0-2 of the three rooms, range 0.690-0.789) against the paper's 0.736
     # OCR-CER; at x0.05 it reads ~0.9 there and at x0.2 0.139 (storeroom), docs/synthetic.md "The longer CPU
     # regime". The paper's 7K question can be asked here; ~1-3 min per 7K cell on 2 cores.
@@ -112,7 +112,7 @@ SCHEDULES: dict[str, Schedule] = {
                          description="the longer CPU regime: the paper's schedule scaled by 0.1 (300/700/3000 "
                                      "iterations for 3K/7K/30K) on the three synthetic360-cpu rooms, where 3DGS "
                                      "reads at 7K as on the paper's captures (known-text CER ~0.75)"),
-    # The default run before issue 27: one easy scene, the paper's early checkpoints (docs/ocr.md).
+    # The former default run: one easy scene, the paper's early checkpoints (docs/ocr.md).
     "early": Schedule("early", 0.15, paper_checkpoints=(3000, 7000),
                     datasets=("synthetic/extinguisher",),
                     description="the paper's schedule scaled by 0.15 (450/1050 iterations for 3K/7K) on "

@@ -63,7 +63,7 @@ class DatasetCard:
         hint = f"its scenes: {', '.join(s.name for s in self.scenes)}"
         if "@" in str(name) and not self.draws:
             raise DatasetError(f"dataset {self.id} has no scene draws ({name!r})", hint=hint + "; draws (SCENE@N) are "
-                               "scenes of the synthetic360 datasets (docs/datasets.md, 'Scene draws')")
+                               "scenes of the synthetic360 datasets (docs/guide/datasets.md, 'Scene draws')")
         raise DatasetError(f"dataset {self.id} has no scene {name!r}", hint=hint)
 
     def select(self, part: str = "", draw: str | None = None) -> list[SceneCard]:

@@ -231,7 +231,7 @@ def _check_masks(root: Path, rep: SceneReport, registered: dict, on_disk: dict, 
     if not masks_dir.is_dir():
         rep.stats["masks"] = "absent"
         rep.add(INFO, masks_dir, "no masks/ folder: STRinGS needs text masks (make them with `strings-bench prepare`'s "
-                "OCR masks, the 'ocr' mask source, or bring Hi-SAM masks; see docs/datasets.md)")
+                "OCR masks, the 'ocr' mask source, or bring Hi-SAM masks; see docs/guide/datasets.md)")
         return
     masks = {p.stem: p for p in sorted(masks_dir.iterdir()) if p.is_file() and p.suffix in MASK_SUFFIXES}
     rep.stats["masks"] = len(masks)

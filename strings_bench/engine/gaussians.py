@@ -44,7 +44,7 @@ def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
 
 
 def logit(p: float | torch.Tensor) -> torch.Tensor:
-    # a Python number becomes a CPU tensor (never the default device: see docs/gpu.md)
+    # a Python number becomes a CPU tensor (never the default device: see docs/guide/gpu.md)
     p = torch.as_tensor(p, dtype=torch.float32, device=p.device if torch.is_tensor(p) else "cpu")
     return torch.log(p / (1 - p))
 

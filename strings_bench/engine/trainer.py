@@ -47,9 +47,9 @@ log = logging.getLogger(__name__)
 
 STATE_VERSION = 1
 
-# torch's intra-op threads while a method trains on the CPU (issue 28). The CPU rasterizer's numba
+# torch's intra-op threads while a method trains on the CPU. The CPU rasterizer's numba
 # kernels use every core already; torch's own threads (SSIM convolutions, small element-wise ops)
-# then only contend with them (measured in docs/engine.md, "Where a step's time goes").
+# then only contend with them (docs/engine.md, "CPU speed"; measured in docs/results/engine-speed.md).
 CPU_TORCH_THREADS = 1
 
 
@@ -57,7 +57,7 @@ CPU_TORCH_THREADS = 1
 # kernel when it is freed, and the next block of that size costs a page fault per 4 KiB page when it
 # is first written. A CPU training step allocates and frees arrays of tens of MB (gradients, the SH
 # concatenation, the rasterizer's buffers): at 335 000 Gaussians that was a third of the step
-# (docs/engine.md, "Third session", memory reuse). Served from the heap and kept there, the same
+# (docs/engine.md, "CPU speed"). Served from the heap and kept there, the same
 # blocks are reused from step to step. Nothing computed changes; the process keeps its peak heap
 # until it exits.
 CPU_MMAP_THRESHOLD = 1 << 30

@@ -1,4 +1,4 @@
-"""OCR character error rate (OCR-CER) as the STRinGS authors compute it (REFERENCE.md section 3).
+"""OCR character error rate (OCR-CER) as the STRinGS authors compute it (docs/sources.md, section 3).
 
 Size (~540 lines): the authors' CER rules and every named profile in one file, so that the exact `paper` profile reads against each deviation from it.
 
@@ -135,8 +135,8 @@ PROFILES: dict[str, NormalizationProfile] = {
     "paper": NormalizationProfile("paper", None, "lower", "space", "strict"),
     # Deviation, never the default: repairs invalid polygons (an OCR's bow-tie box still overlaps the
     # word it outlines), NFC (composed and decomposed accents compare equal) and removes all
-    # whitespace (tabs, newlines, NBSP that some OCR engines put inside a word). This was the only
-    # behaviour before issue 15.
+    # whitespace (tabs, newlines, NBSP that some OCR engines put inside a word). Older versions of the suite
+    # had only this behaviour.
     "robust": NormalizationProfile("robust", "NFC", "lower", "all", "repair"),
     # Text variants of the paper's rules; they keep its polygon rule so that only the text differs.
     "case-sensitive": NormalizationProfile("case-sensitive", None, "keep", "space", "strict"),

@@ -3,6 +3,8 @@
 Adding a method
 ===============
 
+A worked example, step by step: docs/guide/adding-a-method.md, whose code is examples/opacity-splat/.
+
 A method is one keyword `MethodSpec` (`registry.py`): its name (the one place it is written: a built method
 gets it), a lazy `"module:Class"` implementation (imported only when the method is built or shown), a
 description, the paper, a title and group for the tables, `defaults`, `presets` (named variants of its settings:
@@ -44,17 +46,17 @@ There are three kinds of implementation.
    when the run is planned, naming the valid ones.
 
 2. Anything else the suite trains: implement `core.method.Method` (`setup`, `train_step`, `refine`, `render`,
-   `num_gaussians`, `state_dict` / `load_state_dict`; the table in docs/running.md). The framework's loop
+   `num_gaussians`, `state_dict` / `load_state_dict`; the table in docs/guide/running.md). The framework's loop
    (`engine.trainer.Trainer`) owns the steps, the device, the timing, checkpoint evaluation and the resumable
    state. Give it a `from_settings(**settings)` class method or a constructor taking the settings as keywords,
    and a `settings_schema()` class method so that `methods show` lists them and `--set` is checked.
 
 3. Models trained elsewhere: a `core.method.MethodAdapter`, built with the settings as keywords, whose
    `train(scene, checkpoints, downscale)` yields one `CheckpointResult` per checkpoint (the built-in `ply` and
-   `external` methods; docs/running.md).
+   `external` methods; docs/guide/running.md).
 
 In every case the runner does the metrics, OCR, CER and files. Check a new method with
-`strings-bench methods check NAME` (docs/running.md, "Checking a method").
+`strings-bench methods check NAME` (docs/guide/methods.md, "Checking a method").
 """
 
 from strings_bench.core.method import CheckpointResult, MethodAdapter

@@ -1,7 +1,7 @@
 """gsplat backend (CUDA): the same interface on top of gsplat.rasterization (gsplat >= 1.4).
 
 Not run on a GPU by this version yet. CI runs this code on the CPU with gsplat's CUDA stages routed to
-gsplat's PyTorch reference functions (tests/test_gsplat_reference.py, docs/gpu.md "The CUDA path on
+gsplat's PyTorch reference functions (tests/test_gsplat_reference.py, docs/raster.md "The CUDA path on
 the CPU"); tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
 
 Mapping: scales = exp(log_scales); opacities = sigmoid(logits); colours are evaluated by our own SH
@@ -11,7 +11,7 @@ composited here (color + (1 - alpha) bg). mip_filter -> rasterize_mode="antialia
 (gsplat's compensation sqrt(det Sigma / det(Sigma + eps2d I)) is the Mip-Splatting 2D filter);
 otherwise eps2d=0.3 (3DGS dilation). packed=False.
 
-Differences from the CPU backend (see docs/raster.md; measured in docs/gpu.md): gsplat lets a Gaussian
+Differences from the CPU backend (see docs/raster.md; measured in docs/raster.md, "The gsplat backend"): gsplat lets a Gaussian
 touch every pixel of the tiles its opacity-aware radius overlaps, i.e. wherever its alpha >= 1/255 (the
 CPU backend only pixels in its 3-sigma box), keeps Gaussians exactly on the near plane (culls z < near),
 and treats the alpha clamp differently from 3DGS (read in gsplat's CUDA source):

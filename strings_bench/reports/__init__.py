@@ -92,7 +92,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if analysis.size_fronts:
         budget = manifest.get("budget")
         src = f" --budget-from {manifest['budget_from']}" if manifest.get("budget_from") else ""
-        held = (f" This run held every method to an equal budget (`--budget {budget}{src}`, docs/running.md)." if budget
+        held = (f" This run held every method to an equal budget (`--budget {budget}{src}`, docs/guide/running.md)." if budget
                 else " The counts are each method's own (no `--budget`); `run --budget 3dgs` holds them level.")
         lines += ["## Size/accuracy front", "",
                   "At each checkpoint, the methods that no other method beats on both the mean Gaussian count and "

@@ -15,7 +15,7 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     p = Path(run_dir) / "results.csv"
     if not p.exists():
         return pd.DataFrame()
-    df = pd.read_csv(p, keep_default_na=True).rename(columns=FORMER_NAMES)  # a results.csv from before issue 41
+    df = pd.read_csv(p, keep_default_na=True).rename(columns=FORMER_NAMES)  # a results.csv of an older version (FORMER_NAMES)
     for c in ("cer", "cer_known", "psnr", "ssim", "lpips", "train_seconds", "preprocess_seconds", "total_seconds",
               "gaussians", *READABILITY_COLUMNS):
         if c in df:

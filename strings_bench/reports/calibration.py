@@ -1,6 +1,6 @@
 """The tables of `strings-bench calibrate` (cli/calibrate.py): per setting, scene and checkpoint, then the means
 against the paper's 3DGS figures; with scene draws (core/draws.py), the mean over the rooms of each draw, then over
-the draws with the draws' range, and per room the mean over its draws with their range (issue 40)."""
+the draws with the draws' range, and per room the mean over its draws with their range."""
 
 from __future__ import annotations
 

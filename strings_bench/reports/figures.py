@@ -79,7 +79,7 @@ def cer_vs_time(df: pd.DataFrame, out: Path, label: str | None = None, names: Me
 def metric_vs_gaussians(df: pd.DataFrame, out: Path, label: str | None = None, metric: str = "cer",
                         names: MethodNames = REGISTERED) -> Path | None:
     """A metric's mean over all scenes against the mean Gaussian count at one checkpoint, with the size/accuracy
-    front circled (issue 42; `metric_vs_time`'s figure with the count on x)."""
+    front circled (`metric_vs_time`'s figure with the count on x)."""
     return metric_vs_time(df, out, label, metric, names, x="gaussians")
 
 
@@ -425,7 +425,7 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
             p = metric_vs_time(df, out_dir / f"{metric}_vs_time_{label}.png", label, metric, names)
             if p:
                 written[f"{metric}_vs_time_{label}"] = p
-            if metric in SIZE_FRONT_METRICS:  # CER against the Gaussian count (issue 42)
+            if metric in SIZE_FRONT_METRICS:  # CER against the Gaussian count
                 p = metric_vs_gaussians(df, out_dir / f"{metric}_vs_gaussians_{label}.png", label, metric, names)
                 if p:
                     written[f"{metric}_vs_gaussians_{label}"] = p
@@ -436,7 +436,7 @@ def write_figures(df: pd.DataFrame, run_dir: Path, out_dir: Path, metrics: list[
         p = metric_over_iterations(df, out_dir / f"{metric}_over_iterations.png", metric, names)
         if p:
             written[f"{metric}_over_iterations"] = p
-    # The readability analysis (issue 30): CER by text size at the last checkpoint, CER against training time.
+    # The readability analysis: CER by text size at the last checkpoint, CER against training time.
     label = size_label(df)
     p = size_figure(cer_by_size(load_words(run_dir, df), label, names=names), label,
                     out_dir / f"word_cer_by_size_{label}.png", names)

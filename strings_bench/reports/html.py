@@ -673,7 +673,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         parts.append("<p>No scenes yet.</p>")
 
     parts.append(f'<h2 id="cells">All cells</h2><p>Every row of <a href="{href(Path("..") / "results.csv")}">results.csv</a>, '
-                 "one per (method, dataset, scene, checkpoint); docs/running.md lists the columns.</p>")
+                 "one per (method, dataset, scene, checkpoint); docs/guide/run-folder.md lists the columns and their units.</p>")
     if not df.empty:
         parts.append(f'<div class="scroll">{_cells_table(df)}</div>')
     return atomic_write_text(out / "index.html", html_page(title, "\n".join(parts) + "</main>"))

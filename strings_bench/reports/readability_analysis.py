@@ -1,4 +1,4 @@
-"""Readability analysis of a run (issue 30): CER by text size, time to legibility, and the speed/accuracy front.
+"""Readability analysis of a run: CER by text size, time to legibility, and the speed/accuracy front.
 
 The paper argues three things its tables do not measure: that STRinGS reconstructs *small* text better (its
 Appendix D.2), that text becomes readable *early* (its text-evolution figure), and that it is best in both
@@ -17,7 +17,7 @@ efficiency and accuracy (its teaser scatter). Each becomes a measured table here
 - **Speed/accuracy front** (`pareto_front`): at each checkpoint, the methods that no other method beats on both
   mean training time and mean CER (lower is better on both; a method equal on both to another is on the front
   with it).
-- **Size/accuracy front** (issue 42; `fronts(..., x="gaussians")`): the same with the mean Gaussian count at the
+- **Size/accuracy front** (`fronts(..., x="gaussians")`): the same with the mean Gaussian count at the
   checkpoint in place of the training time: which methods read best for their model size (the question of an
   equal-budget run, `run --budget`).
 """
@@ -45,7 +45,7 @@ from strings_bench.reports.table_model import (GT_CEILING, RANK_NOTE, REGISTERED
 HEIGHT_BINS: tuple[tuple[str, float, float], ...] = (
     ("<6", 0.0, 6.0), ("6-9", 6.0, 9.0), ("9-13", 9.0, 13.0), ("13-20", 13.0, 20.0), (">=20", 20.0, math.inf))
 MIN_BIN_WORDS = 10  # a bin with fewer reference words is greyed and never ranked
-# Time to legibility: when a CER first falls below each. 0.5 and 0.2 are the issue's (half the characters, and
+# Time to legibility: when a CER first falls below each. 0.5 and 0.2 are the design's (half the characters, and
 # most words, read); 0.8 is added because CPU schedules rarely get below 0.5 (docs/readability.md).
 THRESHOLDS = (0.8, 0.5, 0.2)
 LEGIBILITY_METRICS = {"word_cer": "word CER", "cer": "OCR-CER"}
@@ -310,7 +310,7 @@ class Analysis:
     by_size: pd.DataFrame  # cer_by_size at `label`
     spread: pd.DataFrame
     label: str | None
-    size_fronts: list[dict] = dataclasses.field(default_factory=list)  # CER against the Gaussian count (issue 42)
+    size_fronts: list[dict] = dataclasses.field(default_factory=list)  # CER against the Gaussian count
 
 
 def analyse(run_dir: str | Path, df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Analysis:

@@ -102,7 +102,7 @@ def build_tables(df: pd.DataFrame, manifest: dict | None = None) -> list[Table]:
     return tables
 
 
-# ---- text in several scripts (issue 31) -------------------------------------------------------------------
+# ---- text in several scripts -------------------------------------------------------------------------------
 def script_tables(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> list[Table]:
     """When the run's scenes are in more than one script (results.csv `script`): OCR-CER, and known-text CER
     where there is one, per script x checkpoint, mean over the scenes of that script; [] otherwise."""
@@ -167,7 +167,7 @@ def paper_comparison_table(df: pd.DataFrame, note: str = "", names: MethodNames 
         return None
     return Table("paper_comparison", r"OCR-CER $\downarrow$", "OCR-CER, measured and published",
                  cols, methods, "OCR-CER measured in this run next to the figures published in the STRinGS paper "
-                 "(RTX 3090 Ti, Google Cloud Vision OCR; REFERENCE.md section 5), mean over the scenes of each "
+                 "(RTX 3090 Ti, Google Cloud Vision OCR; the paper's Tables 1 and 2), mean over the scenes of each "
                  "dataset. The paper's scenes, OCR engine and schedule may differ from this run's." + RANK_NOTE + note)
 
 

@@ -304,7 +304,7 @@ def _read_annotations(path: Path) -> dict[str, list[KnownWord]]:
                 raise DatasetError(f"text annotations {path}: a polygon of view {name!r} is not >= 3 finite [x, y] "
                                    f"points (shape {poly.shape})", hint=hint)
             geo = {}
-            for key in ("angle_deg", "distance"):  # optional (synthetic scenes built since issue 30)
+            for key in ("angle_deg", "distance"):  # optional (synthetic scenes of older builds lack them)
                 v = w.get(key)
                 if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)):
                     raise DatasetError(f"text annotations {path}: {key} of a word of view {name!r} is not a finite "

@@ -52,7 +52,7 @@ DESCRIPTIONS_360 = {
 # calibrated against the paper yet (that needs the GPU; docs/synthetic.md, "Calibration").
 SYNTHETIC360_DEFAULTS = {"exposure_sd": 0.15, "white_balance_sd": 0.03, "vignetting": 0.15, "noise_sigma": 1.5}
 
-# The CPU configuration `synthetic360-cpu` (issue 27): the settings frozen by the blind calibration on
+# The CPU configuration `synthetic360-cpu`: the settings frozen by the blind calibration on
 # 3DGS alone at the CPU regime (320x240, 48 views, schedule x0.05; docs/synthetic.md, "Calibration on
 # the CPU", which gives the measured points, the one chosen and why). Its cache keys are pinned by a test.
 SYNTHETIC360_CPU = {**SYNTHETIC360_DEFAULTS, "width": 320, "height": 240, "n_views": 48, "room_scale": 0.6,

@@ -176,7 +176,7 @@ class Strategy:
     """
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
-    # The equal-budget cap (`run --budget`, docs/running.md): never hold more Gaussians than this. Each strategy
+    # The equal-budget cap (`run --budget`, docs/guide/running.md): never hold more Gaussians than this. Each strategy
     # honours it by its own rules (docs/baselines.md, "Equal Gaussian budget"): one with a budget of its own uses it
     # (MCMC: cap_max), the others stop densifying at the cap, keeping the highest-scoring candidates when they do
     # not all fit (`keep_within_budget`), as Taming-3DGS does. A subclass may redeclare the field with its own rule.

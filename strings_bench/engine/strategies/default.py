@@ -73,7 +73,7 @@ class DefaultStrategy(Strategy):
     screen_prune_after: int = 3_000  # big-Gaussian prunes start after this step (nominal)
     n_split: int = 2  # children of a split
     # A memory guard, not a budget: growth past it fails clearly (the budget, `max_gaussians`, is the base
-    # Strategy's field: growth stops at it). Named max_gaussians before the budget existed (issue 42).
+    # Strategy's field: growth stops at it). Named max_gaussians before the budget existed.
     memory_limit_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
     def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:

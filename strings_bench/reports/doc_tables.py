@@ -1,0 +1,258 @@
+"""Generated tables in Markdown pages: every results table of the documentation is made from a CSV committed
+beside it, so that a table cannot drift from its data.
+
+A generated block in a page is an HTML comment naming its data, the table, and a closing comment:
+
+    <!-- table (strings-bench docs refresh): data/default-run.csv kind=results columns=method,label,cer,cer_known -->
+    | method | ckpt | OCR-CER | known-text CER |
+    |---|---|---|---|
+    ...
+    <!-- end table -->
+
+The path is relative to the page. `refresh_page` rewrites every block from its data; `strings-bench docs
+refresh` does it for every page under `docs/` and the README, and `--check` fails where a page differs from
+what its data gives (tests/test_docs.py runs the check).
+
+Kinds (`kind=`, default `csv`):
+
+- `csv`: the CSV as it is, header and rows (for tables whose cells are already text);
+- `results`: rows of a `results.csv` (the run folder's), the columns named by `columns=` with their usual
+  headings and number formats; `bold=1` marks the best value of each readability column at each checkpoint
+  (lowest CER, highest accuracy);
+- `compare`: the long CSV `strings-bench compare` writes (method, label, value, mean, min, max, seeds, ...):
+  one row per method, one column per `values=` x `labels=` pair, each cell "mean (min-max)".
+
+Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whose column is one of the values
+(repeatable, comma-free values).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from strings_bench.core.errors import StringsBenchError
+
+OPEN = "<!-- table (strings-bench docs refresh): "
+CLOSE = "<!-- end table -->"
+BLOCK_RE = re.compile(rf"(?P<open>{re.escape(OPEN)}(?P<spec>[^>]*?) -->\n)(?P<body>.*?)(?P<close>{re.escape(CLOSE)})", re.S)
+
+# results.csv columns: heading, number format, and which way is better ("min", "max" or None).
+RESULT_COLUMNS: dict[str, tuple[str, str, str | None]] = {
+    "method": ("method", "s", None),
+    "dataset": ("dataset", "s", None),
+    "scene": ("scene", "s", None),
+    "label": ("ckpt", "s", None),
+    "iteration": ("steps", "int", None),
+    "cer": ("OCR-CER", ".3f", "min"),
+    "cer_known": ("known-text CER", ".3f", "min"),
+    "word_cer": ("word CER", ".3f", "min"),
+    "word_acc": ("word acc", ".3f", "max"),
+    "text_nll": ("text NLL (nats/char)", ".2f", "min"),
+    "psnr": ("PSNR (dB)", ".2f", None),
+    "ssim": ("SSIM", ".3f", None),
+    "lpips": ("LPIPS", ".3f", None),
+    "gaussians": ("Gaussians", "int", None),
+    "train_seconds": ("training (s)", ".0f", None),
+    "total_seconds": ("total (s)", ".0f", None),
+    "seed": ("seed", "s", None),
+}
+
+# compare's value names and their headings.
+COMPARE_VALUES = {
+    "cer": "OCR-CER", "cer_known": "known-text CER", "word_cer": "word CER", "word_acc": "word acc",
+    "psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "gaussians": "Gaussians", "train_minutes": "training (min)",
+}
+
+
+@dataclass
+class Block:
+    """One generated block of a page: its spec (the opening comment's text) and its current body."""
+
+    spec: str
+    body: str
+    start: int
+    end: int
+
+
+def parse_spec(spec: str) -> tuple[str, dict[str, list[str]]]:
+    """`"data/x.csv kind=results columns=a,b"` -> ("data/x.csv", {"kind": ["results"], "columns": ["a,b"]})."""
+    words = spec.split()
+    if not words:
+        raise StringsBenchError("a table block names no data file", hint="<!-- table (strings-bench docs refresh): data/FILE.csv [kind=...] -->")
+    options: dict[str, list[str]] = {}
+    for word in words[1:]:
+        key, eq, value = word.partition("=")
+        if not eq:
+            raise StringsBenchError(f"table option {word!r} is not KEY=VALUE")
+        options.setdefault(key, []).append(value)
+    return words[0], options
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        raise StringsBenchError(f"table data {path} does not exist")
+    with path.open(newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def _filter(rows: list[dict[str, str]], options: dict[str, list[str]], path: Path) -> list[dict[str, str]]:
+    for cond in options.get("where", []):
+        col, _, values = cond.partition(":")
+        if rows and col not in rows[0]:
+            raise StringsBenchError(f"{path}: where= names column {col!r}, which the CSV does not have")
+        keep = set(values.split("|"))
+        rows = [r for r in rows if r.get(col) in keep]
+    return rows
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def markdown(header: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _number(text: str) -> float | None:
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        return None
+    return None if math.isnan(v) else v
+
+
+def format_value(text: str, fmt: str) -> str:
+    """A results.csv value in its column's format; an empty or NaN value is 'n/a'."""
+    if fmt == "s":
+        return text
+    v = _number(text)
+    if v is None:
+        return "n/a" if text in ("", "nan", "NaN", "None") else text
+    if fmt == "int":
+        return f"{round(v):,}".replace(",", " ")
+    return format(v, fmt)
+
+
+def table_csv(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    if not rows:
+        raise StringsBenchError(f"{path} has no rows")
+    header = list(rows[0])
+    return markdown(header, [[r[h] for h in header] for r in rows])
+
+
+def table_results(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    columns = ",".join(options.get("columns", [])).split(",") if options.get("columns") else []
+    if not columns:
+        raise StringsBenchError(f"{path}: kind=results needs columns=NAME,...")
+    if not rows:
+        raise StringsBenchError(f"{path} has no rows")
+    for c in columns:
+        if c not in rows[0]:
+            raise StringsBenchError(f"{path} has no column {c!r}", hint=f"its columns: {', '.join(rows[0])}")
+        if c not in RESULT_COLUMNS:
+            raise StringsBenchError(f"no heading known for results column {c!r}",
+                                    hint=f"known: {', '.join(RESULT_COLUMNS)}")
+    bold = options.get("bold", ["0"])[-1] == "1"
+    best: dict[tuple[str, str], float] = {}
+    if bold:
+        for c in columns:
+            way = RESULT_COLUMNS[c][2]
+            for r in rows:
+                v = _number(r[c])
+                if way is None or v is None:
+                    continue
+                key = (r.get("label", ""), c)
+                cur = best.get(key)
+                if cur is None or (v < cur if way == "min" else v > cur):
+                    best[key] = v
+    out = []
+    for r in rows:
+        line = []
+        for c in columns:
+            text = format_value(r[c], RESULT_COLUMNS[c][1])
+            v = _number(r[c])
+            if bold and v is not None and RESULT_COLUMNS[c][2] and best.get((r.get("label", ""), c)) == v:
+                text = f"**{text}**"
+            line.append(text)
+        out.append(line)
+    return markdown([RESULT_COLUMNS[c][0] for c in columns], out)
+
+
+def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    values = ",".join(options.get("values", ["cer,cer_known"])).split(",")
+    labels = ",".join(options.get("labels", [])).split(",") if options.get("labels") else sorted(
+        {r["label"] for r in rows}, key=lambda s: (len(s), s))
+    digits = int(options.get("digits", ["3"])[-1])
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    index = {(r["method"], r["label"], r["value"]): r for r in rows}
+    if not any((m, l, v) in index for m in methods for l in labels for v in values):
+        raise StringsBenchError(f"{path}: none of values={','.join(values)} at labels={','.join(labels)}")
+    header = ["method", "seeds"] + [f"{COMPARE_VALUES.get(v, v)} {l}" for v in values for l in labels]
+    out = []
+    for m in methods:
+        seeds = next((r["seeds"] for (mm, _, _), r in index.items() if mm == m), "")
+        line = [m, seeds]
+        for v in values:
+            for l in labels:
+                r = index.get((m, l, v))
+                if r is None or _number(r["mean"]) is None:
+                    line.append("n/a")
+                    continue
+                mean, lo, hi = (_number(r[k]) for k in ("mean", "min", "max"))
+                cell = f"{mean:.{digits}f}"
+                if lo is not None and hi is not None and r.get("seeds", "1") not in ("", "1"):
+                    cell += f" ({lo:.{digits}f}-{hi:.{digits}f})"
+                line.append(cell)
+        out.append(line)
+    return markdown(header, out)
+
+
+KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare}
+
+
+def render_block(spec: str, page: Path) -> str:
+    """The body a block with `spec` has in `page` (a Markdown table ending in a newline)."""
+    data, options = parse_spec(spec)
+    kind = options.get("kind", ["csv"])[-1]
+    if kind not in KINDS:
+        raise StringsBenchError(f"{page}: unknown table kind {kind!r}", hint=f"kinds: {', '.join(KINDS)}")
+    path = (page.parent / data).resolve()
+    rows = _filter(read_csv(path), options, path)
+    return KINDS[kind](rows, options, path)
+
+
+def blocks(text: str) -> list[Block]:
+    return [Block(m["spec"], m["body"], m.start("body"), m.end("body")) for m in BLOCK_RE.finditer(text)]
+
+
+def refresh_text(text: str, page: Path) -> str:
+    """`text` (the content of `page`) with every generated block rewritten from its data."""
+    found = blocks(text)
+    if text.count(OPEN) != len(found):
+        raise StringsBenchError(f"{page}: {text.count(OPEN)} table markers but {len(found)} whole blocks",
+                                hint=f"every '{OPEN}...-->' line needs a '{CLOSE}' after its table")
+    out, pos = [], 0
+    for b in found:
+        out += [text[pos:b.start], render_block(b.spec, page)]
+        pos = b.end
+    out.append(text[pos:])
+    return "".join(out)
+
+
+def refresh_page(page: Path, check: bool = False) -> bool:
+    """Rewrite `page`'s generated blocks (or, with `check`, only compare). True when the page was (or would be)
+    changed."""
+    text = page.read_text(encoding="utf-8")
+    new = refresh_text(text, page)
+    if new == text:
+        return False
+    if not check:
+        page.write_text(new, encoding="utf-8")
+    return True
