@@ -1,10 +1,12 @@
 """A run folder written by 142d0ce's code reads, resumes and matches what today's code writes.
 
-tests/data/run_142d0ce/ was written by 142d0ce's own code: `runner.run(["fake-a", "fake-b"], [toy scene],
+tests/data/run_142d0ce/ was written by 142d0ce's own code: `bench.run(["fake-a", "fake-b"], [toy scene],
 schedule="tiny", ocr="fake", checkpoints=[3000, 7000], budget="fake-a")` with tests/runner_fakes.py (four cells:
 fake-a, the uncapped reference of the budget, and fake-b capped at fake-a's count, at 15 and 35 steps)."""
 
 from __future__ import annotations
+
+import strings_bench.bench as bench
 
 import csv
 import json
@@ -15,7 +17,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports.results import cell_row, iter_cells, read_manifest, write_results_csv
+from strings_bench.store import cell_row, iter_cells, read_manifest, write_results_csv
 
 OLD = Path(__file__).resolve().parent / "data" / "run_142d0ce"
 TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_seconds"}
@@ -70,7 +72,7 @@ def test_the_142d0ce_folder_resumes_without_training(old_run, tmp_path):
     rf.register_fakes()
     scene = rf.make_scene(tmp_path / "scenes", glyphs=True)
     rf.CALLS["train"].clear()
-    runner.run(["fake-a", "fake-b"], [str(scene)], **_kw(old_run))
+    bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(old_run))
     assert rf.CALLS["train"] == []
 
 
@@ -78,7 +80,7 @@ def test_todays_run_writes_the_142d0ce_cells_in_every_non_timing_column(tmp_path
     rf.register_fakes()
     scene = rf.make_scene(tmp_path / "scenes", glyphs=True)
     new = tmp_path / "new"
-    runner.run(["fake-a", "fake-b"], [str(scene)], **_kw(new))
+    bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(new))
     old_rows, new_rows = _rows(OLD), _rows(new)
     assert list(old_rows[0]) == list(new_rows[0])
     assert [{k: v for k, v in r.items() if k not in TIMING} for r in new_rows] == \
