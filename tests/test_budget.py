@@ -290,7 +290,7 @@ def test_budget_records_and_caps():
     ref = Budget.parse("3dgs", "/runs/seed0")
     assert ref.manifest() == {"budget": "3dgs", "budget_from": "/runs/seed0"}
     assert ref.record("3dgs", "d", "s", (10, 20), "unused") == "reference" and cap_of("reference") is None
-    assert ref.first(["absgs", "3dgs", "mcmc"]) == ["3dgs", "absgs", "mcmc"]
+    assert ref.is_reference("3dgs") and not ref.is_reference("absgs") and not count.is_reference("absgs")
     assert ref.reference_cell("d", "s", (10, 20)).iteration == 20
 
 

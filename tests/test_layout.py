@@ -391,15 +391,17 @@ def test_job_and_cell_config_are_keyword_only_and_frozen():
 
     from strings_bench.bench.executors import Job
     from strings_bench.store import CellConfig
+    from strings_bench.bench.budget import Budget
+    from strings_bench.bench.plan import MethodPlan, RunPlan
 
-    for cls in (Job, CellConfig):
+    for cls in (Job, CellConfig, RunPlan, MethodPlan, Budget):
         assert cls.__dataclass_params__.frozen, cls
         with __import__("pytest").raises(TypeError):
             cls("positional")
         assert all(f.kw_only for f in dataclasses.fields(cls))
 
 
-def positional_constructions(paths, names=("Job", "CellConfig", "CellRecord")) -> list[str]:
+def positional_constructions(paths, names=("Job", "CellConfig", "CellRecord", "RunPlan", "MethodPlan", "Budget")) -> list[str]:
     """`file:line` for every call of one of `names` with a positional argument."""
     found = []
     for path in paths:

@@ -7,8 +7,8 @@ whose METHOD cells were trained uncapped at the same schedule and image scale). 
 `max_gaussians` setting (engine/strategies/base.py), never through `--set`.
 
 The life of a budget: `Budget.parse` (the command line), `check` (against the run's methods and folders, before any
-scene is built), `manifest` (what run.json records), `cap` (resolved per job, where it runs) and `record` (what each
-cell records: results.csv's `budget` column).
+scene is built), `manifest` (what run.json records), and `record`, where a job runs: what its cells record
+(results.csv's `budget` column), from which `cap_of` reads the cap its method is built with.
 """
 
 from __future__ import annotations
@@ -131,10 +131,6 @@ class Budget:
     def manifest(self) -> dict:
         """run.json's entries: `budget` (the count or the reference's name) and, with `--budget-from`, `budget_from`."""
         return {"budget": self.rule, **({"budget_from": self.folder} if self.folder is not None else {})}
-
-    def first(self, methods: list[str]) -> list[str]:
-        """`methods` with the reference's first: the others' caps are its counts."""
-        return sorted(methods, key=lambda m: m != self.reference)
 
     def is_reference(self, method: str) -> bool:
         return method == self.reference
