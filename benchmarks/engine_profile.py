@@ -78,7 +78,7 @@ def load_scene(spec: str):
 def build_method(schedule: str):
     from strings_bench.methods.registry import get_method
 
-    return get_method("3dgs").build(steps_scale=get_schedule(schedule).steps_scale)
+    return get_method("3dgs").build(default_steps_scale=get_schedule(schedule).steps_scale)
 
 
 def trained_states(scene, schedule: str, at: list[int], state_dir: Path) -> dict[int, Path]:

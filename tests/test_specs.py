@@ -34,7 +34,7 @@ def test_every_builtin_implementation_loads_under_its_name():
     for spec in BUILTIN_SPECS:
         impl = spec.load()
         assert isinstance(impl, type), spec.name
-        obj = spec.build(steps_scale=get_schedule("tiny").steps_scale)
+        obj = spec.build(default_steps_scale=get_schedule("tiny").steps_scale)
         assert obj.name == spec.name
 
 
@@ -116,7 +116,7 @@ def test_spec_is_keyword_only_and_its_paper_figures_are_named():
     # the name lives on the spec only; a built method carries it
     from strings_bench.methods.mip_splatting import MipSplatting
 
-    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(steps_scale=get_schedule("tiny").steps_scale).name == "mip-splatting"
+    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(default_steps_scale=get_schedule("tiny").steps_scale).name == "mip-splatting"
 
 
 def test_ablations_are_named_by_their_specs_and_read_by_the_tables():

@@ -216,7 +216,7 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
         from strings_bench.scene.scene import Scene
 
         ply = work / "stand_in" / "point_cloud.ply"
-        trainer = Trainer(get_method("3dgs").build(steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale), Scene.load(scene_path), [CHECK_STEPS],
+        trainer = Trainer(get_method("3dgs").build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale), Scene.load(scene_path), [CHECK_STEPS],
                           device="cpu", progress=False, render_test=False, model_path=lambda step: ply)
         for _ in trainer.train():
             pass
@@ -245,7 +245,7 @@ class CheckContext:
     reloaded: Any = None
 
     def build(self) -> Any:
-        obj = self.spec.build(steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale, **self.settings)
+        obj = self.spec.build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale, **self.settings)
         if not isinstance(obj, (Method, MethodAdapter)):
             raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
                               "(strings_bench.core.method)")

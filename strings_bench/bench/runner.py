@@ -63,7 +63,8 @@ def build_method(job: Job, cap: int | None = None):
     from strings_bench.methods.registry import get_method
 
     settings = {**job.method_settings, **({CAP_SETTING: cap} if cap is not None else {})}
-    return get_method(job.method).build(job.method_presets, steps_scale=job.steps_scale, **settings)
+    # a --set steps_scale among the settings wins over the job's (which is that value already)
+    return get_method(job.method).build(job.method_presets, default_steps_scale=job.steps_scale, **settings)
 
 
 def _load_scene(job: Job):

@@ -187,12 +187,13 @@ class MethodSpec:
         its = fixed(settings) if fixed is not None else None
         return sorted(int(i) for i in its) if its else None
 
-    def build(self, presets=None, *, steps_scale: float | None = None, **overrides):
+    def build(self, presets=None, *, default_steps_scale: float | None = None, **overrides):
         """A configured method object (a `Method` or a `MethodAdapter`); `presets`: a preset name or a list;
-        `steps_scale`: train at that steps scale where the method takes one (`with_steps_scale`), as a run of a
-        schedule does (`build(steps_scale=get_schedule("tiny").steps_scale)`); a `steps_scale` in `overrides` wins."""
-        if steps_scale is not None:
-            overrides = self.with_steps_scale(steps_scale, overrides)
+        `default_steps_scale`: train at that steps scale where the method takes one (`with_steps_scale`), as a run
+        of a schedule does (`build(default_steps_scale=get_schedule("tiny").steps_scale)`); a `steps_scale` in
+        `overrides` (`--set steps_scale=S`) wins."""
+        if default_steps_scale is not None:
+            overrides = self.with_steps_scale(default_steps_scale, overrides)
         settings = self.resolve(presets, **overrides)
         impl = self.load()
         self.check_keys(settings)
