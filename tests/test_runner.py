@@ -382,7 +382,8 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     assert only_its.jobs[0].checkpoints == (15,) and only_its.jobs[0].labels == {15: "3K"}
     mine = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1,
                            method_overrides={"fake-scaled": {"steps_scale": 0.01}})
-    assert mine.jobs[0].checkpoints == (30, 70, 300)
+    assert mine.jobs[0].checkpoints == (30, 70, 300) and mine.jobs[0].steps_scale == 0.01
+    assert runner.build_method(mine.jobs[0]).settings["steps_scale"] == 0.01  # built with the --set value
     for bad in ({"steps_scale": 0}, {"steps_scale": float("nan")}, {"checkpoints": []}, {"checkpoints": [0]}):
         with pytest.raises(StringsBenchError):
             plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", **bad)
