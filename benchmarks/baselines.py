@@ -12,6 +12,8 @@ quick x0.01, standard x0.05, ...), the scale a run of that schedule trains every
 
 from __future__ import annotations
 
+from strings_bench.core.schedules import get_schedule
+
 import argparse
 import json
 import sys
@@ -52,7 +54,7 @@ def build(method: str, schedule: str, paper_checkpoints, **settings):
     with (its schedule's from strings_bench/core/schedules.py, or a given steps_scale)."""
     from strings_bench.methods.registry import get_method
 
-    adapter = get_method(method).build(schedule=schedule, **settings)
+    adapter = get_method(method).build(default_steps_scale=get_schedule(schedule).steps_scale, **settings)
     s = float(adapter.settings["steps_scale"])
     return adapter, s, sorted({max(1, round(c * s)) for c in paper_checkpoints})
 

@@ -148,7 +148,6 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(HERE.parent))
     import engine_profile as E
     from strings_bench.core.io import cache_root
     from strings_bench.engine.trainer import cpu_threads, keep_freed_memory

@@ -1,4 +1,4 @@
-"""`strings-bench compare`, under its former name: every argument is passed on (strings_bench/reports/compare.py).
+"""`strings-bench compare`, under its former name: every argument is passed on (strings_bench/reports/compare/).
 
     python benchmarks/comparison.py runs/s360cpu-compare runs/s360cpu-seed1 runs/s360cpu-seed2-7k --per-scene cer_known
 """

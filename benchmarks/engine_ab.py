@@ -41,7 +41,6 @@ def worker(state: str, first: int, steps: int) -> int:
     `steps` steps, print JSON with ms/step and a hash of the parameters."""
     import torch
 
-    sys.path.insert(0, str(HERE.parent))
     import engine_profile as E
 
     try:
@@ -125,7 +124,6 @@ def main(argv=None) -> int:
         return worker(args.worker[0], int(args.worker[1]), int(args.worker[2]))
     if not (args.old or args.old_tree):
         ap.error("give --old COMMIT or --old-tree PATH")
-    sys.path.insert(0, str(HERE.parent))
     import engine_profile as E
     from strings_bench.core.io import cache_root
 

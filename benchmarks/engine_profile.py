@@ -45,6 +45,8 @@ the default float32 ones.
 
 from __future__ import annotations
 
+from strings_bench.core.schedules import get_schedule
+
 import argparse
 import io
 import json
@@ -76,7 +78,7 @@ def load_scene(spec: str):
 def build_method(schedule: str):
     from strings_bench.methods.registry import get_method
 
-    return get_method("3dgs").build(schedule=schedule)
+    return get_method("3dgs").build(default_steps_scale=get_schedule(schedule).steps_scale)
 
 
 def trained_states(scene, schedule: str, at: list[int], state_dir: Path) -> dict[int, Path]:

@@ -77,7 +77,6 @@ def write_colmap(out: Path, cameras, image_paths, xyz: np.ndarray, rgb: np.ndarr
 
 def point_clouds(sizes: list[int], work: Path) -> dict[int, Path]:
     """One COLMAP project per size (cached)."""
-    sys.path.insert(0, str(Path(__file__).parent))
     import engine_profile as E
     import torch
 

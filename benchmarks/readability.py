@@ -16,6 +16,9 @@ cell: eval seconds, of which the word-crop recogniser, in the same runs.
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import ALL_METHODS
+
 import argparse
 import json
 import math
@@ -60,7 +63,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
-    from strings_bench.reports.results import cell_row, iter_cells
+    from strings_bench.store import cell_row, iter_cells
 
     methods = args.methods.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -80,8 +83,8 @@ def main(argv=None) -> int:
     for seed in seeds:
         run_dir = Path(args.out) / f"seed{seed}"
         print(f"== seed {seed}: {run_dir}", file=sys.stderr, flush=True)
-        runner.run(methods, datasets, run_dir=run_dir, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
-                   with_lpips=not args.no_lpips, progress=False, method_overrides={runner.ALL_METHODS: {"seed": seed}})
+        bench.run(methods, datasets, run_dir=run_dir, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
+                   with_lpips=not args.no_lpips, progress=False, method_overrides={ALL_METHODS: {"seed": seed}})
         cells = defaultdict(lambda: defaultdict(list))
         for rec in iter_cells(run_dir):
             row = cell_row(rec)

@@ -13,6 +13,8 @@ folder is resumable; `--run DIR` only analyses an existing one.
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import argparse
 import sys
 from pathlib import Path
@@ -57,7 +59,7 @@ def main(argv=None) -> int:
     if args.run is None:
         import strings_bench.bench.runner as runner
 
-        runner.run(args.methods.split(","), args.datasets.split(","), run_dir=run_dir, schedule="quick",
+        bench.run(args.methods.split(","), args.datasets.split(","), run_dir=run_dir, schedule="quick",
                    steps_scale=args.steps_scale, checkpoints=[int(c) for c in args.checkpoints.split(",")],
                    progress=True)
     df = pd.concat([pd.read_csv(Path(d) / "results.csv") for d in [run_dir, *args.also]], ignore_index=True)

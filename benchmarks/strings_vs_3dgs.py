@@ -20,6 +20,8 @@ Timings are noisy on a shared machine; the run folder keeps every number (result
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import argparse
 import math
 import sys
@@ -55,7 +57,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import strings_bench.bench.runner as runner
-    from strings_bench.reports.results import cell_row, iter_cells
+    from strings_bench.store import cell_row, iter_cells
     from strings_bench.cli.run import parse_checkpoints, parse_settings
 
     methods = args.methods.split(",")
@@ -70,7 +72,7 @@ def main(argv=None) -> int:
         name += "-" + "-".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in paper_its)
     run_dir = Path(args.out) / name
     overrides = parse_settings(args.set)  # the CLI's --set parsing
-    runner.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, schedule=args.schedule, ocr=args.ocr,
+    bench.run(methods, [f"synthetic/{s}" for s in scenes], run_dir=run_dir, schedule=args.schedule, ocr=args.ocr,
                with_lpips=False, write_report=False, downscale=args.downscale, method_overrides=overrides or None,
                steps_scale=args.steps_scale, checkpoints=paper_its, device=args.device)
     schedule = args.schedule + ("" if args.steps_scale is None else f" x{args.steps_scale:g}") + (

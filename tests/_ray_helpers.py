@@ -6,7 +6,7 @@ import os
 import time
 from pathlib import Path
 
-import strings_bench.reports.results as cell_writer  # write_cell writes result.json through its atomic_write_json
+import strings_bench.store.cells as cell_writer  # write_cell writes result.json through its atomic_write_json
 from strings_bench.bench.runner import Runner
 from strings_bench.core.results import RESULT_FILE
 

@@ -13,6 +13,8 @@
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import os
 import shutil
 import tempfile
@@ -64,6 +66,6 @@ def fake_run(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("fake_run")
     scene = rf.make_scene(root / "scenes" / "toyset", glyphs=True)
     out = root / "run"
-    runner.run(["fake-a", "fake-b", "fake-c"], [str(scene)], run_dir=out, schedule="tiny", ocr="fake",
+    bench.run(["fake-a", "fake-b", "fake-c"], [str(scene)], run_dir=out, schedule="tiny", ocr="fake",
                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
     return out

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from strings_bench.core.schedules import get_schedule
+
 import math
 import sys
 from pathlib import Path
@@ -463,7 +465,7 @@ def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small
     gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}
     final = {}
     for method in ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]:
-        results = eh.train(get_method(method).build(schedule="standard"), scene, [350, 1500])
+        results = eh.train(get_method(method).build(default_steps_scale=get_schedule("standard").steps_scale), scene, [350, 1500])
         assert [r.iteration for r in results] == [350, 1500]
         last = results[-1]
         for img in last.renders.values():

@@ -7,6 +7,9 @@ that the cap binds, and fails as soon as one holds more Gaussians than the cap a
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import plan_run
+
 import math
 
 import numpy as np
@@ -239,7 +242,7 @@ def _run(tmp_path, methods, budget, out="run", **kw):
 
     overrides = {m: {k: v for k, v in FAST_RUN.items() if k in {s.name for s in get_method(m).settings()}}
                  for m in methods}
-    return runner.run(methods, [str(tiny_scene())], run_dir=tmp_path / out, schedule="tiny", steps_scale=0.02,
+    return bench.run(methods, [str(tiny_scene())], run_dir=tmp_path / out, schedule="tiny", steps_scale=0.02,
                       checkpoints=[1000], ocr="fake", ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False,
                       write_report=False, method_overrides=overrides, budget=budget, **kw)
 
@@ -253,17 +256,42 @@ def _cell(run_dir, method):
 
 @pytest.mark.parametrize("text, value", [("40000", 40000), ("40k", 40000), (1500, 1500), (None, None), ("3dgs", "3dgs")])
 def test_parse_budget(text, value):
-    from strings_bench.bench.plan import parse_budget
+    from strings_bench.bench.budget import Budget
 
-    assert parse_budget(text) == value
+    b = Budget.parse(text)
+    assert (None if b is None else b.rule) == value
+    assert b is None or (b.count, b.reference) == ((value, None) if isinstance(value, int) else (None, value))
 
 
 @pytest.mark.parametrize("bad", ["0", "-3", 2.5, "1.5k", True])
 def test_parse_budget_refuses_what_is_not_a_count_or_a_name(bad):
-    from strings_bench.bench.plan import parse_budget
+    from strings_bench.bench.budget import Budget
 
     with pytest.raises(StringsBenchError, match="budget"):
-        parse_budget(bad)
+        Budget.parse(bad)
+
+
+@pytest.mark.parametrize("value", [None, 40000])
+def test_budget_from_goes_with_a_method_name_only(value):
+    from strings_bench.bench.budget import Budget
+
+    with pytest.raises(StringsBenchError, match="--budget-from goes with --budget METHOD"):
+        Budget.parse(value, "runs/seed0")
+    assert Budget.parse("3dgs", "runs/seed0") == Budget(reference="3dgs", folder="runs/seed0")
+
+
+def test_budget_records_and_caps():
+    from strings_bench.bench.budget import Budget, cap_of
+
+    count = Budget.parse("40k")
+    assert count.manifest() == {"budget": 40000}
+    rec = count.record("absgs", "d", "s", (10, 20), "unused")
+    assert rec == {"rule": "40000", "max_gaussians": 40000, "reference": None} and cap_of(rec) == 40000
+    ref = Budget.parse("3dgs", "/runs/seed0")
+    assert ref.manifest() == {"budget": "3dgs", "budget_from": "/runs/seed0"}
+    assert ref.record("3dgs", "d", "s", (10, 20), "unused") == "reference" and cap_of("reference") is None
+    assert ref.is_reference("3dgs") and not ref.is_reference("absgs") and not count.is_reference("absgs")
+    assert ref.reference_cell("d", "s", (10, 20)).iteration == 20
 
 
 def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path):
@@ -320,19 +348,19 @@ def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
     scene = str(tiny_scene())
 
     def plan(**kw):
-        return runner.plan_run(["absgs"], [scene], schedule="tiny", steps_scale=0.02, checkpoints=[1000], **kw)
+        return plan_run(["absgs"], [scene], schedule="tiny", steps_scale=0.02, checkpoints=[1000], **kw)
 
     with pytest.raises(StringsBenchError, match="goes with --budget METHOD"):
         plan(run_dir=tmp_path / "e1", budget=2000, budget_from=ref_dir)
     with pytest.raises(StringsBenchError, match="3dgs is not trained in this run"):
-        runner.plan_run(["3dgs", "absgs"], [scene], run_dir=tmp_path / "e2", schedule="tiny", steps_scale=0.02,
+        plan_run(["3dgs", "absgs"], [scene], run_dir=tmp_path / "e2", schedule="tiny", steps_scale=0.02,
                         budget="3dgs", budget_from=ref_dir)
     with pytest.raises(StringsBenchError, match="not a run folder"):
         plan(run_dir=tmp_path / "e3", budget="3dgs", budget_from=tmp_path / "nowhere")
     with pytest.raises(StringsBenchError, match="holds no mcmc cells"):
         plan(run_dir=tmp_path / "e4", budget="mcmc", budget_from=ref_dir)
     with pytest.raises(StringsBenchError, match="--steps-scale 0.02; this run asks for 0.05"):
-        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "e5", schedule="tiny", steps_scale=0.05,
+        plan_run(["absgs"], [scene], run_dir=tmp_path / "e5", schedule="tiny", steps_scale=0.05,
                         budget="3dgs", budget_from=ref_dir)
     with pytest.raises(StringsBenchError, match="were capped"):  # a budgeted folder's counts are no reference
         plan(run_dir=tmp_path / "e6", budget="3dgs", budget_from=_run(tmp_path, ["3dgs"], 1500, out="capped"))
@@ -356,12 +384,12 @@ def test_budget_errors_are_clear(tmp_path):
 
     scene = str(tiny_scene())
     with pytest.raises(StringsBenchError, match="needs 3dgs among the run's methods"):
-        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "r1", schedule="tiny", budget="3dgs")
+        plan_run(["absgs"], [scene], run_dir=tmp_path / "r1", schedule="tiny", budget="3dgs")
     with pytest.raises(StringsBenchError, match="set with --budget, not --set"):
-        runner.plan_run(["absgs"], [scene], run_dir=tmp_path / "r2", schedule="tiny",
+        plan_run(["absgs"], [scene], run_dir=tmp_path / "r2", schedule="tiny",
                         method_overrides={"absgs": {"max_gaussians": 5}})
     with pytest.raises(StringsBenchError, match="method ply takes no Gaussian budget"):
-        runner.plan_run(["ply"], [scene], run_dir=tmp_path / "r3", schedule="tiny", budget=2000)
+        plan_run(["ply"], [scene], run_dir=tmp_path / "r3", schedule="tiny", budget=2000)
 
 
 def test_cli_run_takes_budget():

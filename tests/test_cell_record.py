@@ -1,4 +1,4 @@
-"""One cell record (reports/results.py): `CellRecord` and `write_cell`, which the runner and `evaluate` both call."""
+"""One cell record (store/cells.py): `CellRecord` and `write_cell`, which the runner and `evaluate` both call."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.reports.results import (RESULT_FILE, WORDS_FILE, CellRecord, cell_row, iter_cells, render_file_name,
+from strings_bench.store import (RESULT_FILE, WORDS_FILE, CellConfig, CellRecord, cell_row, iter_cells, render_file_name,
                                            write_cell)
 
 
@@ -16,7 +16,7 @@ def _record(**kw) -> CellRecord:
     scores = {"metrics": {"psnr": 31.5, "ssim": 0.91, "lpips": float("nan")},
               "cer": {"cer": 0.25, "errors": 1, "chars": 4, "images": {"v.png": {}}}, "cer_known": None}
     base = dict(method="m", dataset="d", scene="s", iteration=35, label="7K",
-                config={"schedule": "tiny", "downscale": 1.0}, timings={"train_seconds": 2.0, "eval_seconds": 0.5},
+                config=CellConfig(schedule="tiny", downscale=1.0), timings={"train_seconds": 2.0, "eval_seconds": 0.5},
                 scores=scores, gaussians=1200, extra={"steps_scale": 0.005})
     return CellRecord(**{**base, **kw})
 

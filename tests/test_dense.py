@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.core.results import CellKey
+
 import argparse
 import csv
 import json
@@ -62,7 +65,7 @@ def test_dense_checkpoints_get_word_crop_metrics_only_and_gt_is_read_once(tmp_pa
     rf.register_fakes()
     ocr = rf.FakeOCR()
     out = tmp_path / "run"
-    runner.run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000, 7000],
+    bench.run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000, 7000],
                dense_every=1000, ocr="fake", ocr_backend=ocr, with_lpips=False, progress=False)
     rows = _rows(out)
     assert len(rows) == 2 * 7
@@ -71,7 +74,7 @@ def test_dense_checkpoints_get_word_crop_metrics_only_and_gt_is_read_once(tmp_pa
         assert r["evaluation"] == ("words" if dense else "full")
         assert (r["cer"] == "") == dense  # no OCR of the renders at a dense checkpoint
         assert r["word_cer"] != "" and r["psnr"] != ""  # word-crop metrics and PSNR at every checkpoint
-        rec = json.loads((runner.CellKey(r["method"], r["dataset"], r["scene"], int(r["iteration"])).path(out)
+        rec = json.loads((CellKey(r["method"], r["dataset"], r["scene"], int(r["iteration"])).path(out)
                           / "result.json").read_text())
         assert rec["evaluation"] == r["evaluation"]
     # OCR reads: each of the 2 GT views once for the whole scene (both methods' jobs share the GT side), and the
@@ -84,7 +87,7 @@ def test_dense_checkpoints_get_word_crop_metrics_only_and_gt_is_read_once(tmp_pa
     assert manifest["dense_every"] == 1000 and manifest["dense_eval"] == "words"
     # Resuming with another dense schedule is refused.
     with pytest.raises(StringsBenchError, match="every:N"):
-        runner.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000, 7000],
+        bench.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000, 7000],
                    dense_every=500, ocr="fake", ocr_backend=ocr, with_lpips=False, progress=False)
 
 
@@ -92,7 +95,7 @@ def test_dense_eval_full_evaluates_every_checkpoint(tmp_path, scene_dir):
     rf.register_fakes()
     ocr = rf.FakeOCR()
     out = tmp_path / "run"
-    runner.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000], dense_every=1000,
+    bench.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", checkpoints=[3000], dense_every=1000,
                dense_eval="full", ocr="fake", ocr_backend=ocr, with_lpips=False, progress=False, write_report=False)
     rows = _rows(out)
     assert [r["label"] for r in rows] == ["1K", "2K", "3K"]
@@ -106,8 +109,8 @@ def test_dense_checkpoints_do_not_change_the_fully_evaluated_cells(tmp_path, sce
     rf.register_fakes()
     kw = dict(schedule="tiny", checkpoints=[3000, 7000], ocr="fake", with_lpips=False, progress=False,
               write_report=False)
-    runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "plain", ocr_backend=rf.FakeOCR(), **kw)
-    runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "dense", ocr_backend=rf.FakeOCR(), dense_every=1000,
+    bench.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "plain", ocr_backend=rf.FakeOCR(), **kw)
+    bench.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "dense", ocr_backend=rf.FakeOCR(), dense_every=1000,
                **kw)
     plain = {r["iteration"]: r for r in _rows(tmp_path / "plain")}
     dense = {r["iteration"]: r for r in _rows(tmp_path / "dense")}

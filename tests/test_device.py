@@ -9,6 +9,8 @@ machine, the places that would break on CUDA.
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import collections
 import contextlib
 import math
@@ -156,7 +158,7 @@ def test_runner_evaluation_with_meta_default_device(tmp_path):
 
     scene_dir = rf.make_scene(tmp_path / "scenes")
     with default_device_meta():
-        out = runner.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+        out = bench.run(["3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                          ocr_backend=rf.FakeOCR(), with_lpips=True, progress=False, steps_scale=1.0,
                          checkpoints=(3, 6), device="cpu", method_overrides={"3dgs": {"sh_degree": 0}})
     results = sorted((out / "cells").rglob("result.json"))
@@ -194,7 +196,7 @@ def test_unknown_device_is_refused():
     import strings_bench.bench.runner as runner
 
     with pytest.raises(StringsBenchError, match="unknown device"):
-        runner.run(["3dgs"], ["synthetic/books"], device="gpu0", progress=False)
+        bench.run(["3dgs"], ["synthetic/books"], device="gpu0", progress=False)
 
 
 def test_scene_given_as_a_path_is_labelled_by_its_folder(tmp_path):

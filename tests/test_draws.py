@@ -5,6 +5,8 @@ mean over draws with the draws' range. The comparison tool's side is tests/test_
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import argparse
 import csv
 import io
@@ -140,7 +142,7 @@ def test_a_draw_is_another_build_of_the_room_and_its_cells_are_its_own(tiny_card
     assert m1["text_points"] > 0 and m1["text_points"] <= m1["points"]
     rf.register_fakes()
     out = tmp_path / "run"
-    runner.run(["fake-a"], ["s360-tiny/office", "s360-tiny/office@1"], run_dir=out, schedule="tiny", ocr="fake",
+    bench.run(["fake-a"], ["s360-tiny/office", "s360-tiny/office@1"], run_dir=out, schedule="tiny", ocr="fake",
                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False)
     results = list(csv.DictReader((out / "results.csv").open()))
     assert sorted({r["scene"] for r in results}) == ["office", "office@1"]
@@ -170,7 +172,7 @@ def test_calibrate_expands_draws_for_the_dataset_and_every_grid_point(tmp_path, 
     import strings_bench.bench.runner as runner
 
     calls = []
-    monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append(specs))
+    monkeypatch.setattr(bench, "run", lambda methods, specs, **kw: calls.append(specs))
     (tmp_path / "run").mkdir()
     base = ["calibrate", "--regime", "cpu", "--scenes", "pantry,office", "--draws", "0,1", "--out", str(tmp_path / "run")]
     assert cli_main([*base, "--dataset", "synthetic360-cpu"]) == 0
@@ -271,7 +273,7 @@ def test_a_named_schedule_is_one_table_entry_for_run_and_calibrate(monkeypatch, 
     import strings_bench.bench.runner as runner
 
     calls = []
-    monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append(kw))
+    monkeypatch.setattr(bench, "run", lambda methods, specs, **kw: calls.append(kw))
     (tmp_path / "run").mkdir()
     base = ["calibrate", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
     assert cli_main([*base, "--regime", "cpu-test"]) == 0 and cli_main([*base, "--regime", "cpu", "--steps-scale", "0.2"]) == 0

@@ -1,3 +1,4 @@
+from strings_bench.core.schedules import get_schedule
 """Engine: Gaussian init, Adam (vs torch.optim.Adam), LR schedule, densification ops (state, extras,
 children statistics), the vanilla 3DGS strategy, and the trainer (end to end, repeatability, NaN)."""
 
@@ -384,8 +385,8 @@ def test_gs3d_method_registered_and_trains(tiny_scene):
     from strings_bench.methods.registry import get_method
 
     spec = get_method("3dgs")
-    assert spec.takes_steps_scale() and not spec.presets  # the run's schedule scales it (build(schedule=...))
-    method = spec.build(schedule="quick", sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
+    assert spec.takes_steps_scale() and not spec.presets  # the run's schedule scales it (build(default_steps_scale=...))
+    method = spec.build(default_steps_scale=get_schedule("quick").steps_scale, sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
     assert method.config.lrs.opacity_logits == 0.025 and method.strategy.grow_grad2d == 3e-4
     assert method.config.steps_scale == 0.01
     results = train(method, tiny_scene, [10, 20])

@@ -3,6 +3,8 @@ computation, run and evaluate agreeing to the last digit, the release's masks, b
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import csv
 import json
 import math
@@ -129,7 +131,7 @@ def test_gt_as_renders_reads_like_gt_and_gray_reads_nothing(tmp_path, ocr):
     rd = cell["readability"]
     assert rd["render"]["word_cer"] == pytest.approx(rd["gt"]["word_cer"], abs=1e-12)  # the GT ceiling
     # evaluate writes the cell's words.csv too; its sums are the cell's word-crop figures (issue 30)
-    from strings_bench.reports.results import WORDS_FILE, read_words_csv, words_summary
+    from strings_bench.store import WORDS_FILE, read_words_csv, words_summary
 
     (words_csv,) = sorted((tmp_path / "same" / "cells").glob(f"*/*/*/*/{WORDS_FILE}"))
     rows = read_words_csv(words_csv)
@@ -261,7 +263,7 @@ def toy_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("agree")
     scene = rf.make_scene(root / "scenes", glyphs=True)
     out = root / "run"
-    runner.run(["fake-a"], [str(scene)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+    bench.run(["fake-a"], [str(scene)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                with_lpips=True, lpips_at="all", progress=False, write_report=False)
     return scene, out
 
@@ -287,7 +289,7 @@ def test_run_and_evaluate_agree_to_the_last_digit(tmp_path, toy_run):
         row_ev = _rows(out)[0]
         for col in ("cer", "cer_known", "psnr", "ssim", "lpips", "word_cer", "text_nll", "text_psnr", "cer_errors"):
             assert row_ev[col] == row_run[col], col
-        # One cell record (reports.results.write_cell): the same fields and the same render file names.
+        # One cell record (store.write_cell): the same fields and the same render file names.
         assert set(ev) == set(cell) and set(ev["timings"]) == set(cell["timings"])
         ev_renders = out / "cells" / ev["method"] / ev["dataset"] / ev["scene"] / str(ev["iteration"]) / "renders"
         assert sorted(p.name for p in ev_renders.iterdir()) == sorted(p.name for p in renders.iterdir())

@@ -4,6 +4,11 @@ zero, seed routing, dataset-card imports, the baselines script's presets, phase-
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.core.results import CellKey
+
+from strings_bench.core.schedules import get_schedule
+
 import csv
 import importlib.util
 import json
@@ -50,7 +55,7 @@ QUIET = dict(mask_dilation_fraction=0.0, mask_dilation_px=None, n_max=3, sh_degr
 
 def _strings_trainer(scene, preset, **settings):
     """STRinGS at the paper's schedule, as the paper ("paper") or with the release's preset ("release")."""
-    m = get_method("strings").build(None if preset == "paper" else preset, schedule="paper", **{**QUIET, **settings})
+    m = get_method("strings").build(None if preset == "paper" else preset, default_steps_scale=get_schedule("paper").steps_scale, **{**QUIET, **settings})
     m.progress = False
     m.setup(scene, downscale=1, device="cpu")
     return m
@@ -84,7 +89,7 @@ def test_gamma_full_schedule_both_presets(text_scene, preset):
 def test_release_preset_settings():
     rel = get_method("strings").build("release").settings
     assert rel["gamma"] == 12000 and rel["gamma_counter"] == "phase2"
-    paper = get_method("strings").build(schedule="paper").settings
+    paper = get_method("strings").build(default_steps_scale=get_schedule("paper").steps_scale).settings
     assert "gamma_counter" not in paper  # paper preset unchanged: default gamma 15000 on the global counter
     from strings_bench.methods.strings.method import StringsSettings
 
@@ -189,7 +194,7 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
     out = tmp_path / "run"
 
     def run():
-        return runner.run(["fake-pre", "fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
+        return bench.run(["fake-pre", "fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
                           ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
 
     run()
@@ -228,12 +233,12 @@ def test_results_csv_timing_columns_old_cells_and_tables(tmp_path):
 
     # A cell written before the new columns: no preprocess/total in timings. STRinGS' old cells kept
     # their preprocessing in extra["preprocess_seconds"]; other methods had none.
-    cell = runner.CellKey("fake-pre", "toy", "toy", 35).path(out) / "result.json"
+    cell = CellKey("fake-pre", "toy", "toy", 35).path(out) / "result.json"
     rec = json.loads(cell.read_text())
     rec["timings"] = {"train_seconds": 24.0, "eval_seconds": 1.0}
     rec["extra"] = {"preprocess_seconds": 7.0}
     cell.write_text(json.dumps(rec))
-    cell_a = runner.CellKey("fake-a", "toy", "toy", 35).path(out) / "result.json"
+    cell_a = CellKey("fake-a", "toy", "toy", 35).path(out) / "result.json"
     rec = json.loads(cell_a.read_text())
     rec["timings"] = {"train_seconds": 24.0, "eval_seconds": 1.0}
     cell_a.write_text(json.dumps(rec))
@@ -308,7 +313,7 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     config, strategy = config_from_settings({"seed": 7}, strategy_cls=MCMCStrategy)
     assert config.seed == 7 and strategy.seed == 7
     over = parse_settings(["mcmc.seed=11"])
-    trainer = get_method("mcmc").build(schedule="tiny", **over["mcmc"])
+    trainer = get_method("mcmc").build(default_steps_scale=get_schedule("tiny").steps_scale, **over["mcmc"])
     assert trainer.config.seed == 11 and trainer.strategy.seed == 11
     state = trainer.strategy.initialize_state(1.0, 0.005)
     # made at first use, on the model's device (a CPU generator cannot sample CUDA tensors)
@@ -316,10 +321,10 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     assert gen is not None and gen.initial_seed() == 11 and gen.device.type == "cpu"
     assert trainer.strategy.generator(state, torch.device("cpu")) is gen  # one stream for the whole run
     # Without a seed MCMC samples from torch's global RNG (seeded by the trainer's default 0), as documented.
-    plain = get_method("mcmc").build(schedule="tiny")
+    plain = get_method("mcmc").build(default_steps_scale=get_schedule("tiny").steps_scale)
     assert plain.config.seed == 0 and plain.strategy.seed is None
     # A seed for a method whose strategy has none still reaches only the trainer.
-    t3 = get_method("3dgs").build(schedule="tiny", seed=5)
+    t3 = get_method("3dgs").build(default_steps_scale=get_schedule("tiny").steps_scale, seed=5)
     assert t3.config.seed == 5
 
 
@@ -395,7 +400,7 @@ def test_no_progress_reaches_trainer_and_mask_bar(text_scene, monkeypatch):
 
     for name in ("3dgs", "mcmc", "mip-splatting", "absgs", "edc-absgs", "strings"):
         for progress in (False, True):
-            a = get_method(name).build(schedule="tiny", **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
+            a = get_method(name).build(default_steps_scale=get_schedule("tiny").steps_scale, **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
             next(iter(Trainer(a, text_scene, [2], progress=progress).train()))
             assert a.progress is progress, name  # the loop hands its setting to the method
     assert seen == [False, True]  # STRinGS' mask bar follows it
@@ -408,7 +413,7 @@ def test_no_progress_run_writes_no_training_bar(tmp_path, capfd):
     scene_dir = rf.make_scene(tmp_path / "scenes" / "toyset")
 
     def run(out, progress):
-        runner.run(["3dgs"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+        bench.run(["3dgs"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                    with_lpips=False, progress=progress, write_report=False,
                    method_overrides={"3dgs": {"steps_scale": 0.0002, "sh_degree": 0}})  # checkpoints 1, 6
         return capfd.readouterr().err

@@ -20,6 +20,8 @@ by STRINGS_BENCH_FUZZ_SUMMARY when set: docs/reliability.md counts them).
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import contextlib
 import hashlib
 import io
@@ -192,7 +194,7 @@ def base(tmp_path_factory):
                                       sh_degree=1)
     ply = write_ply(root / "model.ply", model)
     run_dir = root / "run"
-    runner.run(["fake-a"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="fuzzfake", ocr_backend=rf.FakeOCR(),
+    bench.run(["fake-a"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="fuzzfake", ocr_backend=rf.FakeOCR(),
                with_lpips=False,
                progress=False, write_report=False)
     poly = [[8, 12], [56, 12], [56, 30], [8, 30]]

@@ -21,6 +21,9 @@ tests/test_resume.py kills training alone (and checks the parameters); this file
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import plan_run
+
 import csv
 import json
 import os
@@ -53,7 +56,7 @@ CHILD = textwrap.dedent("""
     import strings_bench.core.io as io
     import strings_bench.datasets.synthetic.generate as generate
     from strings_bench.engine.splatting import GaussianSplatting
-    import strings_bench.bench.runner as runner
+    import strings_bench.bench as bench
     import strings_bench.eval.protocol as protocol
 
     spec = json.loads(os.environ.get("KILL_SPEC") or "null")
@@ -98,7 +101,7 @@ CHILD = textwrap.dedent("""
 
     from strings_bench.datasets.synthetic import build_scene, settings_with
     scene = build_scene(__SCENE__, settings_with(**__SETTINGS__), progress=False)
-    runner.run(__METHODS__, [str(scene)], run_dir=__RUN_DIR__, **__RUN_KW__)
+    bench.run(__METHODS__, [str(scene)], run_dir=__RUN_DIR__, **__RUN_KW__)
     print("DONE", flush=True)
 """)
 
@@ -146,7 +149,7 @@ def kill_schedule(rng: random.Random, per_stage: dict[str, int]) -> list[dict]:
 
 
 def run_kill_harness(tmp_path: Path, per_stage: dict[str, int], seed: int, monkeypatch) -> dict:
-    from strings_bench.reports.results import check_cell
+    from strings_bench.store import check_cell
 
     cache, run_dir = tmp_path / "cache", tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(REPO), "STRINGS_BENCH_CACHE": str(cache)}
@@ -200,7 +203,7 @@ def run_kill_harness(tmp_path: Path, per_stage: dict[str, int], seed: int, monke
 
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(cache))
     scene = build_scene(SCENE, settings_with(**SCENE_SETTINGS), progress=False)
-    whole = runner.run(METHODS, [str(scene)], run_dir=tmp_path / "whole", **RUN_KW)
+    whole = bench.run(METHODS, [str(scene)], run_dir=tmp_path / "whole", **RUN_KW)
     for entry in (cache / "ocr").rglob("*.json"):
         assert "words" in json.loads(entry.read_text()), entry  # every half-written entry was rewritten
     got, want = _rows(run_dir / "results.csv"), _rows(whole / "results.csv")
@@ -282,7 +285,7 @@ def test_a_state_left_after_the_last_cell_is_removed(tmp_path, monkeypatch):
     monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
     rf.register_fakes()
     scene = rf.make_scene(tmp_path, "scene")
-    plan = runner.plan_run(["fake-a"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny")
+    plan = plan_run(["fake-a"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny")
     job = plan.jobs[0]
     for key in job.cells():  # every cell finished (as the killed run left them)
         atomic_write_json(key.path(plan.run_dir) / "result.json", {

@@ -91,8 +91,8 @@ def test_cycle_finder_finds_a_planted_cycle():
 
 def test_graph_sees_imports_inside_functions():
     g = import_graph()
-    # the runner imports the report writer inside a function
-    assert "strings_bench.reports" in g["strings_bench.bench.runner"]
+    # bench/records.py imports the report writer inside a function
+    assert "strings_bench.reports" in g["strings_bench.bench.records"]
 
 
 def test_no_import_cycles():
@@ -116,7 +116,8 @@ def test_eval_layer_rule_can_fail():
 
 
 # The layers of docs/architecture.md, top to bottom; one row's folders may import each other.
-LAYERS = [["cli"], ["bench"], ["reports"], ["datasets"], ["methods"], ["engine"], ["eval", "raster", "scene"], ["core"]]
+LAYERS = [["cli"], ["bench"], ["reports"], ["store"], ["datasets"], ["methods"], ["engine"], ["eval", "raster", "scene"],
+          ["core"]]
 
 
 def _layer_of(module: str) -> int | None:
@@ -215,3 +216,209 @@ def test_private_import_rule_can_fail(tmp_path):
     script.write_text("from __future__ import annotations\nfrom strings_bench.scene.scene import _load_rgb\n"
                       "import strings_bench.raster._kernels\nfrom strings_bench.eval.protocol import to_uint8 as _u8\n")
     assert private_imports([script]) == ["bench.py:2 _load_rgb", "bench.py:3 _kernels"]
+
+
+# ---- the run's parameters, the run folder and the scripts ----------------------------------------------------
+def _imports_of(path: Path) -> list[tuple[int, str, list[str]]]:
+    """(line, module, names) of every import in `path`, anywhere in the file; relative imports resolved against
+    the package the file is in (`import a.b` gives module "a.b" and no names)."""
+    mod = ".".join(path.relative_to(PKG.parent).with_suffix("").parts) if PKG in path.parents else path.stem
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name, []) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            name = node.module or ""
+            if node.level:
+                base = mod.split(".")[: -node.level] if path.name != "__init__.py" else mod.split(".")[: len(mod.split(".")) - node.level]
+                name = ".".join(base + ([node.module] if node.module else []))
+            out.append((node.lineno, name, [a.name for a in node.names]))
+    return out
+
+
+def reports_imports_of_bench(root: Path = PKG) -> list[str]:
+    """`file:line module names` for every import of reports/ in bench/."""
+    return [f"{p.name}:{line} {m} {','.join(names)}" for p in sorted((root / "bench").glob("*.py"))
+            for line, m, names in _imports_of(p) if m == "strings_bench.reports" or m.startswith("strings_bench.reports.")]
+
+
+def test_bench_imports_only_the_report_writer_from_reports():
+    found = reports_imports_of_bench()
+    assert len(found) == 1 and found[0].startswith("records.py:") and found[0].endswith(
+        "strings_bench.reports write_report"), found
+
+
+def test_bench_reports_rule_can_fail(tmp_path):
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "a.py").write_text("from strings_bench.reports import write_report\n"
+                                             "def f():\n    from strings_bench.reports.aggregate import load_results\n")
+    assert reports_imports_of_bench(tmp_path) == ["a.py:1 strings_bench.reports write_report",
+                                                  "a.py:3 strings_bench.reports.aggregate load_results"]
+
+
+def test_the_store_imports_neither_bench_nor_reports():
+    g = import_graph()
+    bad = sorted((m, t) for m, ts in g.items() if m.startswith("strings_bench.store")
+                 for t in ts if t.startswith(("strings_bench.bench", "strings_bench.reports", "strings_bench.cli")))
+    assert not bad, bad
+
+
+def cross_module_private_imports(paths) -> list[str]:
+    """`file:line name` for every private name (starting with '_') imported from another module of the package; a
+    private module (`eval/ocr/_ort_guard.py`) may be imported from inside its own package only, and a package's
+    `__init__.py` may import its own modules' private names."""
+    found = []
+    for path in paths:
+        path = Path(path)
+        here = ".".join(path.relative_to(PKG.parent).with_suffix("").parts[:-1]) if PKG in path.parents else ""
+        for line, module, names in _imports_of(path):
+            parts = module.split(".")
+            for i, part in enumerate(parts):
+                if part.startswith("_") and part not in ("__init__", "__future__") and ".".join(parts[:i]) != here:
+                    found.append(f"{path.name}:{line} {part}")
+            if module not in ("__future__", here):  # the package's own private names are its own
+                found += [f"{path.name}:{line} {n}" for n in names if n.startswith("_") and n != "__version__"]
+    return found
+
+
+def test_no_private_imports_across_modules():
+    assert cross_module_private_imports(sorted(PKG.rglob("*.py"))) == []
+
+
+def test_cross_module_private_rule_can_fail(tmp_path):
+    src = tmp_path / "x.py"
+    src.write_text("from strings_bench.bench.predictions import _shown\nimport strings_bench.eval.ocr._ort_guard\n"
+                   "from strings_bench import __version__\n")
+    assert cross_module_private_imports([src]) == ["x.py:1 _shown", "x.py:2 _ort_guard"]
+
+
+def sys_path_edits(paths) -> list[str]:
+    """`file:line` for every change of sys.path (a call of its methods, an assignment to it) in `paths`."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
+            target = None
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+                target = node.func.value
+            elif isinstance(node, (ast.Assign, ast.AugAssign)):
+                target = node.targets[0] if isinstance(node, ast.Assign) else node.target
+            if (isinstance(target, ast.Attribute) and target.attr == "path" and isinstance(target.value, ast.Name)
+                    and target.value.id == "sys"):
+                found.append((Path(path).name, node.lineno))
+    return [f"{name}:{line}" for name, line in sorted(found)]
+
+
+def test_no_sys_path_edits_in_the_package_benchmarks_and_scripts():
+    root = PKG.parent
+    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "scripts").glob("*.py")])
+    assert sys_path_edits(paths) == []
+
+
+def test_sys_path_rule_can_fail(tmp_path):
+    src = tmp_path / "s.py"
+    src.write_text("import sys\nsys.path.insert(0, 'x')\nsys.path += ['y']\nprint(sys.path[0])\n")
+    assert sys_path_edits([src]) == ["s.py:2", "s.py:3"]
+
+
+def unlisted_scripts(folder: Path) -> list[str]:
+    """The files of `folder` (its README aside) that its README.md does not name as `NAME`."""
+    readme = (folder / "README.md").read_text(encoding="utf-8")
+    return sorted(p.name for p in folder.iterdir()
+                  if p.is_file() and p.name != "README.md" and f"`{p.name}`" not in readme)
+
+
+def test_every_script_is_in_its_folders_readme():
+    root = PKG.parent
+    assert unlisted_scripts(root / "benchmarks") == []
+    assert unlisted_scripts(root / "scripts") == []
+
+
+def test_readme_rule_can_fail(tmp_path):
+    (tmp_path / "README.md").write_text("| `a.py` | a |\n")
+    (tmp_path / "a.py").write_text("")
+    (tmp_path / "b.py").write_text("")
+    assert unlisted_scripts(tmp_path) == ["b.py"]
+
+
+def function_lines(path: Path, name: str) -> int:
+    """How many lines the function `name` of `path` spans (its decorators and docstring included)."""
+    (fn,) = [n for n in ast.parse(path.read_text(encoding="utf-8")).body
+             if isinstance(n, ast.FunctionDef) and n.name == name]
+    return fn.end_lineno - fn.lineno + 1
+
+
+def test_plan_run_is_short_and_plan_says_budget_little():
+    plan = PKG / "bench" / "plan.py"
+    assert function_lines(plan, "plan_run") <= 50
+    assert plan.read_text(encoding="utf-8").lower().count("budget") <= 15
+
+
+def test_plan_size_rules_can_fail(tmp_path):
+    src = tmp_path / "p.py"
+    src.write_text("def plan_run():\n" + "    x = 1\n" * 60)
+    assert function_lines(src, "plan_run") == 61
+
+
+def value_types_only(importer: Path, source: Path, module: str) -> list[str]:
+    """The names `importer` imports from `module` (the file `source`) that are not dataclasses defined there."""
+    defined = {n.name for n in ast.parse(source.read_text(encoding="utf-8")).body if isinstance(n, ast.ClassDef)
+               and any("dataclass" in ast.unparse(d) for d in n.decorator_list)}
+    return sorted(n for _, m, names in _imports_of(importer) if m == module for n in names if n not in defined)
+
+
+def test_runner_imports_only_the_plans_value_types():
+    assert value_types_only(PKG / "bench" / "runner.py", PKG / "bench" / "plan.py", "strings_bench.bench.plan") == []
+    # and nothing of the plan module as a whole
+    assert not any(m == "strings_bench.bench.plan" and not names for _, m, names in _imports_of(PKG / "bench" / "runner.py"))
+
+
+def test_value_types_rule_can_fail(tmp_path):
+    importer = tmp_path / "r.py"
+    importer.write_text("from strings_bench.bench.plan import RunPlan, plan_run\n")
+    assert value_types_only(importer, PKG / "bench" / "plan.py", "strings_bench.bench.plan") == ["plan_run"]
+
+
+def test_method_build_takes_no_schedule():
+    import inspect
+
+    from strings_bench.methods.registry import MethodSpec
+
+    assert "schedule" not in inspect.signature(MethodSpec.build).parameters
+
+
+def test_job_and_cell_config_are_keyword_only_and_frozen():
+    import dataclasses
+
+    from strings_bench.bench.executors import Job
+    from strings_bench.store import CellConfig
+    from strings_bench.bench.budget import Budget
+    from strings_bench.bench.plan import MethodPlan, RunPlan
+
+    for cls in (Job, CellConfig, RunPlan, MethodPlan, Budget):
+        assert cls.__dataclass_params__.frozen, cls
+        with __import__("pytest").raises(TypeError):
+            cls("positional")
+        assert all(f.kw_only for f in dataclasses.fields(cls))
+
+
+def positional_constructions(paths, names=("Job", "CellConfig", "CellRecord", "RunPlan", "MethodPlan", "Budget")) -> list[str]:
+    """`file:line` for every call of one of `names` with a positional argument."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in names
+                    and node.args):
+                found.append(f"{Path(path).name}:{node.lineno}")
+    return found
+
+
+def test_no_positional_construction_of_a_job_or_a_cell():
+    root = PKG.parent
+    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "tests").glob("*.py")])
+    assert positional_constructions([p for p in paths if p.name != "test_layout.py"]) == []
+
+
+def test_positional_rule_can_fail(tmp_path):
+    src = tmp_path / "j.py"
+    src.write_text("Job('run', 'm')\nJob(run_dir='run')\n")
+    assert positional_constructions([src]) == ["j.py:1"]

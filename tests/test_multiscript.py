@@ -345,7 +345,8 @@ def test_cer_per_script_and_the_report_table(tmp_path):
     import pandas as pd
 
     from strings_bench.reports import tables
-    from strings_bench.reports.results import cer_per_script, script_columns
+    from strings_bench.reports.aggregate import cer_per_script
+    from strings_bench.store import script_columns
 
     assert script_columns({"text": {"scripts": ["Cyrillic", "Latin"], "languages": ["rus"]}}) == \
         {"script": "Cyrillic+Latin", "language": "rus"}

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import plan_run
+from strings_bench.store import check_manifest
+
 import json
 import math
 import shutil
@@ -16,7 +20,7 @@ import strings_bench.bench.runner as runner
 from strings_bench.reports.ocr_agreement import ocr_agreement
 from strings_bench.reports.table_model import to_csv, to_markdown
 from strings_bench.reports.tables import build_tables
-from strings_bench.reports.results import iter_cells
+from strings_bench.store import iter_cells
 from strings_bench.core.errors import OCRError, StringsBenchError
 from strings_bench.core.io import atomic_write_json
 from strings_bench.core.method import CheckpointResult, MethodAdapter
@@ -49,20 +53,20 @@ def test_parse_engines():
 def test_resume_notices_a_changed_ocr_list(tmp_path):
     scene = rf.make_scene(tmp_path)
     run_dir = tmp_path / "run"
-    plan = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapid,tess")
+    plan = plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapid,tess")
     assert plan.manifest["ocr"] == "rapidocr,tesseract" and plan.jobs[0].ocr == "rapidocr,tesseract"
     atomic_write_json(run_dir / "run.json", plan.manifest)
-    same = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapidocr,tesseract")
-    runner.check_manifest(run_dir, same.manifest)  # the same list, spelt otherwise: resumes
+    same = plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr="rapidocr,tesseract")
+    check_manifest(run_dir, same.manifest)  # the same list, spelt otherwise: resumes
     for other in ("rapidocr", "tesseract,rapidocr", "rapidocr,tesseract,gcv"):
-        changed = runner.plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr=other)
+        changed = plan_run(["3dgs"], [str(scene)], run_dir=run_dir, schedule="tiny", ocr=other)
         with pytest.raises(StringsBenchError, match="--ocr engine list 'rapidocr,tesseract'"):
-            runner.check_manifest(run_dir, changed.manifest)
+            check_manifest(run_dir, changed.manifest)
 
 
 def test_run_refuses_an_unknown_engine_before_training(tmp_path):
     with pytest.raises(OCRError, match="unknown OCR backend 'nope'"):
-        runner.run(["3dgs"], [str(rf.make_scene(tmp_path))], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,nope")
+        bench.run(["3dgs"], [str(rf.make_scene(tmp_path))], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,nope")
     assert not (tmp_path / "run").exists()
 
 
@@ -220,7 +224,7 @@ def test_two_real_engines_end_to_end(tmp_path):
     register_method(MethodSpec(name="erase-number", implementation=lambda **s: CopyViews(erase=True, **s),
                                description="the GT views without the number"))
     scene = _text_scene(tmp_path)
-    out = runner.run(["copy-views", "erase-number"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,tesseract",
+    out = bench.run(["copy-views", "erase-number"], [str(scene)], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr,tesseract",
                      with_lpips=False, progress=False, checkpoints=[1000])
     cells = {c["method"]: c for c in iter_cells(out)}
     for c in cells.values():

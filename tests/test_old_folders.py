@@ -1,10 +1,12 @@
 """A run folder written before issue 41 (by 99adc95, when "preset" named the run's schedule) is read as today's:
-run.json, result.json's config and results.csv's column go through the readers of reports/results.py.
+run.json, result.json's config and results.csv's column go through the readers of the store (strings_bench/store/).
 
-tests/data/run_99adc95/ was written by 99adc95's own code: `runner.run(["fake-a"], [toy scene], schedule="tiny",
+tests/data/run_99adc95/ was written by 99adc95's own code: `bench.run(["fake-a"], [toy scene], schedule="tiny",
 ocr="fake", checkpoints=[7000])` with tests/runner_fakes.py (one cell, fake-a at 7K = 35 steps)."""
 
 from __future__ import annotations
+
+import strings_bench.bench as bench
 
 import csv
 import shutil
@@ -15,7 +17,7 @@ import pytest
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.reports.results import cell_row, iter_cells, read_manifest, upgrade_names, write_results_csv
+from strings_bench.store import cell_row, iter_cells, read_manifest, upgrade_names, write_results_csv
 from strings_bench.reports.aggregate import load_results
 
 OLD = Path(__file__).resolve().parent / "data" / "run_99adc95"
@@ -56,9 +58,9 @@ def test_old_folder_resumes_under_its_schedule_and_refuses_another(old_run, tmp_
     kw = dict(run_dir=old_run, ocr="fake", checkpoints=[7000], ocr_backend=rf.FakeOCR(), with_lpips=False,
               progress=False, write_report=False)
     with pytest.raises(StringsBenchError, match="schedule 'tiny'"):
-        runner.run(["fake-a"], [str(scene)], schedule="quick", **kw)
+        bench.run(["fake-a"], [str(scene)], schedule="quick", **kw)
     rf.CALLS["train"].clear()
-    runner.run(["fake-a"], [str(scene)], schedule="tiny", **kw)  # resumes: the cell is finished, nothing trains
+    bench.run(["fake-a"], [str(scene)], schedule="tiny", **kw)  # resumes: the cell is finished, nothing trains
     assert rf.CALLS["train"] == []
     assert '"schedule": {' in (old_run / "run.json").read_text()
     from strings_bench.reports import write_report

@@ -13,6 +13,11 @@ with the test suite's deterministic OCR, so that both executors run the grid in 
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import plan_run
+from strings_bench.core.results import CellKey
+from strings_bench.core.results import RESULT_FILE
+
 import csv
 import dataclasses
 import json
@@ -70,7 +75,7 @@ def scenes() -> list[Path]:
 
 
 def _plan(out: Path, scenes, methods=METHODS):
-    return runner.plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
+    return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
 
 
 def _rows(out: Path) -> dict[tuple, dict]:
@@ -79,13 +84,13 @@ def _rows(out: Path) -> dict[tuple, dict]:
 
 
 def _cell(out: Path, method: str, scene: Path, iteration: int) -> dict:
-    key = runner.CellKey(method, scene.name, scene.name, iteration)
-    return json.loads((key.path(out) / runner.RESULT_FILE).read_text())
+    key = CellKey(method, scene.name, scene.name, iteration)
+    return json.loads((key.path(out) / RESULT_FILE).read_text())
 
 
 def _incomplete(out: Path) -> list[Path]:
     """Cell folders without result.json, and leftovers of atomic writes."""
-    cells = [p for p in out.glob("cells/*/*/*/*") if not (p / runner.RESULT_FILE).exists()]
+    cells = [p for p in out.glob("cells/*/*/*/*") if not (p / RESULT_FILE).exists()]
     return cells + list(out.rglob(".*.tmp"))
 
 
@@ -153,7 +158,7 @@ def test_a_job_that_fails_by_itself_is_not_retried_and_is_reported_per_cell(ray_
     images_bin.write_bytes(images_bin.read_bytes()[:40])  # a truncated COLMAP file: the job fails loading it
     out = tmp_path / "run"
     with pytest.raises(StringsBenchError) as caught:
-        runner.run(["3dgs"], [str(scenes[0]), str(broken)], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(),
+        bench.run(["3dgs"], [str(scenes[0]), str(broken)], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(),
                    with_lpips=False, progress=False, write_report=False, save_every="4steps", executor="ray",
                    executor_options={"max_retries": 3}, **SCHEDULE)
     message = str(caught.value)

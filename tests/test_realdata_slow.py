@@ -81,7 +81,7 @@ def test_prepare_watch_clock(prepared):
 def test_train_and_cer_table(prepared, work):
     import pandas as pd
 
-    from strings_bench.bench.runner import run
+    from strings_bench.bench import run
 
     downscale = float(os.environ.get("STRINGS_BENCH_REALDATA_DOWNSCALE", "4"))
     t0 = time.perf_counter()

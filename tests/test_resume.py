@@ -3,6 +3,8 @@ and ends with the same parameters as an uninterrupted run under the same seed.""
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import json
 import os
 import random
@@ -152,7 +154,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
             import os, signal, sys
             sys.path.insert(0, {str(Path(__file__).parent)!r})
             import runner_fakes as rf
-            from strings_bench.bench import runner
+            import strings_bench.bench as bench
             from strings_bench.engine.splatting import GaussianSplatting
             real = GaussianSplatting.train_step
 
@@ -162,7 +164,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
                 return real(self, step)
 
             GaussianSplatting.train_step = train_step
-            runner.run(["3dgs"], [{str(text_scene)!r}], run_dir={str(out)!r}, schedule="tiny", ocr_backend=rf.FakeOCR(),
+            bench.run(["3dgs"], [{str(text_scene)!r}], run_dir={str(out)!r}, schedule="tiny", ocr_backend=rf.FakeOCR(),
                        with_lpips=False, progress=False, write_report=False, save_every="4steps",
                        keep_models={keep_models!r},
                        method_overrides={{"3dgs": {{"sh_degree": 0}}}})

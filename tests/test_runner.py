@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.bench.plan import plan_run
+from strings_bench.core.results import CellKey
+from strings_bench.bench.plan import ALL_METHODS
+from strings_bench.store import check_manifest
+from strings_bench.bench.executors import LocalExecutor
+
 import csv
 import dataclasses
 import json
@@ -34,7 +41,7 @@ def _reset_calls():
 
 
 def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, **kw):
-    return runner.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
+    return bench.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
                       ocr_backend=ocr or rf.FakeOCR(), with_lpips=kw.pop("with_lpips", False), progress=False, **kw)
 
 
@@ -72,7 +79,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     assert float(by[("fake-b", 15)]["cer_known"]) == pytest.approx(0.2)
     assert int(by[("fake-b", 15)]["gaussians"]) == 1000
     # Cell contents: config, OCR words for GT and render, renders on disk.
-    cell = runner.CellKey("fake-b", "toy", "toy", 15).path(out)
+    cell = CellKey("fake-b", "toy", "toy", 15).path(out)
     rec = json.loads((cell / "result.json").read_text())
     assert rec["config"]["schedule"] == "tiny" and rec["config"]["method"]["settings"]["blur"] == 0.9
     v = rec["ocr"]["views"]["view_00.png"]
@@ -93,7 +100,7 @@ def test_cells_and_results_csv(tmp_path, scene_dir):
     assert (out / "report" / "report.md").exists()
     # Word-crop readability and text-region metrics (issue 14): fake-a's last render is the GT view, so
     # the render scores exactly its ceiling; the known word "hello" (18 px high) is the one headline word.
-    from strings_bench.reports.results import READABILITY_COLUMNS
+    from strings_bench.store import READABILITY_COLUMNS
 
     assert set(READABILITY_COLUMNS) <= set(rows[0])
     assert final["word_cer"] == final["word_cer_gt"] != "" and final["text_nll"] == final["text_nll_gt"] != ""
@@ -115,8 +122,8 @@ def test_resume_after_interrupt_does_not_recompute(tmp_path, scene_dir):
         _run(out, scene_dir)
     rows = _rows(out)
     assert {(r["method"], r["iteration"]) for r in rows} == {("fake-a", "15"), ("fake-a", "35"), ("fake-a", "150"), ("fake-b", "15")}
-    first_b = runner.CellKey("fake-b", "toy", "toy", 15).path(out) / "result.json"
-    a_cells = [runner.CellKey("fake-a", "toy", "toy", i).path(out) / "result.json" for i in (15, 35, 150)]
+    first_b = CellKey("fake-b", "toy", "toy", 15).path(out) / "result.json"
+    a_cells = [CellKey("fake-a", "toy", "toy", i).path(out) / "result.json" for i in (15, 35, 150)]
     mtimes = {p: p.stat().st_mtime_ns for p in [first_b, *a_cells]}
     content_b = first_b.read_text()
 
@@ -147,12 +154,12 @@ def test_interrupted_subprocess_keeps_finished_cells(tmp_path, scene_dir):
     code = f"""
 import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
 import runner_fakes as rf
-import strings_bench.bench.runner as runner
+import strings_bench.bench as bench
 from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
 rf.register_fakes()
 register_method(MethodSpec(name="fake-b", implementation=lambda **s: rf.FakeAdapter(tag="fake-b", blur=0.9, interrupt_after=2, **s)))
-runner.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+bench.run(["fake-b"], [{str(scene_dir)!r}], run_dir={str(out)!r}, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
            with_lpips=False, progress=False)
 """
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
@@ -166,7 +173,7 @@ def test_manifest_mismatch_refused(tmp_path, scene_dir):
     out = tmp_path / "run"
     _run(out, scene_dir, methods=["fake-a"], write_report=False)
     with pytest.raises(StringsBenchError, match="schedule"):
-        runner.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="quick", ocr="fake", ocr_backend=rf.FakeOCR(),
+        bench.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="quick", ocr="fake", ocr_backend=rf.FakeOCR(),
                    with_lpips=False, progress=False)
 
 
@@ -186,12 +193,12 @@ def test_resume_with_other_settings_refused(tmp_path, scene_dir):
 def test_executor_seam(tmp_path, scene_dir):
     submitted = []
 
-    class Recording(runner.LocalExecutor):
+    class Recording(LocalExecutor):
         def submit(self, job):
             submitted.append(json.loads(json.dumps(dataclasses.asdict(job))))  # jobs are plain, serialisable data
             return super().submit(job)
 
-    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake")
+    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake")
     r = runner.Runner(plan.run_dir, ocr=rf.FakeOCR(), with_lpips=False)
     runner.execute(plan, ocr=rf.FakeOCR(), executor=Recording(r), progress=False, write_report=False)
     assert [s["method"] for s in submitted] == ["fake-a", "fake-b"]
@@ -220,7 +227,7 @@ def test_scene_without_masks_uses_whole_image(tmp_path):
     (scene / "text_annotations.json").unlink()
     out = tmp_path / "run"
     _run(out, scene, methods=["fake-a"], write_report=False)
-    rec = json.loads((runner.CellKey("fake-a", "nomask", "nomask", 150).path(out) / "result.json").read_text())
+    rec = json.loads((CellKey("fake-a", "nomask", "nomask", 150).path(out) / "result.json").read_text())
     assert rec["ocr"]["views"]["view_00.png"]["mask"] == "whole image"
     assert rec["cer_known"] is None
     assert _rows(out)[0]["cer_known"] == ""
@@ -281,7 +288,7 @@ def _external(tmp_path, scene_dir, mode, out_name="run"):
     script = tmp_path / "trainer.py"
     script.write_text(COPY_SCRIPT)
     cmd = f"{sys.executable} {script} {{scene}} {{out}} {{iteration}} {mode} {{test_views}}"
-    return runner.run(["external"], [str(scene_dir)], run_dir=tmp_path / out_name, schedule="tiny", ocr="fake",
+    return bench.run(["external"], [str(scene_dir)], run_dir=tmp_path / out_name, schedule="tiny", ocr="fake",
                       ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                       method_overrides={"external": {"command": cmd}})
 
@@ -318,7 +325,7 @@ def test_parse_settings():
         "ply": {"ply_path": "/m/{scene}.ply"}, "strings": {"n_max": 25}, "x": {"flag": True}}
     # No '.' before the '=': every method of the run; dots in the value do not count.
     assert parse_settings(["lr_means=1.6e-3", "strings.n_max=25", "tag=a.b"]) == {
-        runner.ALL_METHODS: {"lr_means": 1.6e-3, "tag": "a.b"}, "strings": {"n_max": 25}}
+        ALL_METHODS: {"lr_means": 1.6e-3, "tag": "a.b"}, "strings": {"n_max": 25}}
     for bad in ["noequals", "=1", ".n_max=1", "strings.=1", "strings.n_max"]:
         with pytest.raises(StringsBenchError, match="KEY=VALUE"):
             parse_settings([bad])
@@ -329,14 +336,14 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
     from strings_bench.cli.run import parse_settings
 
     over = parse_settings(["floor=0.05", "fake-b.floor=0.1", "fake-b.extra=1"])
-    plan = runner.plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                            method_overrides=over)
     by = {j.method: j for j in plan.jobs}
-    assert by["fake-a"].method_overrides == {"floor": 0.05}
-    assert by["fake-b"].method_overrides == {"floor": 0.1, "extra": 1}
+    assert by["fake-a"].method_settings == {"floor": 0.05}
+    assert by["fake-b"].method_settings == {"floor": 0.1, "extra": 1}
     assert plan.manifest["method_overrides"] == {"fake-a": {"floor": 0.05}, "fake-b": {"floor": 0.1, "extra": 1}}
     # The settings reach the built method: fake-a trains with floor 0.05.
-    adapter = runner._build_method(by["fake-a"])
+    adapter = runner.build_method(by["fake-a"])
     assert adapter.settings["floor"] == 0.05
     # Resuming: the same settings, given per method instead of for all, are the same run; others are refused.
     _run(tmp_path / "run2", scene_dir, methods=["fake-a"], write_report=False, method_overrides=parse_settings(["floor=0.05"]))
@@ -353,31 +360,33 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
     register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"blurry": {"steps_scale": 0.005, "floor": 0.2}}))
-    plan = runner.plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
+    plan = plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
                            steps_scale=0.02, checkpoints=[7000, 3000], method_presets={"fake-scaled": ["blurry"]})
     by = {j.method: j for j in plan.jobs}
     # 3000 x 0.02 = 60, 7000 x 0.02 = 140: the schedule's scale wins over a preset's; its other settings stay.
     assert by["fake-scaled"].checkpoints == (60, 140) and by["fake-scaled"].labels == {60: "3K", 140: "7K"}
-    assert by["fake-scaled"].method_overrides == {"steps_scale": 0.02}
-    built = runner._build_method(by["fake-scaled"])
+    assert by["fake-scaled"].method_settings == {} and by["fake-scaled"].steps_scale == 0.02
+    built = runner.build_method(by["fake-scaled"])
     assert built.settings["steps_scale"] == 0.02 and built.settings["floor"] == 0.2
     assert by["fake-scaled"].method_presets == ("blurry",) and plan.manifest["method_presets"]["fake-scaled"] == ["blurry"]
     # A method without a steps_scale setting follows the run's scale.
-    assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_overrides == {}
+    assert by["fake-a"].checkpoints == (60, 140) and by["fake-a"].method_settings == {}
+    assert by["fake-a"].steps_scale == 0.02 and "steps_scale" not in runner.build_method(by["fake-a"]).settings
     assert plan.manifest["steps_scale"] == 0.02 and plan.manifest["checkpoints"] == [3000, 7000]
     assert plan.manifest["schedule"]["name"] == "tiny" and plan.manifest["schedule"]["steps_scale"] == 0.02
     assert SCHEDULES["tiny"].steps_scale == 0.005  # nothing global was changed
     # Each option alone; a --set steps_scale for a method wins over --steps-scale.
-    only_scale = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)
+    only_scale = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)
     assert only_scale.jobs[0].checkpoints == (300, 700, 3000)
-    only_its = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", checkpoints=[3000])
+    only_its = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", checkpoints=[3000])
     assert only_its.jobs[0].checkpoints == (15,) and only_its.jobs[0].labels == {15: "3K"}
-    mine = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1,
+    mine = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1,
                            method_overrides={"fake-scaled": {"steps_scale": 0.01}})
-    assert mine.jobs[0].checkpoints == (30, 70, 300)
+    assert mine.jobs[0].checkpoints == (30, 70, 300) and mine.jobs[0].steps_scale == 0.01
+    assert runner.build_method(mine.jobs[0]).settings["steps_scale"] == 0.01  # built with the --set value
     for bad in ({"steps_scale": 0}, {"steps_scale": float("nan")}, {"checkpoints": []}, {"checkpoints": [0]}):
         with pytest.raises(StringsBenchError):
-            runner.plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", **bad)
+            plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", **bad)
 
 
 def test_steps_scale_and_checkpoints_recorded_and_kept_on_resume(tmp_path, scene_dir):
@@ -415,7 +424,7 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
         seen.update(dataclasses.asdict(config))
         return Path("out")
 
-    monkeypatch.setattr(runner_mod, "run", fake_run)
+    monkeypatch.setattr(bench, "run", fake_run)
     assert main(["run", "--methods", "a,b", "--steps-scale", "0.2", "--checkpoints", "3K,7000",
                  "--set", "lr_means=1e-3", "--set", "a.n_max=25", "--no-progress"]) == 0
     assert seen["steps_scale"] == 0.2 and seen["checkpoints"] == [3000, 7000] and seen["methods"] == ["a", "b"]
@@ -440,14 +449,14 @@ def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
     model = GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=1)
     n = model.params["means"].shape[0]
     write_ply(tmp_path / "models" / "toy" / "point_cloud.ply", model)
-    out = runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    out = bench.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                      ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                      method_overrides={"ply": {"ply_path": str(tmp_path / "models" / "{scene}" / "point_cloud.ply")}})
     rows = _rows(out)
     assert len(rows) == 1 and rows[0]["iteration"] == "30000" and rows[0]["label"] == "30K"
     assert int(rows[0]["gaussians"]) == n and rows[0]["train_seconds"] == ""
     with pytest.raises(StringsBenchError, match="does not exist"):
-        runner.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", schedule="tiny", ocr="fake",
+        bench.run(["ply"], [str(scene_dir)], run_dir=tmp_path / "run2", schedule="tiny", ocr="fake",
                    ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False,
                    method_overrides={"ply": {"ply_path": str(tmp_path / "nowhere.ply")}})
 
@@ -488,16 +497,17 @@ def test_schedule_scales_every_method_and_never_picks_a_preset(tmp_path, scene_d
     """A schedule and a method preset are different things: a preset named like the schedule is not taken."""
     register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"quick": {"steps_scale": 0.5, "floor": 0.3}}))
-    tiny = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
-    assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].method_overrides == {"steps_scale": 0.005}
-    quick = runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="quick", ocr="fake")
+    tiny = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
+    assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].steps_scale == 0.005
+    assert tiny.jobs[0].method_settings == {}
+    quick = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="quick", ocr="fake")
     assert quick.jobs[0].checkpoints == (70, 300) and quick.jobs[0].method_presets == ()  # x0.01, not the preset's 0.5
     assert quick.jobs[0].labels == {70: "7K", 300: "30K"}
-    assert "floor" not in runner._build_method(quick.jobs[0]).settings
+    assert "floor" not in runner.build_method(quick.jobs[0]).settings
     with pytest.raises(StringsBenchError, match="(?s)fake-scaled has no preset 'nope'.*presets of fake-scaled: quick"):
-        runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-scaled": ["nope"]})
+        plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-scaled": ["nope"]})
     with pytest.raises(StringsBenchError, match="--presets names method.*fake-a"):
-        runner.plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-a": ["x"]})
+        plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, method_presets={"fake-a": ["x"]})
 
 
 def test_presets_apply_per_dataset_and_the_release_preset_is_reachable(tmp_path, scene_dir):
@@ -510,11 +520,11 @@ def test_presets_apply_per_dataset_and_the_release_preset_is_reachable(tmp_path,
     n_max = {s: spec.resolve(spec.presets_for("dl3dv", s))["n_max"] for s in ("3", "21", "80", "92", "107", "132", "136")}
     assert n_max == {"3": 20, "21": 20, "80": 15, "92": 20, "107": 20, "132": 15, "136": 15}
     assert spec.presets_for("synthetic", "books") == [] and spec.presets_for("dl3dv", "4") == []
-    plan = runner.plan_run(["strings", "3dgs"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny",
+    plan = plan_run(["strings", "3dgs"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny",
                            method_presets={"strings": ["release"]})
     by = {j.method: j for j in plan.jobs}
     assert by["strings"].method_presets == ("release",) and by["3dgs"].method_presets == ()
-    built = runner._build_method(by["strings"])
+    built = runner.build_method(by["strings"])
     assert built.st.gamma == 12000 and built.st.gamma_counter == "phase2"  # the release's, reached from the run
     assert built.settings["steps_scale"] == SCHEDULES["tiny"].steps_scale  # the schedule still scales it
     # resuming with other presets is refused, as with other --set values
@@ -522,7 +532,7 @@ def test_presets_apply_per_dataset_and_the_release_preset_is_reachable(tmp_path,
 
     atomic_write_json(tmp_path / "run.json", {**plan.manifest})
     with pytest.raises(StringsBenchError, match="presets"):
-        runner.check_manifest(tmp_path, {**plan.manifest, "method_presets": {"strings": [], "3dgs": []}})
+        check_manifest(tmp_path, {**plan.manifest, "method_presets": {"strings": [], "3dgs": []}})
 
 
 class _BowtieOCR(rf.FakeOCR):
@@ -538,7 +548,7 @@ def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
     _run(out_robust, scene_dir, methods=["fake-a"], ocr=_BowtieOCR(), write_report=False, cer_profile="robust")
     assert json.loads((out_paper / "run.json").read_text())["cer_profile"] == "paper"  # the default
     assert json.loads((out_robust / "run.json").read_text())["cer_profile"] == "robust"
-    final = runner.CellKey("fake-a", "toy", "toy", 150)
+    final = CellKey("fake-a", "toy", "toy", 150)
     rec_p = json.loads((final.path(out_paper) / "result.json").read_text())
     rec_r = json.loads((final.path(out_robust) / "result.json").read_text())
     assert rec_p["config"]["cer_profile"] == "paper" and rec_p["cer"]["profile"]["polygons"] == "strict"
@@ -568,16 +578,16 @@ def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
     """A method spec with no defaults at all (no steps_scale in its defaults) trains the run's scaled number of
     steps, and its internal schedules (densification, SH degree, position LR) are scaled with it."""
     from strings_bench.engine.strategies.base import Strategy
-    from strings_bench.reports.results import read_cell
+    from strings_bench.store import read_cell
 
     spec = MethodSpec(name="bare-3dgs", implementation="strings_bench.methods.gs3d:GS3D")
     assert spec.defaults == {} and spec.takes_steps_scale()
     register_method(spec)
-    plan = runner.plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    plan = plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                            checkpoints=[3000, 7000])
     job = plan.jobs[0]
-    assert job.checkpoints == (15, 35) and job.method_overrides == {"steps_scale": 0.005}
-    method = runner._build_method(job)
+    assert job.checkpoints == (15, 35) and job.steps_scale == 0.005 and job.method_settings == {}
+    method = runner.build_method(job)
     assert method.config.steps_scale == 0.005
     # 3DGS' nominal schedules, scaled: densification stops at 15K -> 75 steps, the SH degree rises every 1K -> 50
     # steps (the floor of a scaled interval) instead of every 1 000.
@@ -585,9 +595,9 @@ def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
     assert method.sh_degree_for_step(50) == 1 and method.sh_degree_for_step(49) == 0
     state = method.strategy.initialize_state(1.0, method.config.steps_scale)
     assert Strategy.at(state, method.strategy.refine_stop_iter) == 75
-    runner.run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    bench.run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False, checkpoints=[3000, 7000],
                method_overrides={"bare-3dgs": {"sh_degree": 0}})
-    rec = read_cell(tmp_path / "run", runner.CellKey("bare-3dgs", job.dataset, job.scene, 35))
+    rec = read_cell(tmp_path / "run", CellKey("bare-3dgs", job.dataset, job.scene, 35))
     assert rec["extra"]["steps_scale"] == 0.005 and rec["extra"]["paper_iteration"] == 7000
     assert rec["config"]["method"]["settings"]["steps_scale"] == 0.005

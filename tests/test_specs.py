@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from strings_bench.bench.plan import plan_run
+from strings_bench.bench.plan import ALL_METHODS
+
+from strings_bench.core.schedules import get_schedule
+
 import dataclasses
 import subprocess
 import sys
@@ -29,7 +34,7 @@ def test_every_builtin_implementation_loads_under_its_name():
     for spec in BUILTIN_SPECS:
         impl = spec.load()
         assert isinstance(impl, type), spec.name
-        obj = spec.build(schedule="tiny")
+        obj = spec.build(default_steps_scale=get_schedule("tiny").steps_scale)
         assert obj.name == spec.name
 
 
@@ -69,23 +74,23 @@ def test_bad_set_is_refused_before_any_scene_is_built(monkeypatch, tmp_path):
 
     monkeypatch.setattr(datasets, "resolve_scenes", no_scenes)
     with pytest.raises(StringsBenchError, match="strings has no setting.*n_maxx"):
-        runner.plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strings": {"n_maxx": 3}})
+        plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strings": {"n_maxx": 3}})
     with pytest.raises(StringsBenchError, match="no method of this run has the setting.*n_maxx"):
-        runner.plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={runner.ALL_METHODS: {"n_maxx": 3}})
+        plan_run(["strings", "3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={ALL_METHODS: {"n_maxx": 3}})
     with pytest.raises(StringsBenchError, match="does not train"):
-        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strngs": {"n_max": 3}})
+        plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, method_overrides={"strngs": {"n_max": 3}})
     with pytest.raises(StringsBenchError, match="device"):
-        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, device="tpu")
+        plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, device="tpu")
     with pytest.raises(StringsBenchError, match="save-every"):
-        runner.plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, save_every="often")
+        plan_run(["3dgs"], ["synthetic"], run_dir=tmp_path, save_every="often")
 
 
 def test_all_methods_setting_goes_to_the_methods_that_have_it(tmp_path):
     from strings_bench.bench import runner
 
-    plan = runner.plan_run(["strings", "ply"], ["synthetic/books"], run_dir=tmp_path,
-                           method_overrides={runner.ALL_METHODS: {"n_max": 20, "iteration": 7000}})
-    by = {j.method: j.method_overrides for j in plan.jobs}
+    plan = plan_run(["strings", "ply"], ["synthetic/books"], run_dir=tmp_path,
+                           method_overrides={ALL_METHODS: {"n_max": 20, "iteration": 7000}})
+    by = {j.method: j.method_settings for j in plan.jobs}
     assert by["strings"]["n_max"] == 20 and "iteration" not in by["strings"]
     assert by["ply"]["iteration"] == 7000 and "n_max" not in by["ply"]
 
@@ -111,7 +116,7 @@ def test_spec_is_keyword_only_and_its_paper_figures_are_named():
     # the name lives on the spec only; a built method carries it
     from strings_bench.methods.mip_splatting import MipSplatting
 
-    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(schedule="tiny").name == "mip-splatting"
+    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(default_steps_scale=get_schedule("tiny").steps_scale).name == "mip-splatting"
 
 
 def test_ablations_are_named_by_their_specs_and_read_by_the_tables():

@@ -231,7 +231,7 @@ PAPER_LR = [  # (t, eta_opt / extent, text eta_r), float64 values of the express
 def test_paper_preset_position_lr_by_hand(tiny_text_scene):
     scene = tiny_text_scene
     ext = _extent_by_hand(scene)
-    method = get_method("strings").build(schedule="paper", mask_dilation_fraction=0.0)
+    method = get_method("strings").build(default_steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
     trainer = _setup(method, scene)
     assert trainer.t1 == 3000 and trainer.extent == pytest.approx(ext, rel=1e-12)
     for t in (1, 1500, 3000):  # phase 1: positions locked
@@ -246,7 +246,7 @@ def test_paper_preset_position_lr_by_hand(tiny_text_scene):
         np.testing.assert_allclose(row_lr[is_text].numpy(), eta_opt * ext * eta_text, rtol=1e-6)
         np.testing.assert_allclose(row_lr[~is_text].numpy(), eta_opt * ext * 0.5, rtol=1e-6)
     # Ablation strings-pos-lr: 3DGS' own (unshifted) schedule in phase 1: 1.6e-4 * 100^(-1500/30000).
-    ablation = get_method("strings-pos-lr").build(schedule="paper", mask_dilation_fraction=0.0)
+    ablation = get_method("strings-pos-lr").build(default_steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
     assert _setup(ablation, scene).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
                                                                                        rel=1e-12)
 
@@ -655,7 +655,7 @@ def test_default_run_exercises_both_phases(tiny_text_scene, monkeypatch):
     from strings_bench.engine.strategies.default import DefaultStrategy
 
     last = get_schedule(DEFAULT_SCHEDULE).checkpoints()[-1]
-    method = get_method("strings").build(schedule=DEFAULT_SCHEDULE, mask_dilation_fraction=0.0, sh_degree=0)
+    method = get_method("strings").build(default_steps_scale=get_schedule(DEFAULT_SCHEDULE).steps_scale, mask_dilation_fraction=0.0, sh_degree=0)
     refined = []
 
     def spy(self, model, optimizer, state, step):

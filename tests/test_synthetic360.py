@@ -8,6 +8,8 @@ claims (measured on renders or on a flat patch), and the `synthetic` scenes are 
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+
 import importlib.util
 import json
 from dataclasses import replace
@@ -393,7 +395,7 @@ def test_calibrate_seed_and_dense_checkpoints_reach_the_runner(tmp_path, monkeyp
     cal.apply_regime(args)
     assert args.out == "runs/calibrate-cpu-seed2"
     calls = []
-    monkeypatch.setattr(runner, "run", lambda methods, specs, **kw: calls.append((methods, specs, kw)))
+    monkeypatch.setattr(bench, "run", lambda methods, specs, **kw: calls.append((methods, specs, kw)))
     (tmp_path / "run").mkdir()
     base = ["--regime", "cpu", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
     assert cli_main(["calibrate", *base, "--seed", "2", "--checkpoints", "30K,3K,every:5K"]) == 0

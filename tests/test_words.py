@@ -3,6 +3,9 @@ its aggregates."""
 
 from __future__ import annotations
 
+import strings_bench.bench as bench
+from strings_bench.core.results import CellKey
+
 import csv
 import math
 from pathlib import Path
@@ -11,7 +14,7 @@ import pytest
 
 import runner_fakes as rf
 import strings_bench.bench.runner as runner
-from strings_bench.reports.results import (WORDS_COLUMNS, WORDS_FILE, ensure_words_csv, read_words_csv, word_rows,
+from strings_bench.store import (WORDS_COLUMNS, WORDS_FILE, ensure_words_csv, read_words_csv, word_rows,
                                            words_summary, write_words_csv)
 
 
@@ -75,7 +78,7 @@ def scene_dir(tmp_path_factory):
 def test_runner_cells_write_words_csv_whose_aggregates_equal_results_csv(tmp_path, scene_dir):
     rf.register_fakes()
     out = tmp_path / "run"
-    runner.run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
+    bench.run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False)
     with open(out / "results.csv", newline="") as f:
         results = list(csv.DictReader(f))
@@ -85,7 +88,7 @@ def test_runner_cells_write_words_csv_whose_aggregates_equal_results_csv(tmp_pat
              "read_oov_chars": ("render", "oov_chars")}
     distinct = set()
     for r in results:
-        cell = runner.CellKey(r["method"], r["dataset"], r["scene"], int(r["iteration"])).path(out)
+        cell = CellKey(r["method"], r["dataset"], r["scene"], int(r["iteration"])).path(out)
         rows = read_words_csv(cell / WORDS_FILE)
         assert rows and {w["source"] for w in rows} == {"known", "gt_ocr"}
         assert all(w["height_px"] > 0 and w["width_px"] > 0 for w in rows)
@@ -101,7 +104,7 @@ def test_runner_cells_write_words_csv_whose_aggregates_equal_results_csv(tmp_pat
 def test_ensure_words_csv_backfills_older_cells(tmp_path, scene_dir):
     rf.register_fakes()
     out = tmp_path / "run"
-    runner.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+    bench.run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                with_lpips=False, progress=False, write_report=False)
     files = sorted(Path(out, "cells").glob(f"*/*/*/*/{WORDS_FILE}"))
     assert len(files) == 3

@@ -17,7 +17,7 @@ On a tiny embedded scene (the synthetic `books` scene at 96x72 pixels, 8 views: 
 - `re-save`: the reloaded method's `state_dict()` is identical to the saved state (every tensor bit
   for bit, every other value equal);
 - `trains (cuda)` and `renders (cuda)`: the same on the GPU when torch sees one;
-- `runner`: a one-cell run through the real runner (`bench.runner.plan_run` and `execute`: training,
+- `runner`: a one-cell run through the real runner (`bench.plan.plan_run` and `bench.runner.execute`: training,
   the real metrics, the real OCR engine, result.json and results.csv).
 
 Adapters (`MethodAdapter`: models trained elsewhere) have no training state: their save/load,
@@ -30,6 +30,8 @@ build cannot train) is skipped, naming the check it needs.
 """
 
 from __future__ import annotations
+
+from strings_bench.core.schedules import get_schedule
 
 import dataclasses
 import json
@@ -214,7 +216,7 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
         from strings_bench.scene.scene import Scene
 
         ply = work / "stand_in" / "point_cloud.ply"
-        trainer = Trainer(get_method("3dgs").build(schedule=CHECK_SCHEDULE), Scene.load(scene_path), [CHECK_STEPS],
+        trainer = Trainer(get_method("3dgs").build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale), Scene.load(scene_path), [CHECK_STEPS],
                           device="cpu", progress=False, render_test=False, model_path=lambda step: ply)
         for _ in trainer.train():
             pass
@@ -243,7 +245,7 @@ class CheckContext:
     reloaded: Any = None
 
     def build(self) -> Any:
-        obj = self.spec.build(schedule=CHECK_SCHEDULE, **self.settings)
+        obj = self.spec.build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale, **self.settings)
         if not isinstance(obj, (Method, MethodAdapter)):
             raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
                               "(strings_bench.core.method)")
@@ -359,9 +361,10 @@ def check_resave(ctx: CheckContext) -> str:
 
 def check_runner(ctx: CheckContext, ocr: str, with_lpips: bool) -> str:
     """A one-cell run through the real runner: training, metrics, OCR, result.json, results.csv."""
-    from strings_bench.bench.runner import execute, plan_run
+    from strings_bench.bench.plan import plan_run
+    from strings_bench.bench.runner import execute
     from strings_bench.methods.registry import registered
-    from strings_bench.reports.results import RESULTS_CSV, iter_cells
+    from strings_bench.store import RESULTS_CSV, iter_cells
 
     spec, run_dir = ctx.spec, ctx.work / "run"
     with registered(spec):

@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from strings_bench.bench.predictions import (_OURS, Checkpoint, Predictions, PredictionsError,  # noqa: F401
-                                             _image_files, _shown, detect_layout, match_renders, open_predictions,
+from strings_bench.bench.predictions import (OURS_DIR, Checkpoint, Predictions, PredictionsError,  # noqa: F401
+                                             detect_layout, image_files, match_renders, open_predictions, shown,
                                              read_mask, read_rgb)
 from strings_bench.core.io import atomic_write_json
 from strings_bench.core.results import RESULT_FILE, CellKey, is_finished, safe_name
@@ -113,9 +113,9 @@ def default_out(pred: Path) -> Path:
 
 def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
     """Evaluate the predictions at `pred` (see the module docstring); returns the output folder."""
-    from strings_bench.bench.records import versions, write_gt_pngs
-    from strings_bench.bench.runner import _get_ocr
-    from strings_bench.reports.results import CellRecord, iteration_label, write_cell
+    from strings_bench.bench.records import versions, write_gt_pngs, write_run_report
+    from strings_bench.eval.ocr import get_engines
+    from strings_bench.store import CellConfig, CellRecord, iteration_label, write_cell, write_results_csv
     from strings_bench.eval.cer import get_profile
     from strings_bench.eval.metrics import describe as metrics_describe
     from strings_bench.eval.protocol import Evaluator, scene_views
@@ -125,12 +125,12 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
     if opts.scene and opts.gt:
         raise PredictionsError("give --scene or --gt, not both", hint="--scene: a scene of the suite; --gt: a folder of GT images")
     out = Path(opts.out) if opts.out else default_out(pred)
-    engines = _get_ocr(opts.ocr)  # an unknown engine fails before anything is read
+    engines = get_engines(opts.ocr)  # an unknown engine fails before anything is read
     with open_predictions(pred) as root:
         preds = detect_layout(root)
         say(f"layout: {preds.layout} ({len(preds.checkpoints)} checkpoint(s): "
             f"{', '.join(str(c.iteration) for c in preds.checkpoints)})")
-        given_masks = _image_files(Path(opts.masks), recursive=True) if opts.masks else None
+        given_masks = image_files(Path(opts.masks), recursive=True) if opts.masks else None
         if opts.masks and not given_masks:
             raise PredictionsError(f"mask folder {opts.masks} has no images", hint="one <view stem>.png per view")
         source = _source(preds, opts, pred)
@@ -154,7 +154,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             missing = [n for n in views if n not in renders_files]
             if missing and not opts.allow_missing:
                 raise PredictionsError(
-                    f"checkpoint {ck.iteration}: no render for {len(missing)} of {len(views)} test view(s): {_shown(missing)}",
+                    f"checkpoint {ck.iteration}: no render for {len(missing)} of {len(views)} test view(s): {shown(missing)}",
                     hint="render every test view, or pass --allow-missing to score the missing ones as unread (CER 1)")
             renders = {}
             for name, path in renders_files.items():
@@ -175,9 +175,10 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             record = CellRecord(
                 method=method, dataset=source.dataset, scene=source.scene, iteration=ck.iteration,
                 label=ck.label or iteration_label(ck.iteration),
-                config={"evaluate": {**manifest, "checkpoint": ck.iteration}, "schedule": None, "downscale": ds,
-                        "cer_profile": opts.cer_profile, "scene": {"settings": source.settings, "test_views": evaluator.names},
-                        "versions": versions(), "metrics": metrics_describe()},
+                config=CellConfig(evaluate={**manifest, "checkpoint": ck.iteration}, schedule=None, downscale=ds,
+                                  cer_profile=opts.cer_profile,
+                                  scene={"settings": source.settings, "test_views": evaluator.names},
+                                  versions=versions(), metrics=metrics_describe()),
                 timings={"train_seconds": train, "preprocess_seconds": None if train is None else 0.0,
                          "total_seconds": train, "eval_seconds": time.perf_counter() - t0},
                 extra={"layout": preds.layout}, scores=result)
@@ -188,13 +189,9 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             c = result["cer"]["cer"]
             say(f"  {ck.iteration}: OCR-CER {c if c is None else f'{c:.3f}'}, PSNR {result['metrics']['psnr']:.2f}"
                 + (f", {len(missing)} render(s) missing, scored as unread" if missing else ""))
-    from strings_bench.reports.results import write_results_csv
-
     write_results_csv(out)
     if opts.report:
-        from strings_bench.reports import write_report
-
-        write_report(out)
+        write_run_report(out)
     return out
 
 
@@ -205,7 +202,7 @@ def _default_method(preds: Predictions, pred: Path) -> str:
     if preds.layout == "inria":
         # MODEL/test/ours_N or MODEL/test: the model folder's name
         p = pred
-        while _OURS.match(p.name) or p.name == "test":
+        while OURS_DIR.match(p.name) or p.name == "test":
             p = p.parent
         name = p.name
     return safe_name(name or "external")
@@ -270,7 +267,7 @@ def _checkpoint_views(preds, ck: Checkpoint, source: Source, opts: EvaluateOptio
         views, settings = cache[ck_key]
         return files, views, ds, settings
     # ground truth from images: --gt, or the layout's gt/ (gt-color/)
-    gt_files = _image_files(source.gt_dir, recursive=True) if source.gt_dir else ck.gt
+    gt_files = image_files(source.gt_dir, recursive=True) if source.gt_dir else ck.gt
     if not gt_files:
         raise PredictionsError(f"no ground-truth images in {source.gt_dir or root}", hint="one image per test view")
     ck_key = ("images", id(gt_files) if source.gt_dir is None else str(source.gt_dir), None if masks is None else id(masks))

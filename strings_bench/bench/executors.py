@@ -12,12 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Protocol
 
+from strings_bench.bench.budget import Budget
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, safe_name
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Job:
-    """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel."""
+    """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel. Made by the plan
+    (bench/plan.py), keyword by keyword."""
 
     run_dir: str
     method: str
@@ -30,21 +32,19 @@ class Job:
     schedule: str  # the run's schedule (core/schedules.py); recorded as the cell's "schedule"
     downscale: float
     ocr: str
-    method_overrides: dict = field(default_factory=dict)
+    # the steps scale the method trains at (the schedule's, or the method's --set steps_scale): its checkpoints are
+    # scaled by it, and it reaches the method as its `steps_scale` setting where the method takes one
+    steps_scale: float
+    method_settings: dict = field(default_factory=dict)  # the method's --set values, the all-methods ones included
+    method_presets: tuple[str, ...] = ()  # the method's presets in order: dataset-conditional ones, then --presets
     cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
     device: str = "auto"  # resolved where the job runs (engine.trainer.resolve_device)
     save_every: str = "10"  # minutes, "<N>steps" or "off" (engine.trainer.SaveEvery.parse)
     keep_models: bool = False  # write each cell's model.ply
-    method_presets: tuple[str, ...] = ()  # the method's presets in order: dataset-conditional ones, then --presets
     # of `checkpoints`, those that only `--checkpoints every:N` adds: evaluated with the word-crop metrics only
     # (Evaluator.evaluate_words); () when there are none or the run asked for --dense-eval full
     dense_checkpoints: tuple[int, ...] = ()
-    # `--budget METHOD`: the reference method whose Gaussian count on this scene, at this job's last checkpoint, is
-    # this job's budget (resolved where the job runs: bench/runner.py resolve_budget); None: no such budget (a
-    # numeric --budget is in method_overrides as max_gaussians already)
-    budget: str | None = None
-    # `--budget-from FOLDER`: the run folder that holds the reference method's cells (None: this job's run folder)
-    budget_from: str | None = None
+    budget: Budget | None = None  # the run's equal Gaussian budget (bench/budget.py), resolved where the job runs
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

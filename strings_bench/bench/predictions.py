@@ -24,7 +24,7 @@ from strings_bench.core.errors import StringsBenchError
 
 LAYOUTS = ("inria", "nerfbaselines", "folder")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-_OURS = re.compile(r"^ours_(\d+)$")
+OURS_DIR = re.compile(r"^ours_(\d+)$")
 
 
 class PredictionsError(StringsBenchError):
@@ -52,7 +52,7 @@ class Predictions:
     index_named: bool = False  # render keys are positions in the test split (Inria's 00000.png)
 
 
-def _image_files(folder: Path, recursive: bool = False) -> dict[str, Path]:
+def image_files(folder: Path, recursive: bool = False) -> dict[str, Path]:
     """Image files of `folder` keyed by their path relative to it without the suffix."""
     if not folder.is_dir():
         return {}
@@ -69,11 +69,11 @@ def _image_files(folder: Path, recursive: bool = False) -> dict[str, Path]:
 
 
 def _inria_checkpoint(folder: Path, n: int) -> Checkpoint:
-    renders = _image_files(folder / "renders")
+    renders = image_files(folder / "renders")
     if not renders:
         raise PredictionsError(f"{folder / 'renders'} has no images", hint="expected renders/00000.png, ...")
-    gt = _image_files(folder / "gt") if (folder / "gt").is_dir() else None
-    masks = _image_files(folder / "masks") if (folder / "masks").is_dir() else None
+    gt = image_files(folder / "gt") if (folder / "gt").is_dir() else None
+    masks = image_files(folder / "masks") if (folder / "masks").is_dir() else None
     return Checkpoint(n, renders, gt, masks)
 
 
@@ -89,10 +89,10 @@ def detect_layout(root: Path) -> Predictions:
     # Inria: MODEL/test/ours_N, MODEL/test, or ours_N itself
     for test_dir in (root / "test", root):
         ours = sorted((int(m.group(1)), p) for p in (test_dir.iterdir() if test_dir.is_dir() else [])
-                      if p.is_dir() and (m := _OURS.match(p.name)))
+                      if p.is_dir() and (m := OURS_DIR.match(p.name)))
         if ours:
             return Predictions("inria", root, [_inria_checkpoint(p, n) for n, p in ours], index_named=True)
-    if (m := _OURS.match(root.name)) and (root / "renders").is_dir():
+    if (m := OURS_DIR.match(root.name)) and (root / "renders").is_dir():
         return Predictions("inria", root, [_inria_checkpoint(root, int(m.group(1)))], index_named=True)
     if (root / "color").is_dir() and (root / "gt-color").is_dir():
         info = {}
@@ -102,15 +102,15 @@ def detect_layout(root: Path) -> Predictions:
             except (OSError, ValueError) as exc:
                 raise PredictionsError(f"cannot read {root / 'info.json'}: {exc}",
                                        hint="nerfbaselines writes it with the predictions; restore or delete it") from exc
-        renders = _image_files(root / "color", recursive=True)
+        renders = image_files(root / "color", recursive=True)
         if not renders:
             raise PredictionsError(f"{root / 'color'} has no images", hint="nerfbaselines writes color/<image>.png")
-        masks = _image_files(root / "mask", recursive=True) if (root / "mask").is_dir() else None
+        masks = image_files(root / "mask", recursive=True) if (root / "mask").is_dir() else None
         it = info.get("num_iterations") if isinstance(info, dict) else None
         return Predictions("nerfbaselines", root,
                            [Checkpoint(int(it) if isinstance(it, int) and it >= 0 else 0, renders,
-                                       _image_files(root / "gt-color", recursive=True), masks)], info=info or {})
-    renders = _image_files(root)
+                                       image_files(root / "gt-color", recursive=True), masks)], info=info or {})
+    renders = image_files(root)
     if renders:
         return Predictions("folder", root, [Checkpoint(0, renders)])
     raise PredictionsError(
@@ -189,7 +189,7 @@ def read_mask(path: Path) -> np.ndarray:
 
 
 # ---- matching renders to views ----------------------------------------------------------------------
-def _shown(items, n: int = 5) -> str:
+def shown(items, n: int = 5) -> str:
     items = list(items)
     return ", ".join(str(x) for x in items[:n]) + (f" ... ({len(items)} in all)" if len(items) > n else "")
 
@@ -204,10 +204,10 @@ def match_renders(view_names: list[str], renders: dict[str, Path], index_named: 
     stray = [renders[k].name for k in renders if k not in by_key]
     if stray and len(stray) == len(renders):
         raise PredictionsError(
-            f"no render in {where} is named after a test view: renders {_shown(sorted(renders))}; "
-            f"test views {_shown(view_names)}",
+            f"no render in {where} is named after a test view: renders {shown(sorted(renders))}; "
+            f"test views {shown(view_names)}",
             hint="name each render after its test view (<view stem>.png), or index them 00000.png... in test-split order")
     if stray:
-        raise PredictionsError(f"render(s) {_shown(sorted(stray))} in {where} match no test view",
-                               hint=f"test views: {_shown(view_names)}; remove the extra files or fix their names")
+        raise PredictionsError(f"render(s) {shown(sorted(stray))} in {where} match no test view",
+                               hint=f"test views: {shown(view_names)}; remove the extra files or fix their names")
     return {by_key[k]: p for k, p in renders.items()}

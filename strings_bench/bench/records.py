@@ -1,5 +1,6 @@
-"""What a run writes besides its cells (reports/results.py: `write_cell`): the ground-truth PNGs as they are
-scored, the versions and the device. Shared by the runner and `strings-bench evaluate`."""
+"""What a run writes besides its cells (store/cells.py: `write_cell`): the ground-truth PNGs as they are
+scored, the versions, the device, and the report (`write_run_report`: bench/'s one way into reports/). Shared by
+the runner and `strings-bench evaluate`."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from strings_bench import __version__
 from strings_bench.core.cpus import isa_record
 from strings_bench.core.results import safe_name
-from strings_bench.reports.results import render_file_name, write_png
+from strings_bench.store import render_file_name, write_png
 
 if TYPE_CHECKING:
     from strings_bench.eval.protocol import Evaluator
@@ -50,3 +51,10 @@ def device_info(device: str) -> dict:
     if str(device).startswith("cuda") and torch.cuda.is_available():
         gpu = torch.cuda.get_device_name(torch.device(device))
     return {"device": str(device), "gpu": gpu}
+
+
+def write_run_report(run_dir: Path) -> Path:
+    """RUN_DIR/report/ (strings_bench.reports.write_report); returns report.md's path."""
+    from strings_bench.reports import write_report
+
+    return write_report(run_dir)

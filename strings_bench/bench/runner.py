@@ -23,7 +23,8 @@ Run folder (see docs/running.md):
       report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
 The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`; the
-schedules are core/schedules.py. Execution goes through an `Executor` (bench/executors.py:
+schedules are core/schedules.py; `strings_bench.bench.run` plans and executes. The run folder is written and read
+through the store (strings_bench/store/). Execution goes through an `Executor` (bench/executors.py:
 `submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one after another in this process,
 `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
 are plain data) — cells are independent files, and results.csv is rebuilt from them on the driver.
@@ -38,79 +39,38 @@ from concurrent.futures import FIRST_COMPLETED, wait
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from strings_bench.bench.executors import EXECUTORS, Executor, Job, LocalExecutor, executor_factory  # noqa: F401
-from strings_bench.bench.plan import ALL_METHODS, DEFAULT_RUN_DIR, LPIPS_AT, RunConfig, RunPlan, check_manifest, plan_run  # noqa: F401
-from strings_bench.bench.records import device_info, versions, write_gt_pngs
+from strings_bench.bench.budget import SETTING as CAP_SETTING
+from strings_bench.bench.budget import cap_of
+from strings_bench.bench.executors import Executor, Job, executor_factory
+from strings_bench.bench.plan import RunPlan
+from strings_bench.bench.records import device_info, versions, write_gt_pngs, write_run_report
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.core.io import atomic_write_json, jsonable
+from strings_bench.core.io import jsonable
 from strings_bench.core.method import Method
-from strings_bench.core.results import RESULT_FILE, RUN_FILE, CellKey, is_finished, safe_name
+from strings_bench.core.results import CellKey, is_finished, safe_name
 from strings_bench.eval.metrics import describe as metrics_describe
 from strings_bench.eval.protocol import Evaluator
-from strings_bench.reports.results import CellRecord, iteration_label, write_cell, write_results_csv
+from strings_bench.store import (CellConfig, CellRecord, check_manifest, iteration_label, write_cell, write_manifest,
+                                 write_results_csv)
 
 log = logging.getLogger(__name__)
+LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
 
 
 # ---- running ------------------------------------------------------------------------------------
-def _build_method(job: Job, overrides: dict | None = None):
+def build_method(job: Job, cap: int | None = None):
+    """The job's method, built once: its presets, its steps scale, its --set values and its Gaussian cap."""
     from strings_bench.methods.registry import get_method
 
-    return get_method(job.method).build(job.method_presets, **(job.method_overrides if overrides is None else overrides))
-
-
-def resolve_budget(job: Job) -> dict | None:
-    """The job's Gaussian budget as its cells record it: {"rule", "max_gaussians", "reference"}; None without one.
-
-    `--budget N` is in the job's settings already; `--budget METHOD` is read here, where the job runs, from the
-    reference method's cell on the same scene at the job's last checkpoint (`plan.budget_reference`), which must be
-    finished (the reference's jobs run first), in the run folder or in `--budget-from`'s."""
-    from strings_bench.bench.plan import BUDGET_SETTING, budget_folder, budget_reference
-    from strings_bench.reports.results import read_cell
-
-    if job.budget is None:
-        n = job.method_overrides.get(BUDGET_SETTING)
-        return None if n is None else {"rule": str(n), "max_gaussians": int(n), "reference": None}
-    ref, folder = budget_reference(job), budget_folder(job)
-    if not is_finished(folder, ref):
-        where = f"--budget-from {folder}" if job.budget_from else "the run folder"
-        raise StringsBenchError(
-            f"--budget {job.budget}: {job.method} on {job.dataset}/{job.scene} needs {job.budget}'s cell at iteration "
-            f"{ref.iteration} ({ref.path(folder)}), which is not in {where}",
-            hint=(f"train {job.budget} on this scene into {folder} first" if job.budget_from else
-                  f"add {job.budget} to --methods (its jobs run first, uncapped), or give a number: --budget N"))
-    count = (read_cell(folder, ref) or {}).get("gaussians")
-    if not count:
-        raise StringsBenchError(f"--budget {job.budget}: the reference cell {ref.path(folder)} records no "
-                                "Gaussian count", hint="the reference must be a method that trains Gaussians")
-    return {"rule": job.budget, "max_gaussians": int(count),
-            "reference": {"method": ref.method, "iteration": ref.iteration,
-                          **({"folder": str(folder)} if job.budget_from else {})}}
-
-
-def job_overrides(job: Job, budget: dict | None) -> dict:
-    """The job's settings with its resolved budget as `max_gaussians`."""
-    from strings_bench.bench.plan import BUDGET_SETTING
-
-    return {**job.method_overrides, **({BUDGET_SETTING: budget["max_gaussians"]} if budget else {})}
+    settings = {**job.method_settings, **({CAP_SETTING: cap} if cap is not None else {})}
+    # a --set steps_scale among the settings wins over the job's (which is that value already)
+    return get_method(job.method).build(job.method_presets, default_steps_scale=job.steps_scale, **settings)
 
 
 def _load_scene(job: Job):
     from strings_bench.scene.scene import Scene
 
     return Scene.load(job.scene_path, name=job.scene, settings=job.scene_settings)
-
-
-def _get_ocr(name_or_backend) -> list:
-    """The OCR engines of a job: from `--ocr` ("rapidocr" or "rapidocr,tesseract"), a backend object
-    (tests), or a list of either; the first is the primary."""
-    from strings_bench.eval.ocr import get_engine, parse_engines
-
-    if isinstance(name_or_backend, str):
-        return [get_engine(n) for n in parse_engines(name_or_backend)]
-    if isinstance(name_or_backend, (list, tuple)):
-        return [x for item in name_or_backend for x in _get_ocr(item)]
-    return [name_or_backend]
 
 
 class Runner:
@@ -142,11 +102,15 @@ class Runner:
         if not todo:
             job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
-        budget = resolve_budget(job)
+        # the cap its cells record (a --budget METHOD reference's count is read here, where the job runs)
+        budget = None if job.budget is None else job.budget.record(job.method, job.dataset, job.scene,
+                                                                    job.checkpoints, job.run_dir)
         scene = _load_scene(job)
-        adapter = _build_method(job, job_overrides(job, budget))
+        adapter = build_method(job, cap_of(budget))
         adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
-        ocr = _get_ocr(self.ocr)
+        from strings_bench.eval.ocr import get_engines
+
+        ocr = get_engines(self.ocr)
         from strings_bench.engine.trainer import resolve_device
 
         device = resolve_device(job.device)  # checked here, where the job runs
@@ -206,7 +170,7 @@ class Runner:
                        fingerprint=fingerprint).train()
 
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene,
-                    budget: dict | None = None) -> None:
+                    budget: dict | str | None = None) -> None:
         t0 = time.perf_counter()
         # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
         # the paper reports it at 30K.
@@ -218,20 +182,12 @@ class Runner:
         record = CellRecord(
             method=job.method, dataset=job.dataset, scene=job.scene, iteration=key.iteration,
             label=job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration))),
-            config={
-                "method": describe,
-                "scene": {"path": job.scene_path, "settings": job.scene_settings, "test_views": evaluator.names},
-                "schedule": job.schedule,
-                "method_presets": list(job.method_presets),
-                "downscale": job.downscale,
-                "cer_profile": job.cer_profile,
-                "checkpoints": list(job.checkpoints),
-                # the equal Gaussian budget (--budget): {"rule", "max_gaussians", "reference"}; "reference" where
-                # this cell is the reference of --budget METHOD (trained uncapped); None without a budget
-                "budget": budget if budget is not None else ("reference" if self._is_budget_reference(job) else None),
-                "versions": versions(),
-                "metrics": metrics_describe(),
-            },
+            config=CellConfig(
+                method=describe, scene={"path": job.scene_path, "settings": job.scene_settings,
+                                        "test_views": evaluator.names},
+                schedule=job.schedule, method_presets=tuple(job.method_presets), downscale=job.downscale,
+                cer_profile=job.cer_profile, checkpoints=tuple(job.checkpoints), budget=budget, versions=versions(),
+                metrics=metrics_describe()),
             resumed_from_step=int(getattr(result, "resumed_from_step", 0)),
             device=result.extra.get("device", ""),
             gpu=device_info(result.extra["device"])["gpu"] if result.extra.get("device") else None,
@@ -244,11 +200,6 @@ class Runner:
         if self.results_csv:
             write_results_csv(job.run_dir)
 
-
-    def _is_budget_reference(self, job: Job) -> bool:
-        from strings_bench.reports.results import read_manifest
-
-        return (read_manifest(Path(job.run_dir)) or {}).get("budget") == job.method
 
 def _preprocess_seconds(result) -> float:
     value = getattr(result, "preprocess_seconds", 0.0)  # adapters written before the field: none
@@ -289,8 +240,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     asked = plan.manifest.get("device", "auto")
     resolved = device_info(resolve_device(asked)) if in_process else {"device": "on each worker (see result.json)",
                                                                        "gpu": None}
-    atomic_write_json(run_dir / RUN_FILE, jsonable({**check_manifest(run_dir, plan.manifest), "versions": versions(),
-                                                     "resolved_device": resolved}))
+    write_manifest(run_dir, {**check_manifest(run_dir, plan.manifest), "versions": versions(), "resolved_device": resolved})
     cells = plan.cells
     done = sum(is_finished(run_dir, k) for k in cells)
     bar = None
@@ -321,8 +271,8 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
         if pending:
             ex.start(run_dir, pending)
         # --budget METHOD: the reference method's jobs first (the others read their counts), then the rest.
-        reference = plan.manifest.get("budget") if isinstance(plan.manifest.get("budget"), str) else None
-        stages = [[j for j in pending if j.method == reference], [j for j in pending if j.method != reference]]
+        first = [j for j in pending if j.budget is not None and j.budget.is_reference(j.method)]
+        stages = [first, [j for j in pending if j not in first]]
         for stage in stages:
             if stage:
                 _run_stage(ex, stage, errors, in_process, run_dir, cells, bar)
@@ -336,9 +286,7 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
             bar.close()
         write_results_csv(run_dir)
     if write_report:
-        from strings_bench.reports import write_report as _write_report
-
-        _write_report(run_dir)
+        write_run_report(run_dir)
     if errors:
         raise failure_summary(run_dir, errors, total_jobs=len(pending))
     return run_dir
@@ -412,23 +360,3 @@ def discard_incomplete_cells(run_dir: Path, jobs: Iterable[Job]) -> list[Path]:
                     tmp.unlink(missing_ok=True)
                     removed.append(tmp)
     return removed
-
-
-def run(config: RunConfig | list[str] | None = None, datasets=None, **given) -> Path:
-    """Plan and execute a run. Takes a RunConfig (bench/plan.py: every option, documented there), or
-    methods, datasets and RunConfig fields as keywords: `run(["3dgs"], ["synthetic/books"], schedule="tiny")`."""
-    c = RunConfig.of(config, datasets, **given)
-    factory = executor_factory(c.executor)
-    if factory.in_process:  # jobs run here: a missing GPU is refused before any scene is built
-        from strings_bench.engine.trainer import resolve_device
-
-        resolve_device(c.device)
-    # e.g. Ray not installed, --device cuda:1, or options the executor does not take: refused before any scene is built
-    factory.check_options(device=c.device, **(c.executor_options or {}))
-    if c.ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
-        from strings_bench.eval.ocr import parse_engines
-
-        parse_engines(c.ocr)
-    plan = plan_run(c)
-    return execute(plan, ocr=c.ocr_backend, executor=c.executor, with_lpips=c.with_lpips, progress=c.progress,
-                   write_report=c.write_report, lpips_at=c.lpips_at, executor_options=c.executor_options)

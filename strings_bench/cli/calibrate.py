@@ -61,7 +61,7 @@ from pathlib import Path
 
 from strings_bench.cli import command_help
 # the tables (reports/calibration.py); `tables` and the paper's figures are re-exported: tests read them here
-from strings_bench.reports.calibration import PAPER_3DGS, TARGET_NAMES, TOLERANCE, _num, tables  # noqa: F401
+from strings_bench.reports.calibration import PAPER_3DGS, TARGET_NAMES, TOLERANCE, as_float, tables  # noqa: F401
 
 DEFAULT_GRID = ["room_scale=1,2,3"]
 # Defaults per regime (--regime); an option given on the command line wins. "cpu": one (3DGS, scene)
@@ -196,7 +196,7 @@ def scene_points(rec: dict, cache: dict) -> tuple[float, float]:
 
         try:
             meta = read_meta(path)
-            cache[path] = (_num(meta.get("points")), _num(meta.get("text_points")))
+            cache[path] = (as_float(meta.get("points")), as_float(meta.get("text_points")))
         except DatasetError:
             cache[path] = (math.nan, math.nan)
     return cache[path]
@@ -252,8 +252,8 @@ def run(args: argparse.Namespace) -> int:
     """Train the grid (or the registered configuration) through the runner, then write calibration.csv/.md."""
     apply_regime(args)
 
-    import strings_bench.bench.runner as runner
-    from strings_bench.reports.results import cell_row, iter_cells
+    import strings_bench.bench as bench
+    from strings_bench.store import cell_row, iter_cells
     from strings_bench.bench.plan import ALL_METHODS
     from strings_bench.cli.run import parse_checkpoints, split_checkpoints
     from strings_bench.core.errors import StringsBenchError
@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
             if not run_dir.is_dir():
                 raise StringsBenchError(f"--report-only: no run folder {run_dir}", hint="run without --report-only first")
         else:
-            runner.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False,
+            bench.run(methods, specs, run_dir=run_dir, schedule="paper", ocr=args.ocr, with_lpips=False,
                        write_report=False, steps_scale=args.steps_scale, checkpoints=checkpoints,
                        dense_every=dense_every, method_overrides=overrides, device=device, budget=args.budget)
     except StringsBenchError as exc:
@@ -321,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
         rows.append({"setting": r["dataset"], "scene": r["scene"], "room": room,
                      "draw": int(labels[r["dataset"]].get("seed", draw)), "group": groups[r["dataset"]],
                      "label": r["label"], "iteration": int(r["iteration"]),
-                     **{k: _num(r[k]) for k in ("cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
+                     **{k: as_float(r[k]) for k in ("cer", "cer_known", "word_cer", "word_cer_gt", "text_nll", "psnr",
                                                 "train_seconds")},
                      "gaussians": r["gaussians"], "method": r["method"], "sfm_points": sfm, "text_points": text})
     order = list(labels)

@@ -264,7 +264,7 @@ def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> li
     from strings_bench.datasets.card import LOCAL_CARD_NOTES
     from strings_bench.datasets.registry import register_local_copies
     from strings_bench.datasets.check import check_card_copy, check_path, format_reports
-    from strings_bench.datasets.registry import _REGISTRY, list_datasets, read_index, write_index
+    from strings_bench.datasets.registry import find_dataset, get_dataset, list_datasets, read_index, write_index
 
     name = valid_name(name)
     path = Path(path).expanduser()
@@ -278,13 +278,13 @@ def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> li
         present = [r for r in reports if r.found]
         if not present:
             raise DatasetError(f"none of the scenes of {name} are in {path}",
-                               hint=f"PATH must hold the scene folders ({', '.join(s.name for s in _REGISTRY[name].scenes)})")
+                               hint=f"PATH must hold the scene folders ({', '.join(s.name for s in get_dataset(name).scenes)})")
         missing = len(reports) - len(present)
         reports = present
         if missing:
             echo(f"note: {missing} scene(s) of {name} are not in {path}; the others are checked")
     else:
-        existing = _REGISTRY.get(name)
+        existing = find_dataset(name)
         if existing is not None and existing.notes != LOCAL_CARD_NOTES:
             raise DatasetError(f"{name!r} is a built-in dataset that is not stored on disk by the user",
                                hint="choose another name for your copy")

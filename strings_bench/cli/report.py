@@ -20,7 +20,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run(args: argparse.Namespace) -> int:
     """Write RUN_DIR/report/ from the run folder's cells and print where (report.md and index.html)."""
     from strings_bench.reports import write_report
+    from strings_bench.store import refresh
 
+    refresh(args.run_dir)  # results.csv from the cells (they are the truth); words.csv where an older cell lacks it
     path = write_report(args.run_dir, metrics=args.metric)
     print(f"report: {path}")
     print(f"html:   {(path.parent / 'index.html').resolve().as_uri()}")

@@ -8,7 +8,7 @@ from strings_bench.cli import command_help
 from strings_bench.core.errors import StringsBenchError
 
 DEFAULT_METHODS = "strings,3dgs"
-ALL_METHODS = "*"  # = strings_bench.bench.runner.ALL_METHODS (not imported here: the runner is heavy)
+ALL_METHODS = "*"  # = strings_bench.bench.plan.ALL_METHODS
 
 
 def _split(s: str) -> list[str]:
@@ -101,7 +101,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """`strings-bench run`: plan and execute the run, print where its results and report are."""
-    from strings_bench.bench.runner import run as run_bench
+    from strings_bench.bench import run as run_bench
 
     out = run_bench(run_config(args))
     print(f"results: {out / 'results.csv'}")

@@ -162,7 +162,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     """`src` (a folder with images/, a Bundler file and its image list) -> a registered scene folder."""
     import pycolmap
 
-    from strings_bench.datasets.sfm import (PrepareResult, _save_like, default_scene_dir, finish_scene, numbered_stages,
+    from strings_bench.datasets.sfm import (PrepareResult, save_like, default_scene_dir, finish_scene, numbered_stages,
                                             publish_scene, register_scene)
 
     src = Path(src)
@@ -194,7 +194,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
             with Image.open(img_dir / n) as im:
                 sizes.append(im.size)
                 orientations.append(int(im.getexif().get(0x0112, 1) or 1))
-                _save_like(ImageOps.exif_transpose(im).convert("RGB"), raw / n)
+                save_like(ImageOps.exif_transpose(im).convert("RGB"), raw / n)
         rec, kept = bundler_reconstruction(model, names, sizes, orientations)
         model_dir = work / "sparse_raw"
         model_dir.mkdir()

@@ -74,6 +74,12 @@ def list_datasets() -> list[DatasetCard]:
     return list(_REGISTRY.values())
 
 
+def find_dataset(dataset_id: str) -> DatasetCard | None:
+    """The card registered as `dataset_id`, None when there is none."""
+    _register_builtin_cards()
+    return _REGISTRY.get(dataset_id)
+
+
 def get_dataset(dataset_id: str) -> DatasetCard:
     """The card registered as `dataset_id`; DatasetError naming the known ids when there is none."""
     _register_builtin_cards()

@@ -304,7 +304,7 @@ def finish_scene(model_dir: Path, raw: Path, work: Path, max_size: int, masks: b
             with Image.open(p) as im:
                 w, h = im.size
                 size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
-                _save_like(im.convert("RGB").resize(size, Image.Resampling.LANCZOS), d / p.name)
+                save_like(im.convert("RGB").resize(size, Image.Resampling.LANCZOS), d / p.name)
     stages["downscale"] = time.perf_counter() - t
 
     # 7. text masks
@@ -332,7 +332,7 @@ def _drop_invalid_cameras(rec) -> list[str]:
     return sorted(bad)
 
 
-def _save_like(im: Image.Image, dest: Path) -> None:
+def save_like(im: Image.Image, dest: Path) -> None:
     if dest.suffix.lower() in (".jpg", ".jpeg"):
         im.save(dest, quality=95)
     else:
@@ -348,7 +348,7 @@ def _write_upright_resized(src: Path, dest: Path, max_size: int) -> None:
             scale = max_size / max(w, h) if max_size and max_size > 0 else 1.0
             if scale < 1.0:
                 im = im.resize((max(1, round(w * scale)), max(1, round(h * scale))), Image.Resampling.LANCZOS)
-            _save_like(im, dest)
+            save_like(im, dest)
     except OSError as exc:
         raise DatasetError(f"cannot read photo {src}: {exc}", hint="remove or replace the corrupt file") from exc
 

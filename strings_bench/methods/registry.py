@@ -2,7 +2,7 @@
 
 A `MethodSpec` names its implementation lazily (`"module:Class"`: nothing is imported until a
 method is built or described), its defaults, its presets, and the paper's own results where they
-are published (REFERENCE.md §5), so reports can show the paper's figure next to the measured one.
+are published (the STRinGS paper, Table 1), so reports can show the paper's figure next to the measured one.
 The built-in methods are the table `BUILTIN_SPECS` below: registration is explicit, never an import
 side effect. A user's package adds more through the entry-point group `strings_bench.methods`,
 whose entries point at a MethodSpec (or a callable returning one).
@@ -32,7 +32,7 @@ ENTRY_POINT_GROUP = "strings_bench.methods"
 
 @dataclass(frozen=True, kw_only=True)
 class PaperFigures:
-    """A method's figures in the STRinGS paper (REFERENCE.md §5), by name: OCR-CER at 7K and 30K on Tanks and
+    """A method's figures in the STRinGS paper (Table 1), by name: OCR-CER at 7K and 30K on Tanks and
     Temples, DL3DV and STRinGS-360 (Google Cloud Vision OCR), and training minutes on STRinGS-360 (RTX 3090 Ti)."""
 
     tandt_cer_7k: float
@@ -187,13 +187,13 @@ class MethodSpec:
         its = fixed(settings) if fixed is not None else None
         return sorted(int(i) for i in its) if its else None
 
-    def build(self, presets=None, *, schedule: str | None = None, **overrides):
+    def build(self, presets=None, *, default_steps_scale: float | None = None, **overrides):
         """A configured method object (a `Method` or a `MethodAdapter`); `presets`: a preset name or a list;
-        `schedule`: train at that run schedule's steps scale, as a run of it does (`build(schedule="tiny")`)."""
-        if schedule is not None:
-            from strings_bench.core.schedules import get_schedule
-
-            overrides = self.with_steps_scale(get_schedule(schedule).steps_scale, overrides)
+        `default_steps_scale`: train at that steps scale where the method takes one (`with_steps_scale`), as a run
+        of a schedule does (`build(default_steps_scale=get_schedule("tiny").steps_scale)`); a `steps_scale` in
+        `overrides` (`--set steps_scale=S`) wins."""
+        if default_steps_scale is not None:
+            overrides = self.with_steps_scale(default_steps_scale, overrides)
         settings = self.resolve(presets, **overrides)
         impl = self.load()
         self.check_keys(settings)
@@ -310,7 +310,7 @@ BUILTIN_SPECS: list[MethodSpec] = [
         paper_figures=PaperFigures(tandt_cer_7k=.142, tandt_cer_30k=.118, dl3dv_cer_7k=.239, dl3dv_cer_30k=.162,
                                    strings360_cer_7k=.328, strings360_cer_30k=.116,
                                    strings360_minutes_7k=5.5, strings360_minutes_30k=23.2)),
-    # Newer methods beyond the paper's table (issue 42); no published figures on the STRinGS datasets.
+    # Newer methods beyond the paper's table; no published figures on the STRinGS datasets.
     MethodSpec(
         name="improved-gs", title="Improved-GS", implementation="strings_bench.methods.improved_gs:ImprovedGS",
         description="Improved-GS: edge-aware score, growth control to a Gaussian budget, long-axis split, "
@@ -345,7 +345,7 @@ BUILTIN_SPECS: list[MethodSpec] = [
         description="STRinGS ablation: non-zero position LR (the 3DGS schedule) in phase 1", paper=STRINGS_PAPER,
         presets=dict(_STRINGS_PRESETS), ablation_of="strings", ablation_at=3000,
         ablation_effect="zero position LR of Gaussians"),
-    # This suite's variant (issue 42), not the paper's: STRinGS on AbsGS' absolute-gradient densification.
+    # This suite's variant, not the paper's: STRinGS on AbsGS' absolute-gradient densification.
     MethodSpec(
         name="strings-absgrad", title="STRinGS + AbsGS criterion",
         implementation="strings_bench.methods.strings.method:StringsAbsGrad",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from strings_bench.reports.results import RESULTS_CSV, read_manifest, write_results_csv
+from strings_bench.store import RESULTS_CSV, read_manifest
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import atomic_write_text
 
@@ -30,11 +30,6 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise StringsBenchError(f"run folder {run_dir} does not exist", hint="give the --out folder of a `strings-bench run`")
-    if (run_dir / "cells").is_dir():
-        write_results_csv(run_dir)  # always from the cell files: they are the truth
-        from strings_bench.reports.results import ensure_words_csv
-
-        ensure_words_csv(run_dir)  # cells written before words.csv existed get theirs from result.json
     if not (run_dir / RESULTS_CSV).exists():
         raise StringsBenchError(f"{run_dir} has no {RESULTS_CSV} and no cells/", hint="is this a run folder? run `strings-bench run` first")
     manifest = read_manifest(run_dir) or {}

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import pandas as pd
 
 from strings_bench.reports.aggregate import dataset_means, main_labels
-from strings_bench.reports.results import iteration_label
+from strings_bench.store import iteration_label
 from strings_bench.reports.table_model import REGISTERED, MethodNames, Table, dataset_title, latex_escape
 
 

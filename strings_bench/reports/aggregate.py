@@ -4,10 +4,11 @@ dataset, the checkpoints the tables show."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Iterable
 
 import pandas as pd
 
-from strings_bench.reports.results import ENGINE_COLUMNS, FORMER_NAMES, READABILITY_COLUMNS
+from strings_bench.store import ENGINE_COLUMNS, FORMER_NAMES, READABILITY_COLUMNS
 from strings_bench.reports.table_model import label_value
 
 
@@ -86,3 +87,21 @@ def main_labels(df: pd.DataFrame) -> list[str]:
     return sorted(set((full if not full.empty else df)["label"]), key=label_value)
 
 
+def cer_per_script(rows: Iterable[dict], value: str = "cer") -> list[dict]:
+    """Mean `value` (a results.csv column: cer, cer_known, ...) per script x method x checkpoint label, over
+    the scenes of that script (every dataset together): [{"script", "method", "label", value, "scenes"}],
+    sorted by script, method, label. A scene's script is its main one (the first of `script`); rows without
+    a script or a number are left out."""
+    groups: dict[tuple, list[float]] = {}
+    for r in rows:
+        script = str(r.get("script") or "").split("+")[0]
+        v = r.get(value)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            continue
+        if not script or v != v:  # no script recorded, or NaN
+            continue
+        groups.setdefault((script, r["method"], str(r["label"])), []).append(v)
+    return [{"script": s, "method": m, "label": l, value: sum(vs) / len(vs), "scenes": len(vs)}
+            for (s, m, l), vs in sorted(groups.items())]

@@ -15,7 +15,7 @@ TOLERANCE = 0.1
 MEAN_KEYS = ("cer", "cer_known", "word_cer", "text_nll", "text_points")
 
 
-def _num(x) -> float:
+def as_float(x) -> float:
     try:
         return float(x)
     except (TypeError, ValueError):
@@ -47,7 +47,7 @@ def over_draws(rs: list[dict], key: str) -> dict:
     rooms); rows without a value are left out (NaN when nothing is left)."""
     by_draw: dict[int, dict[str, list[float]]] = {}
     for r in rs:
-        v = _num(r.get(key))
+        v = as_float(r.get(key))
         if not math.isnan(v):
             by_draw.setdefault(r["draw"], {}).setdefault(r["room"], []).append(v)
     rooms = set.intersection(*(set(by_room) for by_room in by_draw.values())) if by_draw else set()
@@ -80,7 +80,7 @@ def tables(rows: list[dict], scenes: list[str], target: str = "cer", expected: d
                   f"{_fmt(r['word_cer'])} | {_fmt(r.get('word_cer_gt', math.nan))} | {_fmt(r['text_nll'], '{:.2f}')} | "
                   f"{_fmt(r['psnr'], '{:.2f}')} | "
                   f"{r['gaussians']} | {_fmt(r['train_seconds'], '{:.0f}')} | "
-                  f"{_fmt(_num(r.get('text_points')), '{:.0f}')} |\n")
+                  f"{_fmt(as_float(r.get('text_points')), '{:.0f}')} |\n")
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["group"], r["label"], r["iteration"]), []).append(r)

@@ -14,7 +14,7 @@ from strings_bench.reports.readability_analysis import (HEIGHT_BINS, MIN_BIN_WOR
                                                         pareto_front, size_label)
 from strings_bench.reports.aggregate import main_labels, with_total_seconds
 from strings_bench.reports.table_model import GT_CEILING, REGISTERED, MethodNames, dataset_title
-from strings_bench.reports.results import read_cell, render_file_name
+from strings_bench.store import read_cell, render_file_name
 from strings_bench.core.io import atomic_write
 from strings_bench.core.results import CellKey, safe_name
 

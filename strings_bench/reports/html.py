@@ -43,7 +43,7 @@ import pandas as pd
 
 from strings_bench.reports.ablations import AblationTable, fmt3
 from strings_bench.reports.table_model import GT_CEILING, REGISTERED, MethodNames, Table, dataset_title, label_value
-from strings_bench.reports.results import RESULT_FILE, CellKey, render_file_name, safe_name
+from strings_bench.store import RESULT_FILE, CellKey, render_file_name, safe_name
 from strings_bench.core.io import atomic_write, atomic_write_text
 
 __all__ = ["write_html", "table_html", "GALLERY_PAGE_SIZE", "CELLS_PAGE_SIZE"]

@@ -34,7 +34,7 @@ import pandas as pd
 
 from strings_bench.core.io import atomic_write_text
 from strings_bench.core.results import CellKey
-from strings_bench.reports.results import WORDS_FILE, read_words_csv
+from strings_bench.store import WORDS_FILE, read_words_csv
 from strings_bench.reports.aggregate import main_labels, with_total_seconds
 from strings_bench.reports.table_model import (GT_CEILING, RANK_NOTE, REGISTERED, Column, MethodNames, Table,
                                                dataset_title)

@@ -17,9 +17,8 @@ import pandas as pd
 
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.ablations import ablation_table
-from strings_bench.reports.aggregate import dataset_means, main_labels, with_total_seconds
+from strings_bench.reports.aggregate import cer_per_script, dataset_means, main_labels, with_total_seconds
 from strings_bench.reports.ocr_agreement import ocr_engine_tables
-from strings_bench.reports.results import cer_per_script
 from strings_bench.reports.table_model import (GT_CEILING, PREAMBLE, RANK_NOTE, REGISTERED, Column, MethodNames, Table,
                                                dataset_title, label_value, latex_escape)
 

@@ -107,6 +107,16 @@ def get_engine(spec: str) -> OCRBackend:
     return get_backend(spec.partition(":")[0], **engine_settings(spec))
 
 
+def get_engines(names_or_backend) -> list:
+    """The OCR engines of a run or an evaluation: from `--ocr` ("rapidocr" or "rapidocr,tesseract"), a backend
+    object (tests), or a list of either; the first is the primary."""
+    if isinstance(names_or_backend, str):
+        return [get_engine(n) for n in parse_engines(names_or_backend)]
+    if isinstance(names_or_backend, (list, tuple)):
+        return [x for item in names_or_backend for x in get_engines(item)]
+    return [names_or_backend]
+
+
 def get_backend(name: str = "rapidocr", cache: bool | OCRCache = True, **settings: Any) -> OCRBackend:
     """A backend by name, reused within the process for the same arguments.
 

@@ -347,7 +347,7 @@ def read_many(engine: Any, images: Sequence[Any], masks: Sequence[Any] | None = 
 
 
 @dataclass
-class _Settings:
+class BackendSettings:
     """Helper for backends: defaults merged with user settings, rejecting unknown names."""
 
     defaults: dict[str, Any]

@@ -37,7 +37,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from strings_bench.core.errors import OCRError
-from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, _Settings
+from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, BackendSettings
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +179,7 @@ class GoogleVisionBackend(OCRBackend):
     ):
         if "endpoint" not in settings and os.environ.get(ENDPOINT_ENV, "").strip():
             settings["endpoint"] = os.environ[ENDPOINT_ENV].strip()
-        merged = _Settings(DEFAULTS, settings).merged(self.name)
+        merged = BackendSettings(DEFAULTS, settings).merged(self.name)
         if merged["image_format"] not in ("png", "jpeg"):
             raise OCRError(f"gcv setting image_format={merged['image_format']!r} is not 'png' or 'jpeg'", hint="use png (default) or jpeg")
         if urllib.parse.urlparse(str(merged["endpoint"])).scheme not in ("http", "https"):

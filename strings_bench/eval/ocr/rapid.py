@@ -23,7 +23,7 @@ import numpy as np
 
 from strings_bench.core.errors import OCRError
 import strings_bench.eval.ocr._ort_guard as _ort_guard
-from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, _Settings
+from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, BackendSettings
 
 log = logging.getLogger(__name__)
 
@@ -294,7 +294,7 @@ class RapidOCRBackend(OCRBackend):
     parallel_reads = True
 
     def __init__(self, cache: Any = None, threads: int | None = None, **settings: Any):
-        merged = _Settings(DEFAULTS, settings).merged(self.name)
+        merged = BackendSettings(DEFAULTS, settings).merged(self.name)
         if merged["word_boxes"] not in ("rapidocr", "proportional"):
             raise OCRError(
                 f"rapidocr setting word_boxes={merged['word_boxes']!r} is not one of 'rapidocr', 'proportional'",

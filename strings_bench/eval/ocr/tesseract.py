@@ -19,7 +19,7 @@ import numpy as np
 
 from strings_bench.core.errors import OCRError
 from strings_bench.core.scripts import LANGUAGES, split_lang
-from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, _Settings
+from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, BackendSettings
 from strings_bench.eval.ocr.languages import tesseract_languages
 
 DEFAULTS: dict[str, Any] = {
@@ -75,7 +75,7 @@ class TesseractBackend(OCRBackend):
     parallel_reads = True  # one tesseract process per read
 
     def __init__(self, cache: Any = None, binary: str | None = None, timeout: float = 120.0, threads: int = 1, **settings: Any):
-        merged = _Settings({**DEFAULTS, **OPTIONAL_DEFAULTS}, settings).merged(self.name)
+        merged = BackendSettings({**DEFAULTS, **OPTIONAL_DEFAULTS}, settings).merged(self.name)
         try:
             merged["upscale"] = float(merged["upscale"])
         except (TypeError, ValueError):

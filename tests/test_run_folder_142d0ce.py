@@ -1,0 +1,94 @@
+"""A run folder written by 142d0ce's code reads, resumes and matches what today's code writes.
+
+tests/data/run_142d0ce/ was written by 142d0ce's own code: `bench.run(["fake-a", "fake-b"], [toy scene],
+schedule="tiny", ocr="fake", checkpoints=[3000, 7000], budget="fake-a")` with tests/runner_fakes.py (four cells:
+fake-a, the uncapped reference of the budget, and fake-b capped at fake-a's count, at 15 and 35 steps)."""
+
+from __future__ import annotations
+
+import strings_bench.bench as bench
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+import runner_fakes as rf
+import strings_bench.bench.runner as runner
+from strings_bench.store import cell_row, iter_cells, read_manifest, write_results_csv
+
+OLD = Path(__file__).resolve().parent / "data" / "run_142d0ce"
+TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_seconds"}
+
+
+def _rows(run: Path) -> list[dict]:
+    with open(run / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _untimed(x):
+    """`x` without the keys that hold a time (`timings`, and every `*seconds`)."""
+    if isinstance(x, dict):
+        return {k: _untimed(v) for k, v in x.items() if k != "timings" and not k.endswith("seconds")}
+    return [_untimed(v) for v in x] if isinstance(x, list) else x
+
+
+def _comparable(rec: dict) -> dict:
+    """A cell's result.json without what differs from machine to machine or run to run: its timings, the
+    versions, where the scene and the weights were."""
+    rec = _untimed(json.loads(json.dumps(rec)))
+    rec["config"].pop("versions")
+    rec["config"]["metrics"].pop("lpips", None)
+    rec["config"]["scene"].pop("path")
+    return rec
+
+
+@pytest.fixture
+def old_run(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(OLD, run)
+    return run
+
+
+def _kw(run_dir):
+    return dict(run_dir=run_dir, schedule="tiny", ocr="fake", checkpoints=[3000, 7000], budget="fake-a",
+                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False)
+
+
+def test_the_142d0ce_folder_reads(old_run):
+    m = read_manifest(old_run)
+    assert m["schedule"]["name"] == "tiny" and m["budget"] == "fake-a" and set(m["methods"]) == {"fake-a", "fake-b"}
+    rows = {(r["method"], r["iteration"]): r for r in map(cell_row, iter_cells(old_run))}
+    assert set(rows) == {("fake-a", 15), ("fake-a", 35), ("fake-b", 15), ("fake-b", 35)}
+    assert rows["fake-a", 35]["budget"] == "reference" and rows["fake-b", 35]["budget"] == 2000
+    before = _rows(old_run)
+    write_results_csv(old_run)  # rebuilt from the old cells by today's code: the same table
+    assert _rows(old_run) == before
+
+
+def test_the_142d0ce_folder_resumes_without_training(old_run, tmp_path):
+    rf.register_fakes()
+    scene = rf.make_scene(tmp_path / "scenes", glyphs=True)
+    rf.CALLS["train"].clear()
+    bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(old_run))
+    assert rf.CALLS["train"] == []
+
+
+def test_todays_run_writes_the_142d0ce_cells_in_every_non_timing_column(tmp_path):
+    rf.register_fakes()
+    scene = rf.make_scene(tmp_path / "scenes", glyphs=True)
+    new = tmp_path / "new"
+    bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(new))
+    old_rows, new_rows = _rows(OLD), _rows(new)
+    assert list(old_rows[0]) == list(new_rows[0])
+    assert [{k: v for k, v in r.items() if k not in TIMING} for r in new_rows] == \
+        [{k: v for k, v in r.items() if k not in TIMING} for r in old_rows]
+    old_cells = [_comparable(r) for r in iter_cells(OLD)]
+    new_cells = [_comparable(r) for r in iter_cells(new)]
+    assert new_cells == old_cells
+    old_m, new_m = read_manifest(OLD), read_manifest(new)
+    for key in ("versions", "datasets", "resolved_device"):
+        old_m.pop(key), new_m.pop(key)
+    assert new_m == old_m
