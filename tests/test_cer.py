@@ -286,7 +286,7 @@ def test_agrees_with_plain_pooled_cer_on_one_to_one_words(seed):
 
 
 # --------------------------------------------------------------------------- the authors' rules, independently
-# A second implementation of REFERENCE.md section 3, written from the rules and sharing no code with
+# A second implementation of docs/sources.md section 3, written from the rules and sharing no code with
 # strings_bench.eval.cer: shapely Polygon.is_valid (never repaired), intersection/union areas, a plain
 # union-find, the textbook Levenshtein above and the 4 orderings by mean x / mean y.
 def ref_normalize(text: str) -> str:

@@ -74,7 +74,7 @@ def _independent(cell: dict, gt_files: dict, render_files: dict) -> tuple[float,
     for name, v in cell["ocr"]["views"].items():
         gt = [(w["text"], w["polygon"]) for w in v["gt_words"]]
         if not gt:
-            continue  # images whose GT OCR reads nothing are left out (REFERENCE §3)
+            continue  # images whose GT OCR reads nothing are left out (docs/sources.md §3)
         pred = [(w["text"], w["polygon"]) for w in (v["render_words"] or [])]
         e, c = ref_image_cer(gt, pred)
         errors, chars = errors + e, chars + c

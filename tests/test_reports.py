@@ -127,12 +127,12 @@ def test_short_venue():
 
 
 def test_paper_figures_next_to_measured_only_where_published(tmp_path):
-    """The specs carry the paper's CER (REFERENCE §5): the report sets it beside the measured CER for the
+    """The specs carry the paper's CER (docs/sources.md §5): the report sets it beside the measured CER for the
     datasets the paper reports, and has no such table for the synthetic scenes."""
     df = _frame({"3dgs": 0.5, "strings": 0.25}, {"3dgs": 0.2, "strings": 0.1}, datasets=("strings360", "synthetic"))
     written = tables.write_tables(df, tmp_path)
     csv = pd.read_csv(written["paper_comparison"]["csv"]).set_index("method")
-    # REFERENCE §5, STRinGS-360: 3DGS .736 / .148, STRinGS .177 / .106
+    # docs/sources.md §5, STRinGS-360: 3DGS .736 / .148, STRinGS .177 / .106
     assert csv.loc["3dgs", "STRinGS-360 7K paper"] == pytest.approx(0.736)
     assert csv.loc["strings", "STRinGS-360 30K paper"] == pytest.approx(0.106)
     assert csv.loc["strings", "STRinGS-360 7K measured"] == pytest.approx(0.25)

@@ -50,7 +50,7 @@ def test_show_lists_every_setting_with_default_and_meaning():
     undocumented = [k for k in expected if len(lines[k].split(None, 2)) < 3]
     assert not undocumented, f"settings without a meaning: {undocumented}"
     assert "gamma  " in text and "15000" in lines["gamma"] and "paper" in lines["gamma"]
-    # the paper's published figures (REFERENCE §5) travel with the spec
+    # the paper's published figures (docs/sources.md §5) travel with the spec
     assert "strings360: cer 7K 0.177, 30K 0.106; minutes 7K 1.9, 30K 12.6" in text
     assert "release" in text and "gamma_counter" in text
 

@@ -174,7 +174,7 @@ def refuse_set(overrides: dict[str, dict]) -> None:
     all-methods key, -> its --set values)."""
     if any(SETTING in s for s in overrides.values()):
         raise StringsBenchError(f"{SETTING} is set with --budget, not --set",
-                                hint="--budget N caps every method of the run at N Gaussians (docs/running.md)")
+                                hint="--budget N caps every method of the run at N Gaussians (docs/guide/running.md)")
 
 
 def cap_of(record: dict | str | None) -> int | None:

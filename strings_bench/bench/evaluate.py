@@ -239,7 +239,7 @@ def _checkpoint_views(preds, ck: Checkpoint, source: Source, opts: EvaluateOptio
         names = [scene.names[i] for i in scene.test_idx]
         files = match_renders(names, ck.renders, preds.index_named, root)
         if not files:
-            raise PredictionsError(f"no render for the test views of {source.scene}", hint="see docs/evaluate.md")
+            raise PredictionsError(f"no render for the test views of {source.scene}", hint="see docs/guide/evaluate.md")
         first = next(iter(files))
         ds = _scene_downscale(scene, read_rgb(files[first]), scene.test_idx[names.index(first)], opts.downscale)
         ck_key = ("scene", ds, None if masks is None else id(masks))

@@ -37,7 +37,7 @@ DENSE_EVAL = ("words", "full")
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything a run is given; `strings-bench run`'s options, one field each (docs/running.md).
+    """Everything a run is given; `strings-bench run`'s options, one field each (docs/guide/running.md).
 
     methods: method names (`--methods`).
     datasets: registry ids or scene folders (`--datasets`); None: the schedule's default scenes.

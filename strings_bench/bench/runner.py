@@ -7,7 +7,7 @@ state is saved at every checkpoint and every `--save-every` (engine.trainer), so
 killed mid-training continues from its last saved state (`resumed_from_step` in result.json);
 checkpoints already evaluated are passed over (never rewritten).
 
-Run folder (see docs/running.md):
+Run folder (see docs/guide/running.md):
 
     RUN_DIR/
       run.json                          the run's settings (schedule, steps scale, checkpoints, downscale, OCR,

@@ -24,7 +24,7 @@ ADAM_EPS = 1e-15  # 3DGS
 
 @dataclass
 class LearningRates:
-    """3DGS learning rates (REFERENCE §1). `means` is the initial position LR before x extent.
+    """3DGS learning rates (docs/sources.md §1). `means` is the initial position LR before x extent.
 
     opacity: 0.05 in the 3DGS paper (default here); the 2024 3DGS release that STRinGS forks uses
     0.025 — pass `opacity_logits=0.025` to match it.

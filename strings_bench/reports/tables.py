@@ -146,7 +146,7 @@ def paper_results(method: str) -> dict:
 
 
 def paper_comparison_table(df: pd.DataFrame, note: str = "", names: MethodNames = REGISTERED) -> Table | None:
-    """Measured OCR-CER next to the paper's (REFERENCE §5) for the datasets the paper reports; None when
+    """Measured OCR-CER next to the paper's (docs/sources.md §5) for the datasets the paper reports; None when
     the run has no such dataset (e.g. the synthetic scenes)."""
     means = dataset_means(df, "cer")
     methods = names.order(m for m in df["method"] if not names.is_ablation(m))

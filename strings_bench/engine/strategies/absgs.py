@@ -1,4 +1,4 @@
-"""AbsGS (Ye et al., ACM MM 2024; REFERENCE §4): densification on the absolute screen-space gradient.
+"""AbsGS (Ye et al., ACM MM 2024; docs/sources.md §4): densification on the absolute screen-space gradient.
 
 The ordinary densification statistic is |sum_p dL_p/dmean2d|: per-pixel gradients of opposite sign
 cancel, so large Gaussians over fine detail are rarely split. AbsGS also accumulates

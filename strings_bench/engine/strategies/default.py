@@ -1,4 +1,4 @@
-"""Vanilla 3DGS adaptive density control (Kerbl et al. 2023; REFERENCE §1).
+"""Vanilla 3DGS adaptive density control (Kerbl et al. 2023; docs/sources.md §1).
 
 Every step from the start until `refine_stop_iter`: accumulate, for each Gaussian visible in the view
 (radius > 0), the norm of the gradient of the loss w.r.t. its projected centre in NDC units
@@ -59,7 +59,7 @@ class DefaultStrategy(Strategy):
     grow_grad2d: float = 2e-4  # densify when the mean screen-space gradient norm (NDC) exceeds this
     grow_scale3d: float = 0.01  # clone if largest scale <= this x extent, else split
     prune_scale3d: float = 0.1  # after screen_prune_after, prune world scale > this x extent
-    # REFERENCE §1 states a 20 px screen-radius prune after 3K, but the authors' code zeroes its
+    # docs/sources.md §1 states a 20 px screen-radius prune after 3K, but the authors' code zeroes its
     # max-radius buffer whenever it clones/splits, just before that test, so the rule never fires
     # there (gsplat disables it too). At our 320x240 it would fire: on synthetic/books it pruned
     # 3.4k -> 1.1k Gaussians at the first refinement after 3K (PSNR 15.7 -> 9.2 dB). Off by

@@ -1,5 +1,5 @@
 """EDC on AbsGS ("EDC-AbsGS", Deng et al. 2025, the implementation the STRinGS paper used;
-REFERENCE §4).
+docs/sources.md §4).
 
 Differences from AbsGS:
 - selection on the absolute gradient alone (>= `grow_grad2d_abs`, 3.5e-4), whatever the size: no

@@ -1,4 +1,4 @@
-"""3DGS-MCMC (Kheradmand et al., NeurIPS 2024; REFERENCE §4) as a strategy of the shared trainer.
+"""3DGS-MCMC (Kheradmand et al., NeurIPS 2024; docs/sources.md §4) as a strategy of the shared trainer.
 
 No clone/split/prune heuristics. Instead, every `refine_every` steps from `refine_start_iter` to
 `refine_stop_iter`:

@@ -1,9 +1,9 @@
-"""Mip-Splatting (Yu et al., CVPR 2024; REFERENCE §4): the 3D smoothing filter and the 2D mip filter.
+"""Mip-Splatting (Yu et al., CVPR 2024; docs/sources.md §4): the 3D smoothing filter and the 2D mip filter.
 
 3D smoothing filter. For each Gaussian, d = the smallest depth z at which a training camera sees its
 centre (z > `near` and the projection inside the image enlarged by `frustum_margin` on each side, the
 "tangent space" test of the public implementation); f = the largest focal length (fx) over all the
-training cameras (REFERENCE: "the largest focal length"; the public code also takes the maximum over
+training cameras (docs/sources.md §4: "the largest focal length"; the public code also takes the maximum over
 every training camera, seen or not). Then
 
     sigma = d / f * sqrt(0.2)
@@ -187,7 +187,7 @@ class MipStrategy(DefaultStrategy):
     @torch.no_grad()
     def densify(self, model, optimizer, state, step) -> None:
         super().densify(model, optimizer, state, step)
-        self.update_filter(model, state)  # at every densification step (REFERENCE §4)
+        self.update_filter(model, state)  # at every densification step (docs/sources.md §4)
 
     def _reset_opacity(self, model, optimizer, state) -> None:
         reset_filtered_opacity(model, optimizer, self.reset_value)  # the filtered opacity is what is reset

@@ -59,7 +59,7 @@ def collect(run_dirs: list[Path], dataset: str | None = None, methods: list[str]
                 raise StringsBenchError(f"{row['method']} {row['label']} seed {seed}: scene {row['scene']!r} is in "
                                         f"datasets {other} and {row['dataset']}",
                                         hint="compare one dataset at a time (--dataset); draws of a room are scenes "
-                                             "ROOM@N of one dataset (docs/datasets.md, 'Scene draws')")
+                                             "ROOM@N of one dataset (docs/guide/datasets.md, 'Scene draws')")
             out.setdefault((row["method"], row["label"]), {}).setdefault(seed, {})[row["scene"]] = vals
     for what, wanted in (("methods", methods), ("scenes", scenes)):
         unknown = sorted(set(wanted or ()) - found[what])

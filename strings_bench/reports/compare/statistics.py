@@ -152,7 +152,7 @@ def compare(run_dirs: list[Path], dataset: str | None = None, paper_dataset: str
     if len(set(map(str, budgets.values()))) > 1:
         raise StringsBenchError("the run folders were made under different Gaussian budgets: " + ", ".join(
             f"{d}: {'no budget' if b is None else f'--budget {b}'}" for d, b in budgets.items()),
-            hint="compare folders of one budget at a time (run --budget, docs/running.md)")
+            hint="compare folders of one budget at a time (run --budget, docs/guide/running.md)")
     cells = collect(run_dirs, dataset, methods, scenes)
     data, not_common, unshared = common_scenes(cells)
     if not data:
