@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from strings_bench.core.schedules import get_schedule
+
 import numpy as np
 import pytest
 import torch
