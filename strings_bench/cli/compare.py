@@ -17,7 +17,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description="The paper's tables (CER at 7K/30K, training time, PSNR/SSIM/LPIPS/Gaussians, ablations) over run "
                     "folders of one seed each: mean over scenes, then over seeds with the seeds' range, the paper's "
                     "figures beside, and whether the seeds decide each method against STRinGS (or --against METHOD; "
-                    "reports/compare.py). "
+                    "reports/compare/). "
                     "Scene draws (ROOM@N, docs/guide/datasets.md) count like seeds: the mean over draws with the range over "
                     "seeds and draws, and per room and over all rooms the mean over draws with the draws' range.")
     p.add_argument("run_dirs", nargs="+", type=Path, help="run folders, one seed each")
