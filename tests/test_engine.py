@@ -380,6 +380,39 @@ def test_per_row_position_lr_scale(tiny_scene):
     assert not moved[is_text].any() and moved[~is_text].float().mean() > 0.5
 
 
+def test_motion_log_sums_adams_position_steps(tiny_scene):
+    """The log's first step against Adam's first update worked out by hand: each coordinate with a non-zero
+    gradient moves by the LR (m/sqrt(v) = sign(g)), so a Gaussian moves lr x sqrt(its non-zero coordinates)."""
+    class TextHalf(GaussianSplatting):
+        def initial_model(self, scene):
+            m = super().initial_model(scene)
+            m.extras["is_text"] = torch.arange(len(m)) % 2 == 0
+            return m
+
+        def position_lr_scale(self, step):
+            return (~self.model.extras["is_text"]).float()  # text rows locked: they must log no motion
+
+    method = TextHalf(TrainConfig(sh_degree=0), Strategy())
+    method.setup(tiny_scene, device="cpu")
+    method.train_step(1)
+    grad = method.model.params["means"].grad
+    lr = method.optimizer.lrs["means"]
+    moving = ~method.model.extras["is_text"]
+    nonzero = ((grad != 0) & moving[:, None]).sum(1).double()
+    expected = float((lr * nonzero.sqrt()).mean()) / method.extent
+    log = method.motion_log
+    assert expected > 0 and log["steps"] == 1
+    assert log["position_path"] == pytest.approx(expected, rel=1e-5)
+    assert log["text_position_path"] == 0.0
+    method.refine(1)
+    for step in range(2, 6):
+        method.train_step(step)
+        method.refine(step)
+    record = method.checkpoint_extra(5)
+    assert record["motion_steps"] == 5 and record["position_path"] > expected
+    assert "motion_from_step" not in record
+
+
 def test_gs3d_method_registered_and_trains(tiny_scene):
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.methods.registry import get_method

@@ -45,6 +45,7 @@ from strings_bench.core.errors import StringsBenchError, TrainingError
 from strings_bench.core.settings import Setting, dataclass_settings
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.losses import gs_loss
+from strings_bench.engine.motion import motion_record, new_motion_log, note_motion
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
 from strings_bench.engine.optim_kernels import sums_finite
 from strings_bench.engine.strategies.base import Strategy, scaled_interval, scaled_step
@@ -198,6 +199,7 @@ class GaussianSplatting(Method):
         # The model's size over training, for the cell's record: the most Gaussians it held, and the first step at
         # which it filled the Gaussian budget in force then (run --budget; STRinGS' phase 1 keeps room free)
         self.size_log: dict = {"peak_gaussians": 0, "budget_reached_at": None}
+        self.motion_log: dict = new_motion_log()
 
     @classmethod
     def from_settings(cls, **settings) -> "GaussianSplatting":
@@ -316,7 +318,7 @@ class GaussianSplatting(Method):
     def checkpoint_extra(self, step: int) -> dict:
         extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
                  "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss,
-                 "peak_gaussians": int(self.size_log["peak_gaussians"])}
+                 "peak_gaussians": int(self.size_log["peak_gaussians"]), **motion_record(self.motion_log)}
         if getattr(self.strategy, "max_gaussians", None) is not None:
             extra["budget_reached_at"] = self.size_log["budget_reached_at"]  # a step, or None: never filled
         return extra
@@ -450,7 +452,9 @@ class GaussianSplatting(Method):
                 row_scale = {"means": scale}
             else:
                 opt.set_lr("means", opt.lrs["means"] * float(scale))
+        before = model.params["means"].detach().clone()  # for the motion log; the update itself is untouched
         opt.step(row_scale)
+        note_motion(self.motion_log, before, model.params["means"].detach(), self.extent, model.extras.get("is_text"))
         self.last_loss = value
         self._step_info = (step, sstep, info)
         return value
@@ -461,7 +465,10 @@ class GaussianSplatting(Method):
             return
         _, sstep, info = self._step_info
         self._step_info = None
+        count = len(self.model)
         self.strategy.step_post_backward(self.model, self.optimizer, self.strategy_state, sstep, info)
+        if len(self.model) != count:
+            self.motion_log["count_changes"] += 1
         self.optimizer.zero_grad()
         self.note_model_size(step)
 
@@ -496,6 +503,7 @@ class GaussianSplatting(Method):
             "view_key": self._view_key,
             "last_loss": self.last_loss,
             "size_log": dict(self.size_log),
+            "motion_log": dict(self.motion_log),
             "extra": self.extra_state(),
         }
 
@@ -513,6 +521,8 @@ class GaussianSplatting(Method):
         # states saved before the size log existed start it at the loaded model's size
         self.size_log = dict(state.get("size_log") or {"peak_gaussians": len(model), "budget_reached_at": None})
         self.step = int(state["step"])
+        # states saved before the motion log existed: it counts from the loaded step on (its `from_step`)
+        self.motion_log = dict(state.get("motion_log") or new_motion_log(from_step=self.step))
         self.load_extra_state(state.get("extra") or {})
 
     def extra_state(self) -> dict:
