@@ -44,6 +44,7 @@ class RunConfig:
     run_dir: the run folder; the same folder resumes.
     schedule: the run's schedule (core/schedules.py: paper, standard, early, quick, tiny).
     steps_scale, checkpoints: replace the schedule's scale / paper checkpoints.
+    miniature: how the shrunk schedule stands in for the paper's (core/schedules.py MINIATURES; None: the schedule's).
     dense_every: also evaluate every that many paper iterations (`--checkpoints every:500`); dense_eval: how the
         checkpoints only it adds are evaluated: "words" (the word-crop metrics and PSNR/SSIM; no OCR of the renders,
         no LPIPS) or "full" (as every other checkpoint).
@@ -62,6 +63,7 @@ class RunConfig:
     steps_scale: float | None = None
     checkpoints: Iterable[int] | None = None
     dense_every: int | None = None
+    miniature: str | None = None
     dense_eval: str = "words"
     downscale: float | None = None
     method_presets: dict = field(default_factory=dict)
@@ -129,7 +131,7 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     c = RunConfig.of(config, datasets, **given)
     if not c.methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
-    p = schedule(c.schedule, c.steps_scale, c.checkpoints, c.dense_every)
+    p = schedule(c.schedule, c.steps_scale, c.checkpoints, c.dense_every, c.miniature)
     if c.dense_eval not in DENSE_EVAL:
         raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
     datasets = list(c.datasets) if c.datasets else p.default_datasets()
@@ -211,6 +213,10 @@ def _method_plan(spec, c: RunConfig, p: Schedule, given: dict) -> MethodPlan:
     """A method's plan, its --presets and --set keys checked (a typo is refused before any scene is built)."""
     chosen = tuple(spec.check_presets((c.method_presets or {}).get(spec.name)))
     scale = float(given.get("steps_scale", p.steps_scale))  # a --set steps_scale for the method wins
+    if spec.takes_steps_scale():  # the miniature's settings it takes, at the method's scale; its --set values win
+        schema = spec.settings()
+        mini = replace(p, steps_scale=scale).miniature_settings()
+        given = {**{k: v for k, v in mini.items() if schema is None or k in {s.name for s in schema}}, **given}
     spec.check_keys(spec.resolve(chosen, **spec.with_steps_scale(scale, given)))
     return MethodPlan(name=spec.name, presets=chosen, settings=given, steps_scale=scale)
 

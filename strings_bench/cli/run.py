@@ -18,7 +18,7 @@ def _split(s: str) -> list[str]:
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from strings_bench.bench.executors import EXECUTORS
     from strings_bench.bench.plan import DEFAULT_RUN_DIR
-    from strings_bench.core.schedules import DEFAULT_SCHEDULE, SCHEDULES
+    from strings_bench.core.schedules import DEFAULT_SCHEDULE, MINIATURES, SCHEDULES
 
     p = subparsers.add_parser("run", help=command_help("run"),
                               description="Runs every method x scene x checkpoint not already finished in the run folder "
@@ -39,6 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--steps-scale", type=float, default=None, metavar="S",
                    help="replace the schedule's scale for every method (e.g. 0.2: 7K = 1400 steps; 1 = the paper's); "
                         "recorded in run.json, a run folder holds one scale")
+    p.add_argument("--miniature", default=None, choices=sorted(MINIATURES),
+                   help="how a shrunk schedule stands in for the paper's (default shrink): " + "; ".join(
+                       f"{m.name} = {m.description}" for m in MINIATURES.values()) + "; recorded in run.json")
     p.add_argument("--checkpoints", type=parse_checkpoints, default=None, metavar="ITERS",
                    help="paper iterations to evaluate, e.g. 3000,7000 or 3K,7K (each trained as round(it x scale)); "
                         "default: the schedule's; every:N adds a checkpoint every N paper iterations up to the last "
@@ -135,7 +138,7 @@ def run_config(args: argparse.Namespace):
                      progress=not args.no_progress, method_presets=parse_presets(args.method_presets),
                      method_overrides=parse_settings(args.settings), lpips_at=args.lpips_at,
                      cer_profile=args.cer_profile, steps_scale=args.steps_scale,
-                     checkpoints=checkpoints, dense_every=dense_every,
+                     checkpoints=checkpoints, dense_every=dense_every, miniature=args.miniature,
                      dense_eval=args.dense_eval,
                      device=args.device, save_every=args.save_every, keep_models=args.keep_models,
                      budget=args.budget, budget_from=args.budget_from)

@@ -59,6 +59,13 @@ class Schedule:
     # `--checkpoints every:N`: also evaluate every N paper iterations up to the last checkpoint (None: no dense
     # checkpoints). The dense ones that are not paper_checkpoints are evaluated cheaply (`dense_checkpoints`).
     dense_every: int | None = None
+    # How a shrunk schedule stands in for the paper's (MINIATURES): "shrink" scales every iteration number
+    # and keeps the paper's per-step learning rates, as every CPU regime has.
+    miniature: str = "shrink"
+
+    def miniature_settings(self) -> dict:
+        """The method settings the miniature adds (to every method that trains with a steps scale)."""
+        return MINIATURES[self.miniature].settings(self.steps_scale)
 
     def default_datasets(self) -> list[str]:
         """The --datasets of a run of this schedule that names none."""
@@ -88,6 +95,32 @@ class Schedule:
             if max(1, int(round(c * s))) == iteration:
                 return iteration_label(c)
         return iteration_label(iteration)
+
+
+@dataclass(frozen=True)
+class Miniature:
+    """A way to shrink the paper's schedule by a factor s (`run --miniature NAME`): the settings it gives every
+    training method at scale s. Why they differ (docs/miniature.md): with the per-step learning rates kept, the
+    sum of the position LR over a run -- how far a Gaussian can travel -- shrinks by s with the schedule."""
+
+    name: str
+    description: str
+    position_lr_exponent: float = 0.0  # the position LR is multiplied by s ** -exponent
+
+    def settings(self, steps_scale: float) -> dict:
+        if not self.position_lr_exponent or steps_scale == 1:
+            return {}
+        return {"position_lr_gain": float(steps_scale) ** -self.position_lr_exponent}
+
+
+MINIATURES: dict[str, Miniature] = {m.name: m for m in (
+    Miniature("shrink", "every iteration number x s, the paper's per-step learning rates (the default; "
+                        "a Gaussian can move s times as far as in the paper)"),
+    Miniature("lr-sum", "as shrink, with the position LR x 1/s: its sum over the run, how far a Gaussian can "
+                        "move, is the paper's", position_lr_exponent=1.0),
+    Miniature("lr-sqrt", "as shrink, with the position LR x 1/sqrt(s): halfway (geometrically) between shrink "
+                         "and lr-sum", position_lr_exponent=0.5),
+)}
 
 
 SCHEDULES: dict[str, Schedule] = {
@@ -131,12 +164,13 @@ def get_schedule(name: str) -> Schedule:
 
 
 def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[int] | None = None,
-             dense_every: int | None = None) -> Schedule:
+             dense_every: int | None = None, miniature: str | None = None) -> Schedule:
     """The run's schedule: schedule `name` with `run --steps-scale` and `--checkpoints` applied.
 
     steps_scale replaces the schedule's scale (every method is then scaled by it); checkpoints are
     paper iterations (e.g. (3000, 7000)), each trained as round(iteration x steps_scale); dense_every
-    (`--checkpoints every:500`) adds a checkpoint every that many paper iterations.
+    (`--checkpoints every:500`) adds a checkpoint every that many paper iterations; miniature names how the
+    shrunk schedule stands in for the paper's (MINIATURES).
     """
     p = get_schedule(name)
     if steps_scale is not None:
@@ -156,4 +190,10 @@ def schedule(name: str, steps_scale: float | None = None, checkpoints: Iterable[
             raise StringsBenchError(f"every:N needs N paper iterations (an integer >= 1), got {dense_every!r}",
                                     hint="e.g. --checkpoints every:500")
         p = replace(p, dense_every=int(dense_every), description=f"{p.description} [every:{int(dense_every)}]")
+    if miniature is not None:
+        if miniature not in MINIATURES:
+            raise StringsBenchError(f"unknown miniature {miniature!r}",
+                                    hint="miniatures: " + "; ".join(f"{m.name}: {m.description}" for m in MINIATURES.values()))
+        if miniature != p.miniature:
+            p = replace(p, miniature=miniature, description=f"{p.description} [--miniature {miniature}]")
     return p

@@ -69,6 +69,9 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 3DGS default (black)
     lrs: LearningRates = field(default_factory=LearningRates)
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
+    # multiplies the position LR at every step (1: the paper's per-step LRs). A shrunk schedule's miniature
+    # `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a Gaussian can move) is the paper's.
+    position_lr_gain: float = 1.0
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
     backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
@@ -76,6 +79,8 @@ class TrainConfig:
     def __post_init__(self):
         if self.steps_scale <= 0:
             raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
+        if not (math.isfinite(self.position_lr_gain) and self.position_lr_gain > 0):
+            raise StringsBenchError(f"position_lr_gain must be a finite number > 0, got {self.position_lr_gain}")
 
 
 def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, str]:
@@ -295,8 +300,10 @@ class GaussianSplatting(Method):
     def position_lr(self, step: int) -> float:
         """The position learning rate (world units) at `step`: 3DGS' log-linear decay x scene extent."""
         lrs = self.config.lrs
-        return exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
-                              self.at(self.config.position_lr_steps))
+        lr = exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
+                            self.at(self.config.position_lr_steps))
+        gain = self.config.position_lr_gain
+        return lr if gain == 1 else lr * gain
 
     def position_lr_scale(self, step: int):
         """A factor on the position step at `step`: None (none), a float, or an (N,) tensor on the

@@ -79,6 +79,11 @@ def check_manifest(run_dir: Path, manifest: dict) -> dict:
         raise StringsBenchError(
             f"{run_dir} holds results of schedule {old['schedule'].get('name')!r}; this run asks for {manifest['schedule']['name']!r}",
             hint="use another --out folder (e.g. --out runs/paper), or the same --schedule to resume")
+    # The miniature: folders made before miniatures existed shrank the schedule ("shrink").
+    was, now = old["schedule"].get("miniature", "shrink"), manifest["schedule"].get("miniature", "shrink")
+    if was != now:
+        raise StringsBenchError(f"{run_dir} holds results made with --miniature {was}; this run asks for {now}",
+                                hint="use another --out folder, or the same --miniature to resume")
     # The schedule: compared in effect (so `--steps-scale 0.01` resumes a quick folder) whenever either
     # run gave the option; folders made without it keep resuming as before.
     for k, field_name, option in (("steps_scale", "steps_scale", "--steps-scale"),

@@ -1,0 +1,94 @@
+"""Miniatures: how a shrunk schedule stands in for the paper's (core/schedules.py MINIATURES, `run --miniature`)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _engine_helpers import make_tiny_scene  # noqa: E402
+
+from strings_bench.core.errors import StringsBenchError  # noqa: E402
+from strings_bench.core.schedules import MINIATURES, schedule  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny_scene_dir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tiny")
+    make_tiny_scene(root)
+    return root
+
+
+def _position_lr_sum(scale: float, miniature: str, extent: float = 2.0) -> float:
+    """The position LR summed over a run to the paper's 30K, for 3DGS built at `scale` under `miniature`."""
+    from strings_bench.methods.registry import get_method
+
+    settings = schedule("paper", steps_scale=scale, miniature=miniature).miniature_settings()
+    method = get_method("3dgs").build(default_steps_scale=scale, **settings)
+    method.extent = extent
+    return sum(method.position_lr(step) for step in range(1, round(30_000 * scale) + 1))
+
+
+def test_lr_sum_keeps_the_papers_position_lr_sum():
+    """Against the paper's own sum (3DGS' log-linear decay over 30 000 steps at scale 1): `shrink` gives s times
+    it, `lr-sum` the same within the discretisation of the shorter run, `lr-sqrt` sqrt(s) times it."""
+    paper = _position_lr_sum(1.0, "shrink")
+    for s in (0.05, 0.1, 0.2):
+        assert _position_lr_sum(s, "shrink") == pytest.approx(s * paper, rel=0.01)
+        assert _position_lr_sum(s, "lr-sum") == pytest.approx(paper, rel=0.01)
+        assert _position_lr_sum(s, "lr-sqrt") == pytest.approx(s ** 0.5 * paper, rel=0.01)
+
+
+def test_miniatures_add_nothing_at_the_papers_scale_and_unknown_ones_are_refused():
+    assert all(not schedule("cpu-long", steps_scale=1, miniature=m).miniature_settings() for m in MINIATURES)
+    assert schedule("cpu-long").miniature == "shrink" and not schedule("cpu-long").miniature_settings()
+    with pytest.raises(StringsBenchError, match=r"(?s)unknown miniature .lr-some.*lr-sum"):
+        schedule("cpu-long", miniature="lr-some")
+
+
+def test_the_plan_gives_every_training_method_the_miniature_and_set_values_win(tiny_scene_dir, tmp_path):
+    from strings_bench.bench.plan import plan_run
+
+    plan = plan_run(["3dgs", "strings", "edc-absgs"], [str(tiny_scene_dir)], schedule="cpu-long", miniature="lr-sum",
+                    run_dir=tmp_path / "run", method_overrides={"edc-absgs": {"position_lr_gain": 2.0}})
+    gains = {j.method: j.method_settings.get("position_lr_gain") for j in plan.jobs}
+    assert gains == {"3dgs": pytest.approx(10.0), "strings": pytest.approx(10.0), "edc-absgs": 2.0}
+    assert plan.manifest["schedule"]["miniature"] == "lr-sum"
+    plain = plan_run(["3dgs"], [str(tiny_scene_dir)], schedule="cpu-long", run_dir=tmp_path / "run2")
+    assert "position_lr_gain" not in plain.jobs[0].method_settings
+
+
+def test_a_folder_of_one_miniature_refuses_another(tiny_scene_dir, tmp_path):
+    from strings_bench.bench.plan import plan_run
+    from strings_bench.store.manifest import check_manifest, write_manifest
+
+    run_dir = tmp_path / "run"
+    first = plan_run(["3dgs"], [str(tiny_scene_dir)], schedule="tiny", miniature="lr-sum", run_dir=run_dir)
+    run_dir.mkdir()
+    write_manifest(run_dir, first.manifest)
+    again = plan_run(["3dgs"], [str(tiny_scene_dir)], schedule="tiny", miniature="lr-sum", run_dir=run_dir)
+    check_manifest(run_dir, again.manifest)  # the same miniature resumes
+    other = plan_run(["3dgs"], [str(tiny_scene_dir)], schedule="tiny", run_dir=run_dir)
+    with pytest.raises(StringsBenchError, match="--miniature lr-sum; this run asks for shrink"):
+        check_manifest(run_dir, other.manifest)
+
+
+def test_the_gain_multiplies_the_first_position_step(tiny_scene_dir):
+    """Adam's first step moves each coordinate by the LR, so the motion log of step 1 grows by the gain exactly."""
+    from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
+    from strings_bench.engine.strategies import Strategy
+    from strings_bench.engine.trainer import seed_everything
+    from strings_bench.scene.scene import Scene
+
+    paths = []
+    for gain in (1.0, 10.0):
+        seed_everything(0)
+        method = GaussianSplatting(TrainConfig(sh_degree=0, position_lr_gain=gain), Strategy())
+        method.setup(Scene.load(tiny_scene_dir), device="cpu")
+        method.train_step(1)
+        paths.append(method.motion_log["position_path"])
+    assert paths[0] > 0 and paths[1] == pytest.approx(10 * paths[0], rel=1e-5)
+    with pytest.raises(StringsBenchError, match="position_lr_gain"):
+        TrainConfig(position_lr_gain=0.0)
