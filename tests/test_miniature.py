@@ -92,3 +92,33 @@ def test_the_gain_multiplies_the_first_position_step(tiny_scene_dir):
     assert paths[0] > 0 and paths[1] == pytest.approx(10 * paths[0], rel=1e-5)
     with pytest.raises(StringsBenchError, match="position_lr_gain"):
         TrainConfig(position_lr_gain=0.0)
+
+
+def _agreement_module():
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "miniature.py"
+    spec = importlib.util.spec_from_file_location("_bench_miniature", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _cells(cers: dict) -> list[dict]:
+    return [{"method": m, "scene": sc, "label": lab, "cer_known": str(v), "cer": str(v)} for (m, sc, lab), v in cers.items()]
+
+
+def test_agreement_counts_pairs_ordered_alike_with_ties():
+    """Three methods on one scene at 3K (3 pairs): a candidate that swaps one pair agrees on 2 of 3; differences
+    under the tie band are ties, which agree only with ties; cells only one side has are left out."""
+    agreement = _agreement_module().agreement
+    ref = _cells({("a", "s", "3K"): 0.10, ("b", "s", "3K"): 0.50, ("c", "s", "3K"): 0.30, ("a", "s", "7K"): 0.1})
+    same = _cells({("a", "s", "3K"): 0.20, ("b", "s", "3K"): 0.90, ("c", "s", "3K"): 0.40})
+    swapped = _cells({("a", "s", "3K"): 0.10, ("b", "s", "3K"): 0.30, ("c", "s", "3K"): 0.50})
+    tied = _cells({("a", "s", "3K"): 0.30, ("b", "s", "3K"): 0.31, ("c", "s", "3K"): 0.305})
+    [row] = agreement(ref, same, tie=0.02)
+    assert (row["label"], row["cells"], row["cer_known_pairs"], row["cer_known_agree"]) == ("3K", 3, 3, "1.00")
+    assert row["cer_known_mean_abs_diff"] == "0.200"
+    assert agreement(ref, swapped, tie=0.02)[0]["cer_known_agree"] == "0.67"
+    assert agreement(ref, tied, tie=0.02)[0]["cer_known_agree"] == "0.00"
+    assert agreement(tied, tied, tie=0.02)[0]["cer_known_agree"] == "1.00"
