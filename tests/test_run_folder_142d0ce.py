@@ -21,6 +21,9 @@ from strings_bench.store import cell_row, iter_cells, read_manifest, write_resul
 
 OLD = Path(__file__).resolve().parent / "data" / "run_142d0ce"
 TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_seconds"}
+# Recorded since 142d0ce, checked apart: the scene's rho (a results.csv column and the cell's config.scene entry)
+# and the run's miniature (run.json's schedule; "shrink" is what every earlier run did).
+ADDED_COLUMNS = {"rho"}
 
 
 def _rows(run: Path) -> list[dict]:
@@ -65,7 +68,10 @@ def test_the_142d0ce_folder_reads(old_run):
     assert rows["fake-a", 35]["budget"] == "reference" and rows["fake-b", 35]["budget"] == 2000
     before = _rows(old_run)
     write_results_csv(old_run)  # rebuilt from the old cells by today's code: the same table
-    assert _rows(old_run) == before
+    after = _rows(old_run)
+    added = set(after[0]) - set(before[0])  # columns added since (the scene's rho): empty for the old cells
+    assert added <= {"rho"} and all(r[c] == "" for r in after for c in added)
+    assert [{k: v for k, v in r.items() if k not in added} for r in after] == before
 
 
 def test_the_142d0ce_folder_resumes_without_training(old_run, tmp_path):
@@ -82,13 +88,17 @@ def test_todays_run_writes_the_142d0ce_cells_in_every_non_timing_column(tmp_path
     new = tmp_path / "new"
     bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(new))
     old_rows, new_rows = _rows(OLD), _rows(new)
-    assert list(old_rows[0]) == list(new_rows[0])
-    assert [{k: v for k, v in r.items() if k not in TIMING} for r in new_rows] == \
+    assert list(old_rows[0]) == [c for c in new_rows[0] if c not in ADDED_COLUMNS]
+    assert [{k: v for k, v in r.items() if k not in TIMING | ADDED_COLUMNS} for r in new_rows] == \
         [{k: v for k, v in r.items() if k not in TIMING} for r in old_rows]
     old_cells = [_comparable(r) for r in iter_cells(OLD)]
     new_cells = [_comparable(r) for r in iter_cells(new)]
+    rhos = {c["config"]["scene"].pop("rho") for c in new_cells}
+    [rho] = rhos  # measured on the toy scene's known words, the same in every cell and its results.csv row
+    assert rho > 0 and {r["rho"] for r in new_rows} == {str(rho)}
     assert new_cells == old_cells
     old_m, new_m = read_manifest(OLD), read_manifest(new)
     for key in ("versions", "datasets", "resolved_device"):
         old_m.pop(key), new_m.pop(key)
+    assert new_m["schedule"].pop("miniature") == "shrink"
     assert new_m == old_m

@@ -92,6 +92,7 @@ class Runner:
         self.progress = progress
         self.on_cell = on_cell
         self._evaluators: dict[tuple, Evaluator] = {}  # per scene; see run_job
+        self._rhos: dict[str, float | None] = {}  # per scene folder: rho, one position step in text strokes
 
     def __call__(self, job: Job) -> list[CellKey]:
         return self.run_job(job)
@@ -169,6 +170,11 @@ class Runner:
                        save_every=SaveEvery.parse(job.save_every), model_path=model_path if job.keep_models else None,
                        fingerprint=fingerprint).train()
 
+    def _rho(self, job: Job, scene) -> float | None:
+        if job.scene_path not in self._rhos:
+            self._rhos[job.scene_path] = _scene_rho(scene)
+        return self._rhos[job.scene_path]
+
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene,
                     budget: dict | str | None = None) -> None:
         t0 = time.perf_counter()
@@ -184,7 +190,7 @@ class Runner:
             label=job.labels.get(key.iteration, job.labels.get(str(key.iteration), iteration_label(key.iteration))),
             config=CellConfig(
                 method=describe, scene={"path": job.scene_path, "settings": job.scene_settings,
-                                        "test_views": evaluator.names},
+                                        "test_views": evaluator.names, "rho": self._rho(job, scene)},
                 schedule=job.schedule, method_presets=tuple(job.method_presets), downscale=job.downscale,
                 cer_profile=job.cer_profile, checkpoints=tuple(job.checkpoints), budget=budget, versions=versions(),
                 metrics=metrics_describe()),
@@ -199,6 +205,18 @@ class Runner:
         write_cell(key.path(Path(job.run_dir)), record, {n: img for n, img in result.renders.items() if n in evaluator.names})
         if self.results_csv:
             write_results_csv(job.run_dir)
+
+
+def _scene_rho(scene) -> float | None:
+    """The scene's rho (datasets/difficulty.py; kept in its record when the scene is in the cache), None where it
+    cannot be measured (no known words and no text masks) or the measurement fails."""
+    from strings_bench.datasets.difficulty import recorded_difficulty
+
+    try:
+        return recorded_difficulty(scene).rho
+    except Exception as exc:  # a scene property for the record: never worth a failed cell
+        log.warning("rho of %s not measured: %s", getattr(scene, "root", scene), exc)
+        return None
 
 
 def _preprocess_seconds(result) -> float:

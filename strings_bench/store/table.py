@@ -79,6 +79,8 @@ def cell_row(rec: dict) -> dict:
         "peak_gaussians": num((rec.get("extra") or {}).get("peak_gaussians")),
         "budget_reached_at": num((rec.get("extra") or {}).get("budget_reached_at")),
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
+        # the scene's rho (one early 3DGS position step in text strokes, docs/difficulty.md; "" where not measured)
+        "rho": num(((rec.get("config") or {}).get("scene") or {}).get("rho")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
         "ocr_failed": len(ignored.get("failed") or []), "gt_empty_ignored": len(ignored.get("empty_gt") or []),
         "known_views": "" if not k else len(k.get("images") or {}),

@@ -204,6 +204,7 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     tmp.mkdir(parents=True)
     try:
         _build_into(scene, settings, tmp, progress)
+        _record_rho(tmp)
         if final.exists():
             if not force:  # another process finished first: keep its copy
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -214,6 +215,17 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def _record_rho(folder: Path) -> None:
+    """Keep the built scene's rho in its record (difficulty.json; datasets/difficulty.py)."""
+    from strings_bench.datasets.difficulty import recorded_difficulty
+    from strings_bench.scene.scene import Scene
+
+    try:
+        recorded_difficulty(Scene.load(folder))
+    except Exception as exc:  # the scene itself is complete: a missing record is measured again on first use
+        log.warning("rho of %s not recorded: %s", folder.name, exc)
 
 
 # ---- cameras -------------------------------------------------------------------------------
