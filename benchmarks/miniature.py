@@ -42,7 +42,7 @@ def _rows(source: str) -> list[dict]:
 def _rho(dataset: str, scene: str, cache: dict) -> float | None:
     key = (dataset, scene)
     if key not in cache:
-        from strings_bench.datasets.difficulty import recorded_difficulty
+        from strings_bench.scene.difficulty import recorded_difficulty
         from strings_bench.datasets.registry import resolve_scenes
         from strings_bench.scene.scene import Scene
 
@@ -60,6 +60,9 @@ def _cer(value) -> str:
 def motion_rows(run_dirs: list[str]) -> list[dict]:
     rows, rhos = [], {}
     for run_dir in run_dirs:
+        if not (Path(run_dir) / "run.json").is_file():
+            print(f"{run_dir}: no run.json (not started yet), left out", file=sys.stderr)
+            continue
         manifest = json.loads((Path(run_dir) / "run.json").read_text())
         sched = manifest["schedule"]
         for result in sorted(Path(run_dir).glob("cells/*/*/*/*/result.json")):

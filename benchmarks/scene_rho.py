@@ -5,7 +5,7 @@
 SCENE is a dataset id with a scene (default: the three synthetic360-cpu rooms, draw 0), built or located as
 `strings-bench datasets prepare` does, or a scene folder (e.g. a room built with other difficulty settings,
 named by LABEL in the table). Prints one row per scene (extent, median stroke in world units and
-pixels, words measured, rho; strings_bench/datasets/difficulty.py) and, with `--csv`, writes them (the table
+pixels, words measured, rho; strings_bench/scene/difficulty.py) and, with `--csv`, writes them (the table
 of docs/results/difficulty.md).
 """
 
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from strings_bench.core.io import atomic_write_text
-from strings_bench.datasets.difficulty import recorded_difficulty
+from strings_bench.scene.difficulty import recorded_difficulty
 from strings_bench.datasets.registry import resolve_scenes
 from strings_bench.scene.scene import Scene
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image, ImageDraw
 
-from strings_bench.datasets.difficulty import mask_regions, scene_difficulty, stroke_width_px
+from strings_bench.scene.difficulty import mask_regions, scene_difficulty, stroke_width_px
 
 SUPER = 8  # supersampling of the drawn strokes: their edges are anti-aliased as a renderer's are
 
@@ -72,7 +72,7 @@ def test_rho_from_known_words_follows_the_formula(tmp_path):
 
 
 def test_rho_from_text_masks_where_no_word_is_known(tmp_path, monkeypatch):
-    import strings_bench.datasets.difficulty as D
+    import strings_bench.scene.difficulty as D
 
     monkeypatch.setattr(D, "_sfm_depth", lambda scene, view, polygon, points=None: 2.0)
     monkeypatch.setattr(D, "_view_points", lambda scene, view: (np.zeros(0, int), np.zeros((0, 2))))
@@ -95,7 +95,7 @@ def test_sfm_depth_is_the_median_depth_of_the_points_seen_inside(tmp_path):
 
     sys.path.insert(0, str(Path(__file__).parent))
     from _engine_helpers import make_tiny_scene
-    import strings_bench.datasets.difficulty as D
+    import strings_bench.scene.difficulty as D
 
     scene = make_tiny_scene(tmp_path / "scene", n_views=3, n_points=80)
     cam = scene.model.cameras[1]

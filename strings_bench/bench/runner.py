@@ -208,9 +208,9 @@ class Runner:
 
 
 def _scene_rho(scene) -> float | None:
-    """The scene's rho (datasets/difficulty.py; kept in its record when the scene is in the cache), None where it
+    """The scene's rho (scene/difficulty.py; kept in its record when the scene is in the cache), None where it
     cannot be measured (no known words and no text masks) or the measurement fails."""
-    from strings_bench.datasets.difficulty import recorded_difficulty
+    from strings_bench.scene.difficulty import recorded_difficulty
 
     try:
         return recorded_difficulty(scene).rho

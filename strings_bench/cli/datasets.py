@@ -192,7 +192,7 @@ def _stats(scene_id: str, path, seconds: float) -> dict:
     from strings_bench.datasets.synthetic import read_meta
     from strings_bench.datasets.synthetic.generate import META_FILE, count_text_points
 
-    from strings_bench.datasets.difficulty import recorded_difficulty
+    from strings_bench.scene.difficulty import recorded_difficulty
 
     scene = Scene.load(path)
     row = {"id": scene_id, "path": str(path), "views": scene.num_views, "points": scene.model.num_points,

@@ -218,8 +218,8 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
 
 
 def _record_rho(folder: Path) -> None:
-    """Keep the built scene's rho in its record (difficulty.json; datasets/difficulty.py)."""
-    from strings_bench.datasets.difficulty import recorded_difficulty
+    """Keep the built scene's rho in its record (difficulty.json; scene/difficulty.py)."""
+    from strings_bench.scene.difficulty import recorded_difficulty
     from strings_bench.scene.scene import Scene
 
     try:
