@@ -253,6 +253,26 @@ def test_paper_preset_position_lr_by_hand(tiny_text_scene):
                                                                                        rel=1e-12)
 
 
+def test_phase1_step_in_strokes_follows_the_scenes_rho(tiny_text_scene):
+    """phase1_step_strokes v: the phase-1 position LR is min(1, v / rho) x 3DGS' schedule (by hand at 1500:
+    1.6e-4 x 100^(-1500/30000) x extent); a cap above rho leaves the full schedule; phase 2 is untouched."""
+    from strings_bench.scene.difficulty import scene_difficulty
+
+    scene = tiny_text_scene
+    ext = _extent_by_hand(scene)
+    rho = scene_difficulty(scene).rho
+    assert rho and rho > 1e-4  # the scene's masks give strokes to measure
+    paper = get_schedule("paper").steps_scale
+    for v, factor in ((rho / 4, 0.25), (rho * 3, 1.0), (0.0, 0.0)):
+        method = get_method("strings").build(default_steps_scale=paper, mask_dilation_fraction=0.0, phase1_step_strokes=v)
+        trainer = _setup(method, scene)
+        assert trainer.position_lr(1500) == pytest.approx(factor * 1.2709251755588504e-4 * ext, rel=1e-9)
+        assert trainer.checkpoint_extra(1)["phase1_position_factor"] == pytest.approx(factor)
+        assert trainer.position_lr(3001) == pytest.approx(1.5997544097736427e-4 * ext, rel=1e-9)  # phase 2 as the paper
+    with pytest.raises(StringsBenchError, match="phase1_step_strokes"):
+        get_method("strings").build(phase1_step_strokes=-1.0)
+
+
 def test_restart_schedules(tiny_text_scene):
     trainer = _setup(StringsMethod(**{**FAST, "steps_scale": 0.01}), tiny_text_scene)
     assert trainer.strategy_step(20) == 20 and trainer.strategy_step(35) == 5

@@ -52,6 +52,11 @@ class StringsSettings:
     text_densify: bool = True  # False = ablation "without text densification"
     max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
+    # This suite's variant, not the paper's: the phase-1 position LR follows the scene's rho (one early position step
+    # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / rho) x the 3DGS schedule, so that an early
+    # step moves text at most this many strokes. None: phase1_position_lr as given. A scene whose rho cannot be
+    # measured (no known words, no masks) keeps phase1_position_lr (result extra['phase1_rho'] is then None).
+    phase1_step_strokes: float | None = None  # cap on a phase-1 text position step, in text strokes (None: off)
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
     # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
     # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
@@ -92,6 +97,9 @@ class StringsSettings:
             raise StringsBenchError(f"t1 must be >= 0, got {self.t1}")
         if self.phase1_position_lr < 0:
             raise StringsBenchError(f"phase1_position_lr must be >= 0, got {self.phase1_position_lr}")
+        if self.phase1_step_strokes is not None and not self.phase1_step_strokes >= 0:
+            raise StringsBenchError(f"phase1_step_strokes must be >= 0 (strokes per step) or None, "
+                                    f"got {self.phase1_step_strokes}")
         for name, allowed in (("init_scales_from", ("all", "text")), ("eq1_counts", ("track", "mask_hits")),
                               ("eq1_range", ("text", "all")), ("handoff", ("before_refine", "after_refine")),
                               ("phase2_text", ("relocalise", "inherit"))):
@@ -176,6 +184,16 @@ class Strings(GaussianSplatting):
                         "phase 1 uses every training view", scene.name, ds)
             self.text_views = list(scene.train_idx)
         self.phase = 2 if self.fallback else 1
+        self.phase1_rho, self.phase1_factor = None, float(st.phase1_position_lr)
+        if st.phase1_step_strokes is not None:
+            from strings_bench.scene.difficulty import recorded_difficulty
+
+            self.phase1_rho = recorded_difficulty(scene).rho
+            if self.phase1_rho:
+                self.phase1_factor = min(1.0, float(st.phase1_step_strokes) / self.phase1_rho)
+            else:
+                log.warning("STRinGS: rho of scene %s cannot be measured; phase 1 keeps phase1_position_lr %g",
+                            scene.name, st.phase1_position_lr)
         self.densify_stats: dict = {}
         self._mask_tensors: dict[int, torch.Tensor] = {}
 
@@ -314,7 +332,7 @@ class Strings(GaussianSplatting):
         if self.fallback:
             return super().position_lr(step)
         if self.in_phase1(step):
-            return self.st.phase1_position_lr * super().position_lr(step)
+            return self.phase1_factor * super().position_lr(step)
         return super().position_lr(step - self.t1)  # eta_opt: the 3DGS schedule shifted by T1
 
     def lr_factors(self, step: int) -> tuple[float, float]:
@@ -348,6 +366,8 @@ class Strings(GaussianSplatting):
         extra = {
             **super().checkpoint_extra(step),
             "phase": self.phase,
+            **({"phase1_rho": self.phase1_rho, "phase1_position_factor": self.phase1_factor}
+               if self.st.phase1_step_strokes is not None else {}),
             "t1_steps": self.t1,
             "text_gaussians": int(self.model.extras["is_text"].sum()),
             "sfm_points": int(self.scene.model.num_points),
