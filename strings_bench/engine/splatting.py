@@ -71,7 +71,7 @@ class TrainConfig:
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
     # multiplies the position LR at every step (1: the paper's per-step LRs). A shrunk schedule's miniature
     # `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a Gaussian can move) is the paper's.
-    position_lr_gain: float = 1.0
+    position_lr_gain: float = 1.0  # x the position LR at every step (1: the paper's; miniature lr-sum: 1/steps_scale)
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
     backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
