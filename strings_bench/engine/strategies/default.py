@@ -169,9 +169,13 @@ class DefaultStrategy(Strategy):
             return
         radii = torch.as_tensor(info["radii"], device=model.device)
         visible = radii > 0
-        state["grad2d"][visible] += ndc_norm(grad, info["width"], info["height"], info.get("n_cameras", 1))[visible]
-        state["count"][visible] += 1
-        state["max_radii"][visible] = torch.maximum(state["max_radii"][visible], radii[visible].float())
+        # Whole-array updates: adding 0 (or taking the maximum with 0) leaves an entry's bits as they are, since
+        # every entry is >= +0, and they skip the gathers and scatters of boolean indexing.
+        norm = ndc_norm(grad, info["width"], info["height"], info.get("n_cameras", 1))
+        zero = torch.zeros((), dtype=norm.dtype, device=norm.device)
+        state["grad2d"].add_(torch.where(visible, norm, zero))
+        state["count"].add_(visible.to(state["count"].dtype))
+        torch.maximum(state["max_radii"], torch.where(visible, radii.float(), zero), out=state["max_radii"])
 
     def _has_statistics(self, state: dict) -> bool:
         return state["grad2d"] is not None
