@@ -76,9 +76,14 @@ def load_scene(spec: str):
 
 
 def build_method(schedule: str):
+    from strings_bench.core.errors import StringsBenchError
     from strings_bench.methods.registry import get_method
 
-    return get_method("3dgs").build(default_steps_scale=get_schedule(schedule).steps_scale)
+    spec = get_method("3dgs")
+    try:
+        return spec.build(default_steps_scale=get_schedule(schedule).steps_scale)
+    except StringsBenchError:  # an older commit's arm (engine_ab.py): build(schedule=...) before the redesign
+        return spec.build(schedule=schedule)
 
 
 def trained_states(scene, schedule: str, at: list[int], state_dir: Path) -> dict[int, Path]:
