@@ -75,13 +75,13 @@ def motion_rows(run_dirs: list[str]) -> list[dict]:
             text = extra.get("text_position_path")
             rows.append({
                 "method": rec["method"], "scene": rec["scene"], "scale": sched["steps_scale"],
-                "miniature": sched.get("miniature", "shrink"), "label": rec["label"], "iteration": rec["iteration"],
-                "gaussians": rec["gaussians"], "count_changes": extra.get("count_changes", ""),
-                "path_steps": f"{steps:.1f}", "path_strokes": "" if rho is None else f"{steps * rho:.2f}",
-                "text_path_steps": "" if text is None else f"{text / POSITION_STEP:.1f}",
-                "text_path_strokes": "" if text is None or rho is None else f"{text / POSITION_STEP * rho:.2f}",
-                "partial_from_step": extra.get("motion_from_step", ""),
-                "cer_known": _cer(rec.get("cer_known")), "cer": _cer(rec.get("cer")),
+                "miniature": sched.get("miniature", "shrink"), "ckpt": rec["label"], "steps": rec["iteration"],
+                "Gaussians": rec["gaussians"], "size changes": extra.get("count_changes", ""),
+                "path (steps)": f"{steps:.1f}", "path (strokes)": "" if rho is None else f"{steps * rho:.2f}",
+                "text path (steps)": "" if text is None else f"{text / POSITION_STEP:.1f}",
+                "text path (strokes)": "" if text is None or rho is None else f"{text / POSITION_STEP * rho:.2f}",
+                "logged from step": extra.get("motion_from_step", ""),
+                "known-text CER": _cer(rec.get("cer_known")), "OCR-CER": _cer(rec.get("cer")),
             })
     return rows
 
@@ -100,8 +100,8 @@ def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[
     out = []
     for label in sorted({k[2] for k in common}, key=lambda s: (len(s), s)):
         keys = [k for k in common if k[2] == label]
-        row = {"label": label, "cells": len(keys)}
-        for col in ("cer_known", "cer"):
+        row = {"ckpt": label, "cells": len(keys)}
+        for col, name in (("cer_known", "known-text CER"), ("cer", "OCR-CER")):
             pairs = agree = 0
             diffs = []
             for scene in sorted({k[1] for k in keys}):
@@ -113,9 +113,9 @@ def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[
                     s_cand = _sign(float(cand[a][col]) - float(cand[b][col]), tie)
                     pairs += 1
                     agree += s_ref == s_cand
-            row[f"{col}_pairs"] = pairs
-            row[f"{col}_agree"] = "" if not pairs else f"{agree / pairs:.2f}"
-            row[f"{col}_mean_abs_diff"] = "" if not diffs else f"{sum(diffs) / len(diffs):.3f}"
+            row[f"pairs ({name})"] = pairs
+            row[f"ordered alike ({name})"] = "" if not pairs else f"{agree / pairs:.2f}"
+            row[f"mean abs. difference ({name})"] = "" if not diffs else f"{sum(diffs) / len(diffs):.3f}"
         out.append(row)
     return out
 

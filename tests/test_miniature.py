@@ -117,8 +117,9 @@ def test_agreement_counts_pairs_ordered_alike_with_ties():
     swapped = _cells({("a", "s", "3K"): 0.10, ("b", "s", "3K"): 0.30, ("c", "s", "3K"): 0.50})
     tied = _cells({("a", "s", "3K"): 0.30, ("b", "s", "3K"): 0.31, ("c", "s", "3K"): 0.305})
     [row] = agreement(ref, same, tie=0.02)
-    assert (row["label"], row["cells"], row["cer_known_pairs"], row["cer_known_agree"]) == ("3K", 3, 3, "1.00")
-    assert row["cer_known_mean_abs_diff"] == "0.200"
-    assert agreement(ref, swapped, tie=0.02)[0]["cer_known_agree"] == "0.67"
-    assert agreement(ref, tied, tie=0.02)[0]["cer_known_agree"] == "0.00"
-    assert agreement(tied, tied, tie=0.02)[0]["cer_known_agree"] == "1.00"
+    alike = "ordered alike (known-text CER)"
+    assert (row["ckpt"], row["cells"], row["pairs (known-text CER)"], row[alike]) == ("3K", 3, 3, "1.00")
+    assert row["mean abs. difference (known-text CER)"] == "0.200"
+    assert agreement(ref, swapped, tie=0.02)[0][alike] == "0.67"
+    assert agreement(ref, tied, tie=0.02)[0][alike] == "0.00"
+    assert agreement(tied, tied, tie=0.02)[0][alike] == "1.00"
