@@ -39,11 +39,12 @@ def _register_builtin_cards() -> None:
     global _BUILTINS_REGISTERED
     if _BUILTINS_REGISTERED:
         return
+    import strings_bench.datasets.captures as captures
     import strings_bench.datasets.cards as cards
     import strings_bench.datasets.synthetic as synthetic
 
     for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD, synthetic.CARD_360, synthetic.CARD_360_CPU,
-                 synthetic.CARD_MULTI):
+                 synthetic.CARD_MULTI, captures.card()):
         register_dataset(card)
     _BUILTINS_REGISTERED = True
     try:
