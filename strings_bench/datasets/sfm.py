@@ -281,8 +281,8 @@ def write_sparse_split(scene_dir: Path) -> dict:
     names = read_model(scene_dir).names
     test, every = sparse_split(names)
     if every != TEST_EVERY:
-        atomic_write_json(scene_dir / SPLIT_FILE, {"test": test, "rule": f"every {every}th view (sorted by name): "
-                                                   f"every {TEST_EVERY}th would hold out fewer than 3"})
+        atomic_write_json(scene_dir / SPLIT_FILE, {"test": test, "rule": f"one view in {every} (sorted by name): "
+                                                   f"one in {TEST_EVERY} would hold out fewer than 3"})
     return {"every": every, "test": test, "views": len(names)}
 
 
