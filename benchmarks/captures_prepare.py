@@ -2,8 +2,9 @@
 
     python benchmarks/captures_prepare.py [NAME ...] [--out docs/results/data/captures]
 
-Each capture is built from scratch (`--force`) in a child process of its own, so that its peak memory (the child's
-maximum resident set size: SfM, undistortion, OCR masks) is its own. Per capture: the seconds of each stage of
+Each capture is built from scratch in a child process of its own, so that its peak memory (the child's maximum
+resident set size: SfM, undistortion, OCR masks) is its own, with an empty cache (no OCR result is reused); the
+scene is then moved into the suite's cache, where runs find it. Per capture: the seconds of each stage of
 `prepare` (datasets/sfm.py; the given-cameras path of datasets/bundler.py for saharov32), the whole build, the
 record's measurements (GT characters read on the held-out views, rho), photos registered, test views. Writes
 prepare.csv (costs) and captures.csv (what each scene holds) into --out, and prints both.
@@ -15,26 +16,34 @@ import argparse
 import csv
 import io
 import json
+import os
 import resource
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from strings_bench.core.io import atomic_write_text
-from strings_bench.datasets.captures import CAPTURES, GT_DOWNSCALES, MIN_GT_CHARS, build_capture, read_record
+from strings_bench.core.io import atomic_write_text, cache_root
+from strings_bench.datasets.captures import (CAPTURES, DATASET_ID, GT_DOWNSCALES, MIN_GT_CHARS, build_capture, read_record,
+                                             scene_dir)
 
 STAGES = ("resize", "features", "matching", "mapping", "convert", "undistort", "downscale", "masks")
 
 
-def one(name: str) -> None:
-    """In the child: build `name` from scratch and print its record and peak memory as one JSON line."""
+def one(name: str, into: Path) -> None:
+    """In the child (its cache empty): build `name`, move the scene to `into` and print its record and peak memory as
+    one JSON line."""
     t0 = time.perf_counter()
     path = build_capture(name, force=True, progress=False, echo=lambda s: print(s, file=sys.stderr))
     wall = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kilobytes
-    print(json.dumps({"name": name, "wall_seconds": wall, "peak_rss_mb": peak_mb, "path": str(path),
-                      "record": read_record(path)}))
+    into.parent.mkdir(parents=True, exist_ok=True)
+    if into.exists():
+        shutil.rmtree(into)
+    os.replace(path, into)
+    print(json.dumps({"name": name, "wall_seconds": wall, "peak_rss_mb": peak_mb, "path": str(into),
+                      "record": read_record(into)}))
 
 
 def rows_of(results: list[dict]) -> tuple[list[list[str]], list[list[str]]]:
@@ -68,13 +77,21 @@ def main(argv=None) -> int:
     ap.add_argument("names", nargs="*", default=list(CAPTURES), help=f"captures (default: all: {', '.join(CAPTURES)})")
     ap.add_argument("--out", type=Path, default=None, help="folder for prepare.csv and captures.csv")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--into", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
-        one(args.one)
+        one(args.one, args.into)
         return 0
     results = []
     for name in args.names:
-        proc = subprocess.run([sys.executable, __file__, "--one", name], stdout=subprocess.PIPE, text=True)
+        cold = cache_root() / DATASET_ID / f".cold-{os.getpid()}"  # the same file system: the scene is renamed
+        shutil.rmtree(cold, ignore_errors=True)
+        env = {**os.environ, "STRINGS_BENCH_CACHE": str(cold)}
+        try:
+            proc = subprocess.run([sys.executable, __file__, "--one", name, "--into", str(scene_dir(name))],
+                                  stdout=subprocess.PIPE, text=True, env=env)
+        finally:
+            shutil.rmtree(cold, ignore_errors=True)
         if proc.returncode != 0:
             print(f"{name}: the build failed (exit status {proc.returncode})", file=sys.stderr)
             return 1

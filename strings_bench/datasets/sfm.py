@@ -295,13 +295,12 @@ def publish_scene(scene_tmp: Path, scene_dir: Path) -> None:
 
 
 def register_scene(name: str, scene_dir: Path) -> None:
-    """Record a prepared scene in the user's index of local copies and register it."""
-    from strings_bench.datasets.registry import read_index, register_local_copies, write_index
+    """Record a prepared scene in the user's index of local copies (the registry reads new entries on lookup)."""
+    from strings_bench.datasets.card import read_index, write_index
 
     index = read_index()
     index[name] = str(scene_dir)
     write_index(index)
-    register_local_copies()
 
 
 def numbered_stages(total: int, stages: dict[str, float], echo: Callable[[str], None]) -> Callable[[str], float]:
