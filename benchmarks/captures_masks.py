@@ -60,6 +60,7 @@ def main(argv=None) -> int:
     for r in rows:
         sheet.paste(r, (0, y))
         y += r.height
+    sheet = sheet.quantize(colors=256, method=Image.Quantize.MEDIANCUT)  # a palette PNG: a third of the bytes
     atomic_write(args.out, lambda p: sheet.save(p, format="PNG", optimize=True))
     print(f"wrote {args.out} ({sheet.width}x{sheet.height})")
     return 0
