@@ -42,6 +42,10 @@ def one(name: str, into: Path) -> None:
     if into.exists():
         shutil.rmtree(into)
     os.replace(path, into)
+    for name_ in ("prepare.json", "capture.json"):  # the records name the folder the scene was built in
+        rec = json.loads((into / name_).read_text())
+        (rec["prepare"] if name_ == "capture.json" else rec)["scene_dir"] = str(into)
+        atomic_write_text(into / name_, json.dumps(rec, indent=2, sort_keys=True) + "\n")
     print(json.dumps({"name": name, "wall_seconds": wall, "peak_rss_mb": peak_mb, "path": str(into),
                       "record": read_record(into)}))
 

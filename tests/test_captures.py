@@ -191,3 +191,35 @@ def test_the_floor_comes_from_the_scene_settings(tmp_path):
                              FakeOCR(), 1, with_lpips=False, with_readability=False)
     assert ev.min_gt_chars == captures.MIN_GT_CHARS
     assert Evaluator.for_scene(Scene.load(root), FakeOCR(), 1, with_lpips=False, with_readability=False).min_gt_chars is None
+
+
+def test_a_run_leaves_the_cer_of_a_scene_below_its_floor_unscored_and_the_report_says_why(tmp_path, monkeypatch):
+    """Through the runner: a scene card setting `min_gt_chars` above what the GT reads ("hello": 5 characters per
+    test view, 2 test views) gives an empty `cer` in results.csv, `not_scored` in result.json, a note in the report."""
+    import csv
+
+    import tests.runner_fakes as rf
+    from strings_bench import bench
+    from strings_bench.datasets.card import DatasetCard, SceneCard
+    from strings_bench.datasets import registry
+    from strings_bench.datasets.registry import register_dataset
+    from strings_bench.reports import write_report
+
+    registry.list_datasets()
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))  # the test's cards go with the test
+    rf.register_fakes()
+    path = rf.make_scene(tmp_path / "scenes")
+    for floor, scored in ((10, True), (11, False)):
+        register_dataset(DatasetCard(id=f"floor{floor}", title="test", scenes=[SceneCard("toy", {"min_gt_chars": floor})],
+                                     locate=lambda scene, _p=path: _p))
+        out = tmp_path / f"run{floor}"
+        bench.run(["fake-a"], [f"floor{floor}"], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+                  with_lpips=False, progress=False, write_report=False)
+        rows = list(csv.DictReader((out / "results.csv").open()))
+        assert rows and all((r["cer"] != "") == scored and r["cer_chars"] == "10" for r in rows), rows
+        result = json.loads(next((out / "cells").rglob("result.json")).read_text())
+        assert ("not_scored" in result["cer"]) == (not scored)
+    from strings_bench.reports import figures
+
+    monkeypatch.setattr(figures, "write_figures", lambda *a, **k: {})  # the note is the point, not the figures
+    assert "OCR-CER is not scored on floor11/toy (its GT reads 10 characters" in write_report(out).read_text()
