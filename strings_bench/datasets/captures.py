@@ -207,16 +207,14 @@ def gt_characters(scene, engine_spec: str, downscale: float) -> dict:
     from strings_bench.eval.protocol import scene_views, to_uint8
 
     engine = get_engine(engine_spec)
-    per_view, texts = {}, {}
-    pairs = {}
+    pairs, texts = {}, {}
     for v in scene_views(scene, downscale):
         words = engine.read(to_uint8(v.gt), mask=v.mask)
         pairs[v.name] = (words, words)
         texts[v.name] = " ".join(w.text for w in words)
-    scored = cer.scene_cer(pairs)
-    per_view = {n: scored.images[n].chars if n in scored.images else 0 for n in pairs}
-    chars = scored.chars
-    return {"chars": chars, "views": per_view, "texts": texts, "scored": chars >= MIN_GT_CHARS}
+    scored = cer.scene_cer(pairs)  # counts characters as OCR-CER does
+    views = {n: scored.images[n].chars if n in scored.images else 0 for n in pairs}
+    return {"chars": scored.chars, "views": views, "texts": texts, "scored": scored.chars >= MIN_GT_CHARS}
 
 
 def scene_settings(cap: Capture) -> dict:
