@@ -168,7 +168,8 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             ev_key = (id(views), ds)
             if ev_key not in evaluator_cache:
                 evaluator_cache[ev_key] = Evaluator(list(views.values()), engines, with_lpips=opts.with_lpips,
-                                                    cer_profile=opts.cer_profile, mask_settings=mask_settings)
+                                                    cer_profile=opts.cer_profile, mask_settings=mask_settings,
+                                                    min_gt_chars=(source.settings or {}).get("min_gt_chars"))
             evaluator = evaluator_cache[ev_key]
             result = evaluator.evaluate(method, renders, missing=missing)
             train = opts.train_seconds

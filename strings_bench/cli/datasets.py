@@ -124,6 +124,15 @@ def _scene_status(card, scene: str) -> str:
         status = f"cached at {scene_dir(room, settings)}" if is_built(room, settings) else "not built (built on first use)"
         others = [f"@{d}" for d in card.draws if d and is_built(room, default_settings(draw_name(room, d), card.id))]
         return status + (f"; draws cached: {', '.join(others)}" if others else "")
+    if card.id == "captures":
+        from strings_bench.datasets import captures
+
+        if captures.is_built(scene):
+            return f"built at {captures.scene_dir(scene)}"
+        try:
+            return f"not built (built on first use from {captures.capture_source(scene)})"
+        except DatasetError as exc:
+            return f"not built; {exc}"
     if card.locate is not None:
         return "located on demand"
     try:
@@ -230,6 +239,17 @@ def _setup_add(p: argparse.ArgumentParser) -> None:
     p.set_defaults(func=_run_add)
 
 
+def _setup_show(p: argparse.ArgumentParser) -> None:
+    p.description = ("Print a scene's record: where it is, views and test views, photos left out by SfM, the GT "
+                     "characters OCR reads on the test views (captures), and rho (docs/difficulty.md). A scene that "
+                     "is not built yet is only reported as such; --build builds it (SfM for a capture, the generator "
+                     "for a synthetic room).")
+    p.add_argument("spec", metavar="NAME[/SCENE]", help="a dataset id (every scene) or DATASET/SCENE, e.g. "
+                                                        "captures/bundler_et")
+    p.add_argument("--build", action="store_true", help="build the scene when it is not built yet")
+    p.set_defaults(func=_run_show)
+
+
 def _setup_check(p: argparse.ArgumentParser) -> None:
     p.description = "Validate scenes without modifying any file; exit status 1 when a scene has errors."
     p.add_argument("target", nargs="?", default=None,
@@ -247,6 +267,7 @@ def _setup_download(p: argparse.ArgumentParser) -> None:
 
 SUBCOMMANDS = (
     ("add", "validate a local copy of a dataset or scene and register it under NAME", _setup_add),
+    ("show", "print a scene's record, rho included (built scenes; --build builds one)", _setup_show),
     ("check", "validate a registered dataset or a scene folder (never modifies files)", _setup_check),
     ("download", "download a dataset with a direct URL, or print the steps to get it", _setup_download),
 )
@@ -271,6 +292,16 @@ def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> li
     if not path.is_dir():
         raise DatasetError(f"{path} does not exist or is not a folder", hint="pass the folder of your local copy")
     path = path.resolve()
+    if name == "captures":  # the photos of the captures dataset, built into scenes on first use
+        from strings_bench.datasets.captures import check_data_root
+
+        present = check_data_root(path)
+        index = read_index()
+        index[name] = str(path)
+        write_index(index)
+        echo(f"registered the captures' data folder {path} (captures found: {', '.join(present)}); their scenes are "
+             "built on first use")
+        return []
     builtin_real = {c.id for c in BUILTIN_REAL_CARDS}
     list_datasets()  # load every built-in card
     if name in builtin_real:
@@ -303,6 +334,16 @@ def add_local_copy(name: str, path: Path, force: bool = False, echo=print) -> li
 
 def _run_add(args: argparse.Namespace) -> int:
     add_local_copy(args.name, args.path, force=args.force)
+    return 0
+
+
+def _run_show(args: argparse.Namespace) -> int:
+    from strings_bench.datasets.record import format_record, scene_record
+    from strings_bench.datasets.registry import select_scenes
+
+    card, scenes = select_scenes(args.spec)
+    for i, sc in enumerate(scenes):
+        print(("\n" if i else "") + format_record(scene_record(card, sc, build=args.build)))
     return 0
 
 

@@ -163,7 +163,7 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
     import pycolmap
 
     from strings_bench.datasets.sfm import (PrepareResult, save_like, default_scene_dir, finish_scene, numbered_stages,
-                                            publish_scene, register_scene)
+                                            publish_scene, register_scene, write_sparse_split)
 
     src = Path(src)
     bundle = src / bundle_file if bundle_file else next((src / n for n in ("bundle.out", "cameras.out") if (src / n).is_file()), None)
@@ -210,7 +210,8 @@ def prepare_bundler_scene(src: str | Path, name: str, out: str | Path | None = N
                                num_points=final.num_points3D(), num_models=1, matcher="none (Bundler cameras)",
                                stage_seconds=stages, num_masks=num_masks, num_masks_with_text=num_text,
                                unregistered=sorted(set(names) - set(kept)))
-        atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(src.resolve()),
+        split = write_sparse_split(scene_tmp)
+        atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(src.resolve()), "split": split,
                                                        "bundler_file": str(bundle.resolve()), "max_size": max_size,
                                                        "exif_orientations": sorted(set(orientations))})
         publish_scene(scene_tmp, scene_dir)

@@ -39,11 +39,12 @@ def _register_builtin_cards() -> None:
     global _BUILTINS_REGISTERED
     if _BUILTINS_REGISTERED:
         return
+    import strings_bench.datasets.captures as captures
     import strings_bench.datasets.cards as cards
     import strings_bench.datasets.synthetic as synthetic
 
     for card in (*cards.BUILTIN_REAL_CARDS, synthetic.CARD, synthetic.CARD_360, synthetic.CARD_360_CPU,
-                 synthetic.CARD_MULTI):
+                 synthetic.CARD_MULTI, captures.card()):
         register_dataset(card)
     _BUILTINS_REGISTERED = True
     try:
@@ -68,21 +69,34 @@ def register_local_copies() -> list[str]:
     return added
 
 
+def _refresh_local_copies() -> None:
+    """Register index entries written since the cards were loaded (`prepare` records its scene in the index)."""
+    try:
+        register_local_copies()
+    except DatasetError:
+        pass  # a corrupt index is reported by the command that reads it
+
+
 def list_datasets() -> list[DatasetCard]:
     """Every registered card: the built-in ones, the user's local copies, and any registered in code."""
     _register_builtin_cards()
+    _refresh_local_copies()
     return list(_REGISTRY.values())
 
 
 def find_dataset(dataset_id: str) -> DatasetCard | None:
     """The card registered as `dataset_id`, None when there is none."""
     _register_builtin_cards()
+    if dataset_id not in _REGISTRY:
+        _refresh_local_copies()
     return _REGISTRY.get(dataset_id)
 
 
 def get_dataset(dataset_id: str) -> DatasetCard:
     """The card registered as `dataset_id`; DatasetError naming the known ids when there is none."""
     _register_builtin_cards()
+    if dataset_id not in _REGISTRY:
+        _refresh_local_copies()
     if dataset_id not in _REGISTRY:
         raise DatasetError(f"unknown dataset {dataset_id!r}",
                            hint=f"known: {', '.join(sorted(_REGISTRY))}; or pass a path to a scene folder")

@@ -120,8 +120,13 @@ def prepare_scene(
     progress: bool = True,
     echo: Callable[[str], None] = print,
     seed: int = 0,
+    intrinsics: tuple[float, float, float, float] | None = None,
 ) -> PrepareResult:
-    """Run the whole photos -> scene pipeline; returns counts and per-stage seconds."""
+    """Run the whole photos -> scene pipeline; returns counts and per-stage seconds.
+
+    `intrinsics` (fx, fy, cx, cy in pixels of the photos as stored, OpenCV's convention: the first pixel's centre is
+    (0, 0); e.g. a sequence's published calibration) gives
+    every photo one PINHOLE camera that SfM keeps fixed instead of estimating it; the photos must share one size."""
     import pycolmap
 
     # COLMAP's RANSAC and mapper draw random numbers: seeded, a single-threaded run (num_threads=1)
@@ -166,6 +171,9 @@ def prepare_scene(
         sizes = {Image.open(raw / p.name).size for p in photos}
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = "SIMPLE_RADIAL"
+        if intrinsics is not None:
+            reader.camera_model = "PINHOLE"
+            reader.camera_params = known_camera_params(intrinsics, photos, sizes)
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.num_threads = num_threads
         extraction.sift.max_num_features = max_features
@@ -193,6 +201,10 @@ def prepare_scene(
         t = stage("incremental mapping")
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = num_threads
+        if intrinsics is not None:  # known calibration: bundle adjustment moves poses and points only
+            options.ba_refine_focal_length = False
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = False
         maps = pycolmap.incremental_mapping(db, raw, work / "sparse_raw", options=options)
         stages["mapping"] = time.perf_counter() - t
         if not maps:
@@ -228,8 +240,12 @@ def prepare_scene(
             num_points=rec.num_points3D(), num_models=len(maps), matcher=matcher, stage_seconds=stages,
             num_masks=num_masks, num_masks_with_text=num_text, unregistered=unregistered,
         )
+        split = write_sparse_split(scene_tmp)
         atomic_write_json(scene_tmp / "prepare.json", {**result.to_dict(), "photos_dir": str(Path(photos_dir).resolve()),
-                                                       "max_size": max_size})
+                                                       "max_size": max_size, "split": split,
+                                                       "intrinsics": None if intrinsics is None else
+                                                       {"fx": intrinsics[0], "fy": intrinsics[1], "cx": intrinsics[2],
+                                                        "cy": intrinsics[3], "refined": False}})
         publish_scene(scene_tmp, scene_dir)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -238,6 +254,36 @@ def prepare_scene(
     if register:
         register_scene(name, scene_dir)
     return result
+
+
+def known_camera_params(intrinsics, photos: list[Path], sizes: set[tuple[int, int]]) -> str:
+    """COLMAP's PINHOLE parameters "fx,fy,cx,cy" for the resized copies, from `intrinsics` given for the photos as
+    stored; DatasetError when the photos differ in size (one calibration cannot describe them)."""
+    if len(sizes) != 1:
+        raise DatasetError(f"known intrinsics were given but the photos have {len(sizes)} sizes: {sorted(sizes)[:4]}",
+                           hint="one calibration describes photos of one size; leave out --intrinsics to estimate them")
+    with Image.open(photos[0]) as im:
+        stored_w = ImageOps.exif_transpose(im).size[0]
+    scale = next(iter(sizes))[0] / stored_w
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    if not (fx > 0 and fy > 0):
+        raise DatasetError(f"known intrinsics {intrinsics} have a focal length <= 0", hint="fx and fy are in pixels, > 0")
+    # Published calibrations (OpenCV, TUM RGB-D) put the first pixel's centre at 0, COLMAP at 0.5: cx + 0.5.
+    return ",".join(f"{v:.6g}" for v in (fx * scale, fy * scale, (cx + 0.5) * scale, (cy + 0.5) * scale))
+
+
+def write_sparse_split(scene_dir: Path) -> dict:
+    """Write split.json where the scene is too sparse for the every-8th test split (scene.sparse_split); returns the
+    rule applied and the test views, for the scene's record."""
+    from strings_bench.scene.colmap import read_model
+    from strings_bench.scene.scene import SPLIT_FILE, TEST_EVERY, sparse_split
+
+    names = read_model(scene_dir).names
+    test, every = sparse_split(names)
+    if every != TEST_EVERY:
+        atomic_write_json(scene_dir / SPLIT_FILE, {"test": test, "rule": f"one view in {every} (sorted by name): "
+                                                   f"one in {TEST_EVERY} would hold out fewer than 3"})
+    return {"every": every, "test": test, "views": len(names)}
 
 
 def publish_scene(scene_tmp: Path, scene_dir: Path) -> None:
@@ -249,13 +295,12 @@ def publish_scene(scene_tmp: Path, scene_dir: Path) -> None:
 
 
 def register_scene(name: str, scene_dir: Path) -> None:
-    """Record a prepared scene in the user's index of local copies and register it."""
-    from strings_bench.datasets.registry import read_index, register_local_copies, write_index
+    """Record a prepared scene in the user's index of local copies (the registry reads new entries on lookup)."""
+    from strings_bench.datasets.card import read_index, write_index
 
     index = read_index()
     index[name] = str(scene_dir)
     write_index(index)
-    register_local_copies()
 
 
 def numbered_stages(total: int, stages: dict[str, float], echo: Callable[[str], None]) -> Callable[[str], float]:

@@ -156,7 +156,10 @@ class Evaluator:
 
     def __init__(self, views: Sequence[EvalView], ocr_backend, *, with_lpips: bool = True, cer_profile: str = "paper",
                  device: str = "cpu", ocr_workers: int | None = None, mask_settings: dict | None = None,
-                 with_readability: bool = True):
+                 with_readability: bool = True, min_gt_chars: int | None = None):
+        # OCR-CER is reported as not scored (cer None, with the reason) when the GT reads fewer characters than this
+        # on the test views (a scene's `min_gt_chars` setting; the captures dataset sets it); None: no floor.
+        self.min_gt_chars = None if min_gt_chars is None else int(min_gt_chars)
         self.ocr_workers = ocr_workers  # reads at once per engine (None: the engine's default_workers)
         self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
@@ -205,7 +208,18 @@ class Evaluator:
         from strings_bench.eval.text_masks import eval_mask_settings
 
         settings = eval_mask_settings(scene)
+        floor = scene.settings.get("min_gt_chars") if isinstance(scene.settings, dict) else None
+        kwargs.setdefault("min_gt_chars", floor)
         return cls(scene_views(scene, downscale, settings), ocr_backend, mask_settings=settings, **kwargs)
+
+    def floored(self, scene_cer: dict) -> dict:
+        """A scene CER's dict with the floor on GT characters applied: below it, `cer` is None and `not_scored`
+        says why (errors and characters are kept)."""
+        floor = self.min_gt_chars
+        if floor is None or scene_cer.get("chars", 0) >= floor:
+            return scene_cer
+        return {**scene_cer, "cer": None, "not_scored": f"the GT reads {scene_cer.get('chars', 0)} characters on the "
+                f"test views, below this scene's floor of {floor} (min_gt_chars): too few for a CER"}
 
     # ---- ground-truth side ---------------------------------------------------------------------
     def gt(self, name: str) -> np.ndarray:
@@ -338,7 +352,7 @@ class Evaluator:
                         **{k: mean(k) for k in metrics.TEXT_METRICS}, "per_view": per_view},
             "readability": readability,
             "ocr": {"backend": self.ocr.describe(), "mask_settings": self.mask_settings, "views": ocr_views},
-            "cer": scene_cer.to_dict(),
+            "cer": self.floored(scene_cer.to_dict()),
             "cer_known": None if known_cer is None else known_cer.to_dict(),
             "text": self.text_scripts(pairs),
             **({"ocr_engines": engines} if engines else {}),
@@ -422,7 +436,7 @@ class Evaluator:
                 agree_gt = agree_gt + cer.word_agreement(primary_gt, gt_words, self.cer_profile)
         scene_cer = cer.scene_cer(pairs, profile=self.cer_profile)
         known_cer = cer.known_scene_cer(known_pairs, profile=self.cer_profile) if known_pairs else None
-        return {"backend": engine.describe(), "views": views, "cer": scene_cer.to_dict(),
+        return {"backend": engine.describe(), "views": views, "cer": self.floored(scene_cer.to_dict()),
                 "cer_known": None if known_cer is None else known_cer.to_dict(),
                 "agreement": {"with": self.ocr.name, "renders": agree_render.to_dict(), "gt": agree_gt.to_dict(),
                               "iou_threshold": cer.IOU_THRESHOLD,

@@ -62,6 +62,17 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not all_cells.empty and all_cells["ocr_failed"].fillna(0).astype(int).sum():
         notes.append(f"OCR failed on {int(all_cells['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s); "
                      "those views are left out of CER (see `ocr_failed` in results.csv).")
+    if not all_cells.empty:
+        import pandas as pd
+
+        chars = pd.to_numeric(all_cells["cer_chars"], errors="coerce")
+        floored = all_cells[all_cells["cer"].isna() & (chars > 0)]
+        if not floored.empty:  # GT read, CER withheld: the scene's floor on GT characters (min_gt_chars)
+            scenes = floored.assign(chars=chars).groupby(["dataset", "scene"])["chars"].max()
+            notes.append("OCR-CER is not scored on " + "; ".join(f"{d}/{s} (its GT reads {int(n)} characters on the "
+                                                                    "test views)" for (d, s), n in scenes.items())
+                         + ": below the scene's floor on GT characters (docs/guide/datasets.md, 'Real captures'); the "
+                         "OCR-CER tables leave it out.")
     if not all_cells.empty and all_cells["lpips"].isna().all():
         from strings_bench.eval.lpips_net import INSTALL_HINT, available
 

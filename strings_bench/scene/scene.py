@@ -58,6 +58,19 @@ def default_split(names: list[str], every: int = TEST_EVERY) -> tuple[list[int],
     return train, test
 
 
+MIN_TEST_VIEWS = 3  # a sparse capture's split holds out at least this many views where it can (sparse_split)
+
+
+def sparse_split(names: list[str], every: int = TEST_EVERY, min_test: int = MIN_TEST_VIEWS) -> tuple[list[str], int]:
+    """The held-out views of a capture and the step used: every `every`-th view (sorted by name), unless that
+    holds out fewer than `min_test`; then every k-th, k = max(3, n // min_test), which holds out `min_test` views
+    or more from n >= 3 x min_test views and never more than a third of them (9 photos: views 0, 3, 6)."""
+    order = sorted(names)
+    if len(range(0, len(order), every)) < min_test:
+        every = max(3, len(order) // min_test)
+    return [order[k] for k in range(0, len(order), every)], every
+
+
 def compute_extent(centers: np.ndarray) -> float:
     """3DGS scene extent: 1.1 x the largest distance of a camera centre from their mean."""
     centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)

@@ -1,0 +1,225 @@
+"""The captures dataset on the real photographs in ../shared/data (fast cases; the whole builds are in
+tests/test_captures_slow.py): where the data is looked for, EXIF orientation and sideways frames, PNG frames
+named by timestamp with known intrinsics and a photo that does not register, the split of a sparse capture,
+and the floor on GT characters below which OCR-CER is not scored."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image, ImageOps
+
+from strings_bench.core.errors import DatasetError
+from strings_bench.datasets import captures
+
+DATA = Path(os.environ.get(captures.CAPTURES_ENV, captures.DEFAULT_DATA_ROOT))
+needs_data = pytest.mark.skipif(not (DATA / "bundler_et").is_dir(), reason=f"the captures' photos are not at {DATA}")
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+
+
+# ---- where the data is --------------------------------------------------------------------------
+def test_missing_data_folder_says_where_it_looked_and_how_to_point_at_it(tmp_path, monkeypatch):
+    monkeypatch.setenv(captures.CAPTURES_ENV, str(tmp_path / "nowhere"))
+    with pytest.raises(DatasetError) as e:
+        captures.capture_source("bundler_et")
+    assert str(tmp_path / "nowhere") in str(e.value) and captures.CAPTURES_ENV in e.value.hint
+    (tmp_path / "some").mkdir()
+    monkeypatch.setenv(captures.CAPTURES_ENV, str(tmp_path / "some"))
+    with pytest.raises(DatasetError, match="bundler_et"):
+        captures.capture_source("bundler_et")
+    with pytest.raises(DatasetError, match="has no scene"):
+        captures.capture_source("mouse_colmap")
+
+
+def test_data_folder_from_the_environment_then_the_index_then_the_default(tmp_path, monkeypatch):
+    from strings_bench.cli.datasets import add_local_copy
+
+    monkeypatch.delenv(captures.CAPTURES_ENV, raising=False)
+    assert captures.data_root()[0] == captures.DEFAULT_DATA_ROOT
+    mine = tmp_path / "mine"
+    (mine / "bundler_et").mkdir(parents=True)
+    with pytest.raises(DatasetError, match="none of the captures"):
+        add_local_copy("captures", tmp_path, echo=lambda s: None)
+    add_local_copy("captures", mine, echo=lambda s: None)
+    assert captures.data_root()[0] == mine.resolve()
+    monkeypatch.setenv(captures.CAPTURES_ENV, str(tmp_path / "env"))
+    assert captures.data_root()[0] == tmp_path / "env"
+
+
+def test_the_card_is_registered_and_a_scene_not_built_is_reported_as_such(capsys):
+    from strings_bench.cli import main
+
+    assert main(["datasets", "list"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"captures/{n}" in out for n in captures.CAPTURES)
+    assert main(["datasets", "show", "captures/bundler_et"]) == 0
+    assert "not built yet" in capsys.readouterr().out
+    assert not captures.is_built("bundler_et")  # show builds nothing without --build
+
+
+# ---- EXIF orientation and sideways frames ------------------------------------------------------
+@needs_data
+def test_exif_orientation_is_applied_before_sfm(tmp_path):
+    """saharov32 stores its pixels sideways with EXIF orientation 8: the copy SfM and OCR see is upright. A
+    bundler_et frame given the same treatment (pixels turned, orientation 6) comes back as it was."""
+    from strings_bench.datasets.sfm import _write_upright_resized
+
+    src = DATA / "saharov32" / "images" / "IMG_3023.JPG"
+    with Image.open(src) as im:
+        assert im.size == (1092, 728) and im.getexif().get(0x0112) == 8
+        upright = ImageOps.exif_transpose(im).convert("RGB")
+    _write_upright_resized(src, tmp_path / "a.png", 0)
+    out = np.asarray(Image.open(tmp_path / "a.png"))
+    assert out.shape == (1092, 728, 3) and np.array_equal(out, np.asarray(upright))
+
+    frame = np.asarray(Image.open(DATA / "bundler_et" / "et001.jpg").convert("RGB"))
+    turned = Image.fromarray(np.rot90(frame, 1))  # as a phone stores a portrait frame: pixels turned ...
+    exif = Image.Exif()
+    exif[0x0112] = 6  # ... and the tag that turns them back (90 degrees clockwise)
+    turned.save(tmp_path / "turned.png", exif=exif)
+    _write_upright_resized(tmp_path / "turned.png", tmp_path / "back.png", 0)
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "back.png")), frame)
+
+
+@needs_data
+def test_sideways_frames_are_read_by_ocr():
+    """bundler_et's et000 was shot with the camera turned (pixels rotated, orientation tag 1), so its book spines
+    run vertically: the default OCR also reads text turned by 90 degrees; upright-only reading finds none of it."""
+    from strings_bench.eval.ocr import get_engine
+
+    with Image.open(DATA / "bundler_et" / "et000.jpg") as im:
+        assert im.getexif().get(0x0112, 1) == 1
+        spine = np.asarray(im.convert("RGB"))[200:300, 0:60]  # the spine of "BYTE WARS", running vertically
+    words = " ".join(w.text for w in get_engine("rapidocr").read(spine)).upper()
+    assert "BYTE" in words and "WARS" in words, words
+    assert not get_engine("rapidocr:rotations=[0]").read(spine)
+
+
+# ---- PNG frames named by timestamp, known intrinsics, a photo that does not register -------------
+@needs_data
+def test_timestamp_frames_known_intrinsics_and_an_unregistered_photo(tmp_path):
+    from strings_bench.datasets.sfm import prepare_scene
+    from strings_bench.scene.scene import Scene
+
+    tum = sorted((DATA / "tum_freiburg3_office").glob("*.png"))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for p in tum[:5]:
+        shutil.copy(p, photos / p.name)
+    # A photo of another capture, at the frames' size: SfM cannot place it; it is listed, not fatal.
+    with Image.open(DATA / "watch_clock" / "images" / sorted(os.listdir(DATA / "watch_clock" / "images"))[0]) as im:
+        ImageOps.exif_transpose(im).convert("RGB").resize((640, 480)).save(photos / "1341847999.000000.png")
+    fx, fy, cx, cy = captures.CAPTURES["tum_freiburg3_office"].intrinsics
+    r = prepare_scene(photos, "tum6", out=tmp_path / "scene", masks=False, register=False, progress=False,
+                      echo=lambda s: None, intrinsics=(fx, fy, cx, cy), num_threads=2)
+    assert r.num_photos == 6 and "1341847999.000000.png" in r.unregistered, r.summary()
+    assert r.num_registered >= 4, r.summary()
+    record = json.loads((tmp_path / "scene" / "prepare.json").read_text())
+    assert record["unregistered"] == r.unregistered and record["intrinsics"]["refined"] is False
+    scene = Scene.load(tmp_path / "scene")
+    assert set(scene.names) <= {p.name for p in tum[:5]}  # the timestamps' dots survive as names
+    assert scene.names == sorted(scene.names)
+    for cam in scene.model.cameras:  # undistorted PINHOLE = the published calibration, kept fixed (+0.5: COLMAP)
+        assert (cam.width, cam.height) == (640, 480)
+        assert np.allclose([cam.fx, cam.fy, cam.cx, cam.cy], [fx, fy, cx + 0.5, cy + 0.5], atol=1e-3)
+
+
+# ---- the split of a sparse capture -----------------------------------------------------------------
+@needs_data
+def test_a_capture_too_sparse_for_every_eighth_view_holds_out_one_in_three():
+    from strings_bench.scene.scene import default_split, sparse_split
+
+    names = sorted(p.name for p in (DATA / "bundler_et").glob("*.jpg"))
+    assert len(names) == 9 and len(default_split(names)[1]) == 2  # every 8th: 2 test views, too few
+    test, every = sparse_split(names)
+    assert every == 3 and test == ["et000.jpg", "et003.jpg", "et006.jpg"]
+    tum = sorted(p.name for p in (DATA / "tum_freiburg3_office").glob("*.png"))
+    assert sparse_split(tum) == ([tum[0], tum[8], tum[16]], 8)  # 17 frames: every 8th is already 3
+    assert sparse_split([f"{i:02d}.png" for i in range(5)]) == (["00.png", "03.png"], 3)  # never more than a third
+
+
+def test_the_sparse_split_is_written_where_it_departs_from_every_eighth(tmp_path):
+    from strings_bench.datasets.sfm import write_sparse_split
+    from strings_bench.scene.colmap import read_model
+    from strings_bench.scene.scene import Scene
+    from tests.runner_fakes import make_scene
+
+    root = make_scene(tmp_path, with_masks=False)  # 9 views
+    names = read_model(root).names
+    assert len(Scene.load(root).test_idx) == 2  # every 8th, before
+    assert write_sparse_split(root)["every"] == 3
+    scene = Scene.load(root)
+    assert [scene.names[i] for i in scene.test_idx] == sorted(names)[::3]
+    assert json.loads((root / "split.json").read_text())["test"] == sorted(names)[::3]
+
+
+# ---- the floor on GT characters --------------------------------------------------------------------
+def test_cer_is_not_scored_below_the_floor_on_gt_characters(tmp_path):
+    from strings_bench.eval.protocol import EvalView, Evaluator
+    from tests.runner_fakes import TEXT_BOX, FakeOCR
+
+    gt = np.ones((48, 64, 3), np.float32)
+    x0, y0, x1, y1 = TEXT_BOX
+    gt[y0:y1, x0:x1] = 0.0  # FakeOCR reads "hello" (5 characters) on the GT
+    view = EvalView("v.png", gt)
+    scored = Evaluator([view], FakeOCR(), with_lpips=False, with_readability=False).evaluate("m", {"v.png": gt})
+    assert scored["cer"]["cer"] == 0.0 and scored["cer"]["chars"] == 5
+    for floor, cer in ((5, 0.0), (6, None)):
+        ev = Evaluator([view], FakeOCR(), with_lpips=False, with_readability=False, min_gt_chars=floor)
+        res = ev.evaluate("m", {"v.png": gt})["cer"]
+        assert res["cer"] == cer and res["chars"] == 5
+        assert ("not_scored" in res) == (cer is None)
+    assert "below this scene's floor of 6" in res["not_scored"]
+
+
+def test_the_floor_comes_from_the_scene_settings(tmp_path):
+    from strings_bench.eval.protocol import Evaluator
+    from strings_bench.scene.scene import Scene
+    from tests.runner_fakes import FakeOCR, make_scene
+
+    root = make_scene(tmp_path)
+    ev = Evaluator.for_scene(Scene.load(root, settings=captures.scene_settings(captures.CAPTURES["bundler_et"])),
+                             FakeOCR(), 1, with_lpips=False, with_readability=False)
+    assert ev.min_gt_chars == captures.MIN_GT_CHARS
+    assert Evaluator.for_scene(Scene.load(root), FakeOCR(), 1, with_lpips=False, with_readability=False).min_gt_chars is None
+
+
+def test_a_run_leaves_the_cer_of_a_scene_below_its_floor_unscored_and_the_report_says_why(tmp_path, monkeypatch):
+    """Through the runner: a scene card setting `min_gt_chars` above what the GT reads ("hello": 5 characters per
+    test view, 2 test views) gives an empty `cer` in results.csv, `not_scored` in result.json, a note in the report."""
+    import csv
+
+    import tests.runner_fakes as rf
+    from strings_bench import bench
+    from strings_bench.datasets.card import DatasetCard, SceneCard
+    from strings_bench.datasets import registry
+    from strings_bench.datasets.registry import register_dataset
+    from strings_bench.reports import write_report
+
+    registry.list_datasets()
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))  # the test's cards go with the test
+    rf.register_fakes()
+    path = rf.make_scene(tmp_path / "scenes")
+    for floor, scored in ((10, True), (11, False)):
+        register_dataset(DatasetCard(id=f"floor{floor}", title="test", scenes=[SceneCard("toy", {"min_gt_chars": floor})],
+                                     locate=lambda scene, _p=path: _p))
+        out = tmp_path / f"run{floor}"
+        bench.run(["fake-a"], [f"floor{floor}"], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+                  with_lpips=False, progress=False, write_report=False)
+        rows = list(csv.DictReader((out / "results.csv").open()))
+        assert rows and all((r["cer"] != "") == scored and r["cer_chars"] == "10" for r in rows), rows
+        result = json.loads(next((out / "cells").rglob("result.json")).read_text())
+        assert ("not_scored" in result["cer"]) == (not scored)
+    from strings_bench.reports import figures
+
+    monkeypatch.setattr(figures, "write_figures", lambda *a, **k: {})  # the note is the point, not the figures
+    assert "OCR-CER is not scored on floor11/toy (its GT reads 10 characters" in write_report(out).read_text()
