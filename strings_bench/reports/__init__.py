@@ -62,7 +62,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
     if not all_cells.empty and all_cells["ocr_failed"].fillna(0).astype(int).sum():
         notes.append(f"OCR failed on {int(all_cells['ocr_failed'].fillna(0).astype(int).sum())} view evaluation(s); "
                      "those views are left out of CER (see `ocr_failed` in results.csv).")
-    if not all_cells.empty:
+    if not all_cells.empty and {"cer", "cer_chars"} <= set(all_cells.columns):  # folders made before cer_chars lack it
         import pandas as pd
 
         chars = pd.to_numeric(all_cells["cer_chars"], errors="coerce")
