@@ -223,3 +223,44 @@ def test_a_run_leaves_the_cer_of_a_scene_below_its_floor_unscored_and_the_report
 
     monkeypatch.setattr(figures, "write_figures", lambda *a, **k: {})  # the note is the point, not the figures
     assert "OCR-CER is not scored on floor11/toy (its GT reads 10 characters" in write_report(out).read_text()
+
+
+# ---- the engine that reads a capture's text -------------------------------------------------------------------
+def test_a_scene_that_names_its_gt_engine_is_read_by_it_first():
+    from strings_bench.eval.ocr import scene_engines
+
+    assert scene_engines("rapidocr", None) == ("rapidocr", None)
+    assert scene_engines("rapid", {"gt_ocr": "rapidocr"}) == ("rapidocr", None)  # aliases compare as their names
+    engines, note = scene_engines("rapidocr", {"gt_ocr": "tesseract:lang=rus:upscale=3"})
+    assert engines == "tesseract:lang=rus:upscale=3,rapidocr" and "rapidocr scored beside it" in note
+    # a run engine of the same kind gives way to the scene's settings; the others stay, in order
+    engines, note = scene_engines("gcv,tesseract:lang=eng", {"gt_ocr": "tesseract:lang=rus"})
+    assert engines == "tesseract:lang=rus,gcv" and "run's --ocr: gcv,tesseract:lang=eng" in note
+
+
+def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
+    """Through plan and runner: a run with the default engine on a scene whose settings name another engine (as
+    saharov32's Tesseract, Russian) evaluates that scene with the scene's engine first, the run's beside it; a scene
+    without one keeps the run's engine."""
+    import strings_bench.eval.ocr as ocr_mod
+    import tests.runner_fakes as rf
+    from strings_bench import bench
+    from strings_bench.bench.plan import plan_run
+    from strings_bench.datasets import registry
+    from strings_bench.datasets.card import DatasetCard, SceneCard
+    from strings_bench.datasets.registry import register_dataset
+
+    registry.list_datasets()
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    rf.register_fakes()
+    path = rf.make_scene(tmp_path / "scenes")
+    register_dataset(DatasetCard(id="own-engine", title="test", locate=lambda scene, _p=path: _p,
+                                 scenes=[SceneCard("cyrillic", {"gt_ocr": "tesseract:lang=rus"}), SceneCard("latin", {})]))
+    plan = plan_run(["fake-a"], ["own-engine"], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr")
+    assert {j.scene: j.ocr for j in plan.jobs} == {"cyrillic": "tesseract:lang=rus,rapidocr", "latin": "rapidocr"}
+    assert plan.manifest["ocr"] == "rapidocr"  # the run's own choice is what run.json records
+    asked = []
+    monkeypatch.setattr(ocr_mod, "get_engines", lambda spec: asked.append(spec) or [rf.FakeOCR()])
+    bench.run(["fake-a"], ["own-engine"], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr", with_lpips=False,
+              progress=False, write_report=False)
+    assert sorted(asked) == ["rapidocr", "tesseract:lang=rus,rapidocr"]

@@ -134,6 +134,13 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
         if opts.masks and not given_masks:
             raise PredictionsError(f"mask folder {opts.masks} has no images", hint="one <view stem>.png per view")
         source = _source(preds, opts, pred)
+        if isinstance(opts.ocr, str):  # a scene that names its own GT engine is read by it first (eval.ocr.scene_engines)
+            from strings_bench.eval.ocr import scene_engines
+
+            spec, note = scene_engines(opts.ocr, source.settings if isinstance(source.settings, dict) else None)
+            if note:
+                say(f"{source.scene}: {note}")
+                engines = get_engines(spec)
         method = opts.method or _default_method(preds, pred)
         manifest = {"predictions": str(pred.resolve()), "layout": preds.layout, "method": method,
                     "dataset": source.dataset, "scene": source.scene, "ground_truth": _describe_source(source),

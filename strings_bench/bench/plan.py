@@ -14,6 +14,7 @@ the scene (e.g. STRinGS' N_max per dataset), the presets chosen with `--presets`
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Iterable
@@ -24,6 +25,8 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.io import jsonable
 from strings_bench.core.results import CellKey
 from strings_bench.core.schedules import DEFAULT_SCHEDULE, Schedule, schedule
+
+log = logging.getLogger(__name__)
 
 DEFAULT_RUN_DIR = Path("runs") / "default"
 # Key of `method_overrides` whose settings apply to every method of a run (`--set KEY=VALUE`, no
@@ -150,7 +153,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
     if cap is not None:  # the reference method's jobs first: the others' caps are its counts
         planned.sort(key=lambda mp: not cap.is_reference(mp.name))
-    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=ocr, downscale=ds, cap=cap) for mp in planned for ref in refs]
+    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=_scene_ocr(ocr, ref), downscale=ds, cap=cap)
+            for mp in planned for ref in refs]
     manifest = {
         "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
         # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
@@ -219,6 +223,23 @@ def _method_plan(spec, c: RunConfig, p: Schedule, given: dict) -> MethodPlan:
         given = {**{k: v for k, v in mini.items() if schema is None or k in {s.name for s in schema}}, **given}
     spec.check_keys(spec.resolve(chosen, **spec.with_steps_scale(scale, given)))
     return MethodPlan(name=spec.name, presets=chosen, settings=given, steps_scale=scale)
+
+
+_told_ocr: set = set()
+
+
+def _scene_ocr(ocr, ref) -> str:
+    """The OCR engines of one scene's jobs: the run's, led by the scene's own GT engine where it names one
+    (eval.ocr.scene_engines); said once per scene. A backend object (tests) is used as given."""
+    if not isinstance(ocr, str):
+        return ocr
+    from strings_bench.eval.ocr import scene_engines
+
+    engines, note = scene_engines(ocr, ref.settings)
+    if note and (ref.dataset, ref.scene, ocr) not in _told_ocr:
+        _told_ocr.add((ref.dataset, ref.scene, ocr))
+        log.warning("%s/%s: %s", ref.dataset, ref.scene, note)
+    return engines
 
 
 def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr: str, downscale: float, cap) -> Job:

@@ -111,7 +111,9 @@ class Runner:
         adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
         from strings_bench.eval.ocr import get_engines
 
-        ocr = get_engines(self.ocr)
+        # the job's engines (the scene's own GT engine first where it names one: bench/plan.py), unless this runner
+        # was given a backend object (tests)
+        ocr = get_engines(job.ocr if isinstance(self.ocr, str) and job.ocr else self.ocr)
         from strings_bench.engine.trainer import resolve_device
 
         device = resolve_device(job.device)  # checked here, where the job runs

@@ -57,7 +57,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--ocr", default="rapidocr",
                    help="OCR engine for OCR-CER (rapidocr, tesseract, gcv), or a comma-separated list, e.g. "
                         "rapidocr,tesseract: the first is the primary (cer, cer_known), each further engine adds "
-                        "cer_<engine> and its agreement with the primary (docs/ocr.md); recorded in run.json")
+                        "cer_<engine> and its agreement with the primary (docs/ocr.md); recorded in run.json. A scene that "
+                        "names its own GT engine (the captures' saharov32: Tesseract, Russian) is read by it first")
     p.add_argument("--cer-profile", default="paper",
                    help="OCR-CER profile (default paper: the authors' rules exactly; robust: repairs invalid polygons, "
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")

@@ -34,6 +34,7 @@ __all__ = [
     "get_engine",
     "engine_settings",
     "parse_engines",
+    "scene_engines",
     "load_image",
     "load_mask",
     "read_many",
@@ -84,6 +85,26 @@ def parse_engines(spec: str | list[str] | tuple[str, ...], strict: bool = True) 
         settings = engine_settings(item)
         names.append(key + "".join(f":{k}={v}" for k, v in settings.items()))
     return names
+
+
+def scene_engines(run_spec: str, scene_settings: dict | None) -> tuple[str, str | None]:
+    """The OCR engines that score one scene: the run's (`--ocr`, canonical names), with the scene's own GT engine
+    first where its settings name one (`gt_ocr`: a capture whose text only that engine reads, e.g. Cyrillic by
+    Tesseract, and whose floor on GT characters was measured with it). A run engine of the same kind is replaced
+    by the scene's; the run's other engines are kept as further engines. Returns the engines and a sentence saying
+    what changed (None: the run's engines as they are)."""
+    run = parse_engines(run_spec, strict=False)
+    own = (scene_settings or {}).get("gt_ocr") if isinstance(scene_settings, dict) else None
+    if not own:
+        return ",".join(run), None
+    own_name = parse_engines(own)[0]
+    if run[0] == own_name:
+        return ",".join(run), None
+    kind = own_name.partition(":")[0]
+    kept = [n for n in run if n.partition(":")[0] != kind]
+    engines = ",".join([own_name] + kept)
+    return engines, (f"read by {own_name}, the engine its GT text and floor were measured with"
+                     + (f"; {', '.join(kept)} scored beside it" if kept else "") + f" (run's --ocr: {','.join(run)})")
 
 
 def engine_settings(item: str) -> dict[str, Any]:
