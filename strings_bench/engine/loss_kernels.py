@@ -41,15 +41,20 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.nd
 def _filter_rows(src, dst, g, H, W):
     """dst[c] = sum_k g[k] src[c + k - R] over the taps inside the row (zero padding), k ascending: one
     pass over the row per tap, so that the columns run on the vector units and each output still adds
-    its taps in the same order."""
+    its taps in the same order. Each tap runs over two slices indexed from 0: an index numba cannot prove
+    non-negative (c + off) gets its wraparound check, which keeps the loop off the vector units (12x slower)."""
     R = g.shape[0] // 2
     for c in range(W):
         dst[c] = 0.0
     for k in range(g.shape[0]):
         gk = g[k]
         off = k - R
-        for c in range(max(0, -off), min(W, W - off)):
-            dst[c] += gk * src[c + off]
+        lo = max(0, -off)
+        hi = min(W, W - off)
+        d = dst[lo:hi]
+        s = src[lo + off:hi + off]
+        for i in range(hi - lo):
+            d[i] += gk * s[i]
 
 
 @njit(parallel=True, cache=True)
@@ -157,6 +162,18 @@ def _grad(x, y, partial, g, w_ssim, w_l1, out):
             out[r, c, ch] = w_ssim * (f[0, c] + np.float32(2.0) * xv * f[1, c] + yv * f[2, c]) + w_l1 * sign
 
 
+@njit(cache=True)
+def _ordered_sums(row_sums):
+    """The (map, L1) sums of row_sums (C, H, 2) float64: rows in order, then channels (a fixed order)."""
+    a = 0.0
+    b = 0.0
+    for ch in range(row_sums.shape[0]):
+        for r in range(row_sums.shape[1]):
+            a += row_sums[ch, r, 0]
+            b += row_sums[ch, r, 1]
+    return a, b
+
+
 def gs_loss_forward(x: np.ndarray, y: np.ndarray, lam: float, want_grad: bool):
     """(loss as a Python float, (L1, SSIM) means, the state `gs_loss_backward` needs or None) for float32
     (H, W, C) C-contiguous arrays."""
@@ -168,12 +185,9 @@ def gs_loss_forward(x: np.ndarray, y: np.ndarray, lam: float, want_grad: bool):
     row_sums = np.empty((C, H, 2), np.float64)
     _map_terms(x, y, st, np.float32(SSIM_C1), np.float32(SSIM_C2), np.float32(lam), want_grad, partial, row_sums)
     n = H * W * C
-    total = np.zeros(2)
-    for ch in range(C):  # rows in order, then channels: a fixed order
-        for r in range(H):
-            total += row_sums[ch, r]
-    ssim_mean = total[0] / n
-    l1_mean = total[1] / n
+    map_sum, l1_sum = _ordered_sums(row_sums)
+    ssim_mean = map_sum / n
+    l1_mean = l1_sum / n
     loss = (1.0 - lam) * l1_mean + lam * (1.0 - ssim_mean)
     return loss, (l1_mean, ssim_mean), (partial if want_grad else None)
 
