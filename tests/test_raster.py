@@ -610,3 +610,29 @@ def test_tight_boxes_skip_work_without_changing_a_bit():
     for a, b in zip(g_t, g_f):
         assert np.array_equal(a, b)
     assert np.abs(g_f[0]).sum() > 0 and (T_f < 1).mean() > 0.2  # something was drawn and differentiated
+
+
+def test_depth_order_is_torchs_stable_argsort_of_the_visible_depths():
+    """The rasterizer's front-to-back order (a radix sort of the float32 depths' bits) against torch's stable
+    comparison sort: equal depths, -0.0 against 0.0, negative depths, infinities and NaNs of either sign."""
+    import numpy as np
+    import torch
+
+    from strings_bench.raster.cpu_kernels import depth_order
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 2, 7, 1000, 50_000):
+        d = rng.normal(2.0, 3.0, n).astype(np.float32)
+        if n >= 7:
+            d[::5] = d[1]  # ties
+            d[::11] = 0.0
+            d[::13] = -0.0
+            d[2], d[3], d[4] = np.inf, -np.inf, np.nan
+            d[5] = -np.float32(np.nan)
+            d[6] = np.float32(1e-38)  # a subnormal's neighbour
+        radii = (rng.random(n) > 0.2).astype(np.int32)
+        radii[: min(n, 7)] = 1
+        t = torch.from_numpy(d)
+        vis = torch.nonzero(torch.from_numpy(radii) > 0).flatten()
+        want = vis[torch.argsort(t[vis], stable=True)].numpy()
+        assert np.array_equal(depth_order(radii, d), want), n

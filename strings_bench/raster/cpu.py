@@ -45,8 +45,11 @@ class RasterizeTiles(torch.autograd.Function):
         H, W = int(height), int(width)
         tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
         with torch.no_grad():
-            vis = torch.nonzero(radii > 0).flatten()
-            order = vis[torch.argsort(depths.detach()[vis], stable=True)]
+            if depths.dtype == torch.float32 and radii.dtype == torch.int32:  # the same order, 4-5x faster
+                order = torch.from_numpy(K.depth_order(radii.contiguous().numpy(), depths.detach().contiguous().numpy()))
+            else:
+                vis = torch.nonzero(radii > 0).flatten()
+                order = vis[torch.argsort(depths.detach()[vis], stable=True)]
         P, BB = KB.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)),
                        bbox.contiguous().numpy())
         tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
