@@ -264,3 +264,44 @@ def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
     bench.run(["fake-a"], ["own-engine"], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr", with_lpips=False,
               progress=False, write_report=False)
     assert sorted(asked) == ["rapidocr", "tesseract:lang=rus,rapidocr"]
+
+
+# ---- the verdicts of the captures' comparison (benchmarks/captures_compare.py) -------------------------------
+def _captures_compare():
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "captures_compare.py"
+    spec = importlib.util.spec_from_file_location("_bench_captures_compare", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class _Numbers:
+    """A comparison's `get` over {(method, label, value): per-seed figures}."""
+
+    def __init__(self, figures):
+        self.figures = figures
+
+    def get(self, method, label, value):
+        xs = self.figures.get((method, label, value))
+        if xs is None:
+            return None
+        return {"mean": sum(xs) / len(xs), "min": min(xs), "max": max(xs), "seeds": len(xs), "draws": 1,
+                "replicates": len(xs)}
+
+
+def test_a_claim_holds_only_when_every_method_is_beaten_with_the_seeds_ranges_apart():
+    cc = _captures_compare()
+    apart = {("strings", "30K", "cer"): [0.40, 0.45, 0.42], ("3dgs", "30K", "cer"): [0.60, 0.55, 0.70],
+             ("edc-absgs", "30K", "cer"): [0.50, 0.52, 0.51], ("improved-gs", "30K", "cer"): [0.47, 0.60, 0.5]}
+    assert cc.claim(_Numbers(apart), "cer", "30K", cc.BASELINES)[0] == "holding"
+    overlap = {**apart, ("improved-gs", "30K", "cer"): [0.44, 0.60, 0.5]}
+    verdict, figures = cc.claim(_Numbers(overlap), "cer", "30K", cc.BASELINES)
+    assert verdict == "not decided" and figures.startswith("STRinGS 0.423 against 3dgs 0.617")
+    # one method ahead of STRinGS with ranges apart outweighs the others
+    behind = {**overlap, ("edc-absgs", "30K", "cer"): [0.20, 0.25, 0.22]}
+    assert cc.claim(_Numbers(behind), "cer", "30K", cc.BASELINES)[0] == "not holding"
+    one_seed = {k: v[:1] for k, v in apart.items()}
+    assert cc.claim(_Numbers(one_seed), "cer", "30K", cc.BASELINES)[0] == "not decided"
+    assert cc.claim(_Numbers(apart), "cer", "30K", ("strings-no-td",))[0] == "not measured"

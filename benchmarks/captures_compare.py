@@ -1,0 +1,135 @@
+"""The methods compared on the real captures, per capture, and the paper's claims held against them.
+
+    python benchmarks/captures_compare.py RUN_DIR ... [--out docs/results/data/captures]
+
+RUN_DIRs: run folders of the captures' regime (`strings-bench run --schedule cpu --downscale 1 --datasets
+captures/NAME --set seed=N`), one seed each; folders of one seed and different captures may be given together.
+Each capture is compared on its own (`strings-bench compare --scenes NAME`, reports/compare/): its GT is read by its
+own engine (saharov32: Tesseract, Russian), so a mean over captures would add up two different measurements.
+
+Writes into --out:
+- `comparison.csv`: per capture, method and checkpoint, the seeds, OCR-CER (mean over seeds, min, max), PSNR, SSIM,
+  Gaussians and training seconds (means over seeds); captures below their floor on GT characters have no OCR-CER;
+- `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
+  `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
+  overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,
+  `not decided` otherwise (ranges overlap, or a single seed), `not measured` when a method the claim needs was not
+  run; with the figures behind each verdict;
+- `compare-NAME.md`: `strings-bench compare`'s tables of each capture.
+Prints both CSVs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+from pathlib import Path
+
+from strings_bench.core.io import atomic_write_text
+from strings_bench.reports.compare import compare, comparison_markdown, decided
+
+REFERENCE = "strings"
+BASELINES = ("3dgs", "edc-absgs", "improved-gs")
+LOCK_ABLATION = "strings-pos-lr"
+TEXT_DENSIFICATION_ABLATION = "strings-no-td"
+LABELS = ("3K", "7K", "30K")
+
+
+def _fmt(x, digits=3) -> str:
+    return "" if x is None else f"{x:.{digits}f}"
+
+
+def side(a: dict | None, b: dict | None) -> str:
+    """Whether `a` is below `b` with the seeds' ranges apart ("below"), above them ("above"), or neither
+    ("undecided"; also with one seed); "missing" when either has no figure."""
+    verdict = decided(a, b)
+    if not verdict:
+        return "missing"
+    if verdict != "decided":
+        return "undecided"
+    return "below" if a["max"] < b["min"] else "above"
+
+
+def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, str]:
+    """The verdict of "STRinGS is `want` every method of `others` in `value` at `label`" and its figures."""
+    ref = c.get(REFERENCE, label, value)
+    figures, sides = [], []
+    for m in others:
+        o = c.get(m, label, value)
+        s = side(ref, o)
+        sides.append(s)
+        if o is not None:
+            figures.append(f"{m} {_fmt(o['mean'], 3 if value != 'gaussians' and value != 'train_seconds' else 0)}")
+    if ref is None or "missing" in sides:
+        return "not measured", ""
+    digits = 3 if value not in ("gaussians", "train_seconds") else 0
+    seeds = ref["seeds"]
+    text = f"STRinGS {_fmt(ref['mean'], digits)} against " + ", ".join(figures) + f" ({seeds} seed{'s' * (seeds > 1)})"
+    opposite = "above" if want == "below" else "below"
+    if all(s == want for s in sides):
+        return "holding", text
+    if any(s == opposite for s in sides):
+        return "not holding", text
+    return "not decided", text
+
+
+CLAIMS = (
+    ("lower CER than every baseline at 7K", lambda c: claim(c, "cer", "7K", BASELINES)),
+    ("lower CER at 30K", lambda c: claim(c, "cer", "30K", BASELINES)),
+    ("less training time", lambda c: claim(c, "train_seconds", "30K", ("3dgs",))),
+    ("fewer Gaussians", lambda c: claim(c, "gaussians", "30K", ("3dgs",))),
+    ("text densification helps", lambda c: claim(c, "cer", "30K", (TEXT_DENSIFICATION_ABLATION,))),
+    ("the phase-1 position lock helps", lambda c: claim(c, "cer", "30K", (LOCK_ABLATION,))),
+)
+
+
+def captures_of(run_dirs) -> list[str]:
+    from strings_bench.reports.compare import collect
+
+    return sorted({scene for (_, _), per_seed in collect(run_dirs, "captures").items()
+                   for by_scene in per_seed.values() for scene in by_scene})
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run_dirs", nargs="+", type=Path)
+    ap.add_argument("--out", type=Path, default=None, help="write comparison.csv, verdicts.csv and compare-NAME.md here")
+    args = ap.parse_args(argv)
+
+    rows, verdicts = [], []
+    for scene in captures_of(args.run_dirs):
+        c = compare(args.run_dirs, dataset="captures", scenes=[scene])
+        for m in c.methods:
+            for label in LABELS:
+                cer = c.get(m, label, "cer")
+                g = c.get(m, label, "gaussians")
+                if g is None:
+                    continue
+                rows.append({"capture": scene, "method": m, "checkpoint": label, "seeds": g["seeds"],
+                             "OCR-CER": _fmt(cer and cer["mean"]), "OCR-CER min": _fmt(cer and cer["min"]),
+                             "OCR-CER max": _fmt(cer and cer["max"]),
+                             **{name: _fmt((c.get(m, label, v) or {}).get("mean"), d) for name, v, d in
+                                (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
+                                 ("training s", "train_seconds", 0))}})
+        if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
+            for name, fn in CLAIMS:
+                verdict, figures = fn(c)
+                verdicts.append({"claim": name, "capture": scene, "verdict": verdict, "figures": figures})
+        if args.out:
+            args.out.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(args.out / f"compare-{scene}.md", comparison_markdown(c))
+    for name, table in (("comparison.csv", rows), ("verdicts.csv", verdicts)):
+        buf = io.StringIO()
+        if table:
+            w = csv.DictWriter(buf, fieldnames=list(table[0]), lineterminator="\n")
+            w.writeheader()
+            w.writerows(table)
+        print(f"# {name}\n{buf.getvalue()}")
+        if args.out:
+            atomic_write_text(args.out / name, buf.getvalue())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
