@@ -85,7 +85,6 @@ class GaussianAdam:
         # path, engine/optim_kernels.py); None = wherever it applies, False = always the torch path.
         self.fused = fused
         self._sqrt_buf: dict[str, torch.Tensor] = {}  # sqrt(v) per group, kept between steps (no page faults)
-        self._special_share: dict[str, float] = {}  # per group: share of v at the last step that MKL's sqrt is slow on
         self.state: dict[str, dict] = {}
         for k, p in params.items():
             self.reset_state(k)
@@ -142,7 +141,7 @@ class GaussianAdam:
         tensors = (p, g, m, v)
         if not all(t.dtype == torch.float32 and t.device.type == "cpu" and t.is_contiguous() for t in tensors):
             return False
-        from strings_bench.engine.optim_kernels import SPECIAL_SHARE, adam_moments, adam_param, f32
+        from strings_bench.engine.optim_kernels import adam_moments, adam_param, f32
 
         b1, b2 = self.betas
         lr = self.lrs[name]
@@ -165,18 +164,14 @@ class GaussianAdam:
         sq = self._sqrt_buf.get(name)
         if lr != 0.0 and (sq is None or sq.numel() != n):
             sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32, device=p.device)
-        # Many zero second moments (new Gaussians, an opacity reset) at the last step: the first pass also writes
-        # what torch's sqrt reads, v with its zeros and subnormals as 1.0 (MKL's slow path; optim_kernels)
-        substitute = lr != 0.0 and self._special_share.get(name, 1.0) > SPECIAL_SHARE
-        none = np.empty(0, np.float32)
-        special = adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2),
-                               f32(1 - b2), sq.numpy() if substitute else none)
-        self._special_share[name] = special / max(n, 1)
+        # the first pass also writes what torch's sqrt reads (v, its zeros and subnormals as 1.0: optim_kernels)
+        adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2),
+                     sq.numpy() if lr != 0.0 else np.empty(0, np.float32))
         if lr == 0.0:
             return True
-        torch.sqrt(sq if substitute else v_flat, out=sq)
-        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), v_flat.numpy() if substitute else none, sq.numpy(),
-                   scale_arr, row_len, f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
+        torch.sqrt(sq, out=sq)
+        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), v_flat.numpy(), sq.numpy(), scale_arr, row_len,
+                   f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
         return True
 
     # ---- state resizing (used by strategies.ops) -------------------------------------------

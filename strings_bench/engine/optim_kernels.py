@@ -19,10 +19,9 @@ The square root stays torch's own (`torch.sqrt`, between the two passes): torch'
 build (MKL's vector math) is not the correctly rounded one (about 20 % of values differ from numpy's by an
 ulp), so a numba sqrt would change the result. But MKL takes a slow path for zeros and subnormals (2.9M
 second moments, 56-69 % of them zero after an opacity reset: 16 ms against 1.5 ms for as many normal
-values), where its result is the correctly rounded one (checked bit for bit in tests/test_engine.py). So where
-a group's last step had more than SPECIAL_SHARE of them, the first pass hands torch a copy of v with those
-values replaced by 1.0, and the second pass takes LLVM's sqrt of v for them: the same bits, without the slow
-path.
+values), where its result is the correctly rounded one (checked bit for bit in tests/test_engine.py). So the
+first pass hands torch a copy of v with those values replaced by 1.0, and the second pass takes LLVM's
+sqrt of v for them: the same bits, without the slow path.
 """
 
 from __future__ import annotations
@@ -55,50 +54,35 @@ def fma32(typingctx, a, b, c):
 # is the correctly rounded one, taken by the second pass itself.
 FLT_MIN = np.float32(1.17549435e-38)
 ONE = np.float32(1.0)
-# Above this share of such values in a group, the step hands torch the substituted copy (the copy and the second
-# pass's read of v cost about as much as MKL's slow path on 15 % of the values; either way the bits are the same).
-SPECIAL_SHARE = 0.15
 
 
 @njit(parallel=True, cache=True)
 def adam_moments(g, m, v, b1, a1, b2, a2, for_sqrt):
     """m and v in place (flat float32 arrays); a1 = 1 - b1, a2 = 1 - b2 as float32. for_sqrt: what torch's
-    sqrt is to read, v where it is a normal float, else 1.0 (a length-0 array: not written). Returns the count
-    of values of v below FLT_MIN (zeros, subnormals) or NaN."""
+    sqrt is to read, v where it is a normal float, else 1.0 (a length-0 array: not written)."""
     n = g.shape[0]
     write = for_sqrt.shape[0] > 0
-    n_chunks = (n + CHUNK - 1) // CHUNK
-    counts = np.zeros(n_chunks, np.int64)
-    for ch in prange(n_chunks):
-        c = 0
+    for ch in prange((n + CHUNK - 1) // CHUNK):
         for i in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
             gi = g[i]
             m[i] = fma32(gi, a1, m[i] * b1)
             vi = fma32(a2 * gi, gi, v[i] * b2)
             v[i] = vi
-            normal = vi >= FLT_MIN
-            c += 0 if normal else 1
             if write:
-                for_sqrt[i] = vi if normal else ONE
-        counts[ch] = c
-    return counts.sum()
+                for_sqrt[i] = vi if vi >= FLT_MIN else ONE
 
 
 @njit(parallel=True, cache=True)
 def adam_param(p, m, v, sqrt_v, scale, row_len, s2, eps, alpha):
     """p in place: p <- fma(m / (sqrt(v) / s2 + eps) [* scale[i // row_len]], alpha, p), sqrt(v) from torch's
-    sqrt_v; where v is given (length > 0) and not a normal float, LLVM's sqrt of it instead (the correctly rounded
-    value, which torch's is there). scale is used when its length is > 0. s2 = sqrt(bias correction 2), alpha =
-    -lr / bias correction 1 (float32)."""
+    sqrt_v where v is a normal float, else LLVM's (the correctly rounded value, which torch's is there). scale is
+    used when its length is > 0. s2 = sqrt(bias correction 2), alpha = -lr / bias correction 1 (float32)."""
     n = p.shape[0]
     use_scale = scale.shape[0] > 0
-    fix = v.shape[0] > 0
     for ch in prange((n + CHUNK - 1) // CHUNK):
         for i in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
-            sq = sqrt_v[i]
-            if fix:
-                vi = v[i]
-                sq = sq if vi >= FLT_MIN else np.sqrt(vi)
+            vi = v[i]
+            sq = sqrt_v[i] if vi >= FLT_MIN else np.sqrt(vi)
             u = m[i] / (sq / s2 + eps)
             if use_scale:
                 u = u * scale[i // row_len]
