@@ -161,16 +161,14 @@ class GaussianAdam:
             scale_arr = np.empty(0, np.float32)
         row_len = max(n // max(rows, 1), 1)
         g_flat, m_flat, v_flat = g.view(-1), m.view(-1), v.view(-1)
-        sq = self._sqrt_buf.get(name)
-        if lr != 0.0 and (sq is None or sq.numel() != n):
-            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32, device=p.device)
-        # the first pass also writes what torch's sqrt reads (v, its zeros and subnormals as 1.0: optim_kernels)
-        adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2),
-                     sq.numpy() if lr != 0.0 else np.empty(0, np.float32))
+        adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2))
         if lr == 0.0:
             return True
-        torch.sqrt(sq, out=sq)
-        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), v_flat.numpy(), sq.numpy(), scale_arr, row_len,
+        sq = self._sqrt_buf.get(name)
+        if sq is None or sq.numel() != n:
+            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32, device=p.device)
+        torch.sqrt(v_flat, out=sq)
+        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), sq.numpy(), scale_arr, row_len,
                    f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
         return True
 

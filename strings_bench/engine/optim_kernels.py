@@ -15,13 +15,9 @@ torch.optim.Adam):
 torch's CPU `add` with an alpha is a fused multiply-add (ATen's vectorised `fmadd`), and so is its
 scalar remainder loop on this build; `fma32` below is LLVM's fma intrinsic, so the rounding is the
 same. Scalars are rounded to float32 first, as torch does with a Python scalar on a float32 tensor.
-The square root stays torch's own (`torch.sqrt`, between the two passes): torch's float32 sqrt on this
-build (MKL's vector math) is not the correctly rounded one (about 20 % of values differ from numpy's by an
-ulp), so a numba sqrt would change the result. But MKL takes a slow path for zeros and subnormals (2.9M
-second moments, 56-69 % of them zero after an opacity reset: 16 ms against 1.5 ms for as many normal
-values), where its result is the correctly rounded one (checked bit for bit in tests/test_engine.py). So the
-first pass hands torch a copy of v with those values replaced by 1.0, and the second pass takes LLVM's
-sqrt of v for them: the same bits, without the slow path.
+The square root stays torch's own (`torch.sqrt(v, out=...)`, between the two passes): torch's float32
+sqrt on this build is not the correctly rounded one (about 20 % of values differ from numpy's by an
+ulp), so a numba sqrt would change the result.
 """
 
 from __future__ import annotations
@@ -50,40 +46,26 @@ def fma32(typingctx, a, b, c):
     return sig, codegen
 
 
-# The smallest normal float32: below it (zeros, subnormals, and NaN, which fails the comparison) torch's sqrt
-# is the correctly rounded one, taken by the second pass itself.
-FLT_MIN = np.float32(1.17549435e-38)
-ONE = np.float32(1.0)
-
-
 @njit(parallel=True, cache=True)
-def adam_moments(g, m, v, b1, a1, b2, a2, for_sqrt):
-    """m and v in place (flat float32 arrays); a1 = 1 - b1, a2 = 1 - b2 as float32. for_sqrt: what torch's
-    sqrt is to read, v where it is a normal float, else 1.0 (a length-0 array: not written)."""
+def adam_moments(g, m, v, b1, a1, b2, a2):
+    """m and v in place (flat float32 arrays); a1 = 1 - b1, a2 = 1 - b2 as float32."""
     n = g.shape[0]
-    write = for_sqrt.shape[0] > 0
     for ch in prange((n + CHUNK - 1) // CHUNK):
         for i in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
             gi = g[i]
             m[i] = fma32(gi, a1, m[i] * b1)
-            vi = fma32(a2 * gi, gi, v[i] * b2)
-            v[i] = vi
-            if write:
-                for_sqrt[i] = vi if vi >= FLT_MIN else ONE
+            v[i] = fma32(a2 * gi, gi, v[i] * b2)
 
 
 @njit(parallel=True, cache=True)
-def adam_param(p, m, v, sqrt_v, scale, row_len, s2, eps, alpha):
-    """p in place: p <- fma(m / (sqrt(v) / s2 + eps) [* scale[i // row_len]], alpha, p), sqrt(v) from torch's
-    sqrt_v where v is a normal float, else LLVM's (the correctly rounded value, which torch's is there). scale is
-    used when its length is > 0. s2 = sqrt(bias correction 2), alpha = -lr / bias correction 1 (float32)."""
+def adam_param(p, m, sqrt_v, scale, row_len, s2, eps, alpha):
+    """p in place: p <- fma(m / (sqrt_v / s2 + eps) [* scale[i // row_len]], alpha, p). scale is used
+    when its length is > 0. s2 = sqrt(bias correction 2), alpha = -lr / bias correction 1 (float32)."""
     n = p.shape[0]
     use_scale = scale.shape[0] > 0
     for ch in prange((n + CHUNK - 1) // CHUNK):
         for i in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
-            vi = v[i]
-            sq = sqrt_v[i] if vi >= FLT_MIN else np.sqrt(vi)
-            u = m[i] / (sq / s2 + eps)
+            u = m[i] / (sqrt_v[i] / s2 + eps)
             if use_scale:
                 u = u * scale[i // row_len]
             p[i] = fma32(u, alpha, p[i])
