@@ -3,6 +3,7 @@ a lower bound measured in the same run.
 
     python benchmarks/engine_profile.py [--scene synthetic/extinguisher] [--schedule early]
                                         [--at 450,1050] [--steps 8] [--big-at 450] [--json]
+    python benchmarks/engine_profile.py --table BEFORE.json,... AFTER.json,...   (stage medians side by side)
 
 Models: the 3DGS of the former default run (schedule `early`, synthetic/extinguisher, 320x240) trained with the
 suite's own loop to the 3K and 7K checkpoints (steps 450 and 1 050 by default; about 40 000 and
@@ -438,8 +439,41 @@ def print_case(r: dict) -> None:
                                                       for k, v in r["threads_ab"].items()))
 
 
+def read_json_output(path: str) -> dict:
+    """A `--json` run's output file (its first line is the printed bandwidth summary)."""
+    text = Path(path).read_text()
+    return json.loads(text[text.index("{"):])
+
+
+def stage_table(before: list[str], after: list[str]) -> str:
+    """CSV of the stage medians of two sets of `--json` outputs (e.g. two runs of an older checkout and two of this
+    one): ms per step before and after, their ratio, and the after runs' bound with the share of it reached."""
+    def medians(files):
+        runs = [read_json_output(f) for f in files]
+        out = {}
+        for ci, case in enumerate(runs[0]["cases"]):
+            for stage in list(case["stages"]) + ["step"]:
+                ms = [r["cases"][ci]["step_ms"] if stage == "step" else r["cases"][ci]["stages"][stage]["ms"]
+                      for r in runs]
+                bound = [r["cases"][ci]["stages"][stage].get("bound_ms") for r in runs] if stage != "step" else []
+                out[(case["gaussians"], stage)] = (statistics.median(ms),
+                                                   statistics.median(bound) if bound and None not in bound else None)
+        return out
+
+    b, a = medians(before), medians(after)
+    lines = ["Gaussians,stage,before ms,after ms,before / after,bound ms,bound / after"]
+    for key, (b_ms, _) in b.items():
+        a_ms, bound = a[key]
+        bound_txt = "" if bound is None else (f"{bound:.2f}" if bound < 1 else f"{bound:.1f}")
+        share = "" if bound is None else f"{bound / a_ms:.2f}"
+        lines.append(f"{key[0]},{key[1]},{b_ms:.1f},{a_ms:.1f},{b_ms / a_ms:.2f},{bound_txt},{share}")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--table", nargs=2, metavar=("BEFORE", "AFTER"),
+                    help="print the stage table of two comma-separated lists of --json outputs and stop")
     ap.add_argument("--scene", default="synthetic/extinguisher")
     ap.add_argument("--schedule", default="early")
     ap.add_argument("--at", default="450,1050", help="steps of the trained models profiled (3K, 7K of early)")
@@ -454,6 +488,9 @@ def main(argv=None) -> int:
                     help="the CPU rasterizer: float32 blends (default) or the float64 reference kernels")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    if args.table:
+        print(stage_table(args.table[0].split(","), args.table[1].split(",")), end="")
+        return 0
     import strings_bench.raster  # noqa: F401  (selects numba's workqueue threads before any kernel runs)
     from strings_bench.core.io import cache_root
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory
