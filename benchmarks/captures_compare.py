@@ -84,6 +84,31 @@ CLAIMS = (
 )
 
 
+REAL_CAPTURES_COLUMN = "real captures (`cpu`, full size)"
+
+
+def set_column(table: Path, verdicts: list[dict]) -> None:
+    """Set (add or replace) the real captures' column of a verdict table: per claim, each scored capture's verdict
+    and figures."""
+    with table.open(newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    if REAL_CAPTURES_COLUMN in header:
+        col = header.index(REAL_CAPTURES_COLUMN)
+    else:
+        col = len(header) - 1 if header[-1] == "flips?" else len(header)  # before the "flips?" column
+        header.insert(col, REAL_CAPTURES_COLUMN)
+        for row in body:
+            row.insert(col, "")
+    for row in body:
+        cells = [v for v in verdicts if v["claim"] == row[0]]
+        row[col] = "; ".join(f"{v['capture']}: {v['verdict']}" + (f" ({v['figures']})" if v["figures"] else "")
+                             for v in cells) or "not measured"
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows([header] + body)
+    atomic_write_text(table, buf.getvalue())
+
+
 def captures_of(run_dirs) -> list[str]:
     from strings_bench.reports.compare import collect
 
@@ -95,6 +120,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dirs", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, default=None, help="write comparison.csv, verdicts.csv and compare-NAME.md here")
+    ap.add_argument("--verdict-table", type=Path, default=None,
+                    help="a verdict table's CSV (first column: the claims): set its column REAL_CAPTURES_COLUMN from "
+                         "the verdicts (e.g. docs/results/data/tables/cpu-long-16.csv)")
     args = ap.parse_args(argv)
 
     rows, verdicts = [], []
@@ -119,6 +147,8 @@ def main(argv=None) -> int:
         if args.out:
             args.out.mkdir(parents=True, exist_ok=True)
             atomic_write_text(args.out / f"compare-{scene}.md", comparison_markdown(c))
+    if args.verdict_table:
+        set_column(args.verdict_table, verdicts)
     for name, table in (("comparison.csv", rows), ("verdicts.csv", verdicts)):
         buf = io.StringIO()
         if table:

@@ -305,3 +305,19 @@ def test_a_claim_holds_only_when_every_method_is_beaten_with_the_seeds_ranges_ap
     one_seed = {k: v[:1] for k, v in apart.items()}
     assert cc.claim(_Numbers(one_seed), "cer", "30K", cc.BASELINES)[0] == "not decided"
     assert cc.claim(_Numbers(apart), "cer", "30K", ("strings-no-td",))[0] == "not measured"
+
+
+def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_run(tmp_path):
+    cc = _captures_compare()
+    table = tmp_path / "verdicts.csv"
+    table.write_text("the paper's claim,x0.1,flips?\nfewer Gaussians,no,no\nless training time,no,yes\n")
+    verdicts = [{"claim": "fewer Gaussians", "capture": "bundler_et", "verdict": "not holding", "figures": "STRinGS 2"},
+                {"claim": "fewer Gaussians", "capture": "saharov32", "verdict": "not decided", "figures": ""}]
+    cc.set_column(table, verdicts)
+    cc.set_column(table, verdicts)
+    import csv
+
+    rows = list(csv.reader(table.open()))
+    assert rows[0] == ["the paper's claim", "x0.1", cc.REAL_CAPTURES_COLUMN, "flips?"]
+    assert rows[1] == ["fewer Gaussians", "no", "bundler_et: not holding (STRinGS 2); saharov32: not decided", "no"]
+    assert rows[2] == ["less training time", "no", "not measured", "yes"]
