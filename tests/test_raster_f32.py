@@ -365,3 +365,55 @@ def test_trainer_finite_check_sums():
     assert not sums_finite([torch.tensor([1.0, float("nan")], dtype=torch.float64)])
     assert not sums_finite([torch.ones(6, 4).t().contiguous().t().clone().fill_(float("nan"))])
     assert sums_finite([torch.ones(6, 4).t()])
+
+
+def test_a_block_the_ellipse_test_skips_has_no_pixel_that_blends():
+    """The float32 blends skip a 2-row x 8-column block of a Gaussian's box where `block_meets_ellipse` says the
+    alpha >= 1/255 ellipse misses it. Checked against the exact per-pixel test, written out here in numpy (float32,
+    as the kernels compute it): for random Gaussians (elongated, rotated, opacities from 1/255 up, sub-pixel to
+    wide), every block that holds a passing pixel is kept."""
+    from strings_bench.raster import cpu_kernels as K
+    from strings_bench.raster import cpu_kernels_f32 as K32
+
+    rng = np.random.default_rng(7)
+    n = 400
+    means2d = rng.uniform(-4, 52, (n, 2)).astype(np.float32)
+    sx, sy = np.exp(rng.uniform(np.log(0.3), np.log(12.0), (2, n)))
+    th = rng.uniform(0, np.pi, n)
+    c, s = np.cos(th), np.sin(th)
+    cov = np.stack([c * c * sx ** 2 + s * s * sy ** 2, c * s * (sx ** 2 - sy ** 2), s * s * sx ** 2 + c * c * sy ** 2], 1)
+    det = cov[:, 0] * cov[:, 2] - cov[:, 1] ** 2
+    conics = np.stack([cov[:, 2] / det, -cov[:, 1] / det, cov[:, 0] / det], 1).astype(np.float32)
+    opac = np.exp(rng.uniform(np.log(1 / 255), 0, n)).astype(np.float32)
+    feats = np.zeros((n, K.NF), np.float32)
+    rad = np.ceil(3 * np.sqrt(np.maximum(sx, sy) ** 2)).astype(np.int64)
+    bbox = np.stack([means2d[:, 0] - rad, means2d[:, 0] + rad, means2d[:, 1] - rad, means2d[:, 1] + rad], 1)
+    bbox = np.clip(np.round(bbox), 0, 47).astype(np.int32)
+    P, BB = K32.pack(np.arange(n), means2d, conics, opac, feats, bbox)
+    kept = skipped = 0
+    for i in range(n):
+        xs, xe, ys, ye = (int(v) for v in BB[i])
+        if xs > xe or ys > ye:
+            continue
+        mx, my, ca, cb, cc, op = (np.float32(v) for v in P[i, :6])
+        for py0 in range(0, 48, K.TILE):  # the tiles the box touches, each cut into 2 x 8 blocks
+            for px0 in range(0, 48, K.TILE):
+                bx0, bx1, by0, by1 = max(xs, px0), min(xe, px0 + 15), max(ys, py0), min(ye, py0 + 15)
+                if bx0 > bx1 or by0 > by1:
+                    continue
+                for r in range(0, 16, 2):
+                    for h in (0, 1):
+                        c_lo = px0 + 8 * h
+                        px = np.arange(c_lo, c_lo + 8, dtype=np.float32)
+                        py = np.array([py0 + r, py0 + r + 1], np.float32)
+                        dx = mx - (px[None, :] + np.float32(0.5))
+                        dy = my - (py[:, None] + np.float32(0.5))
+                        power = np.float32(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        alpha = np.minimum(op * np.exp(np.minimum(power, 0)), np.float32(0.99))
+                        inside = ((px[None, :] >= bx0) & (px[None, :] <= bx1) & (py[:, None] >= by0) & (py[:, None] <= by1))
+                        passes = inside & (power <= 0) & (alpha >= np.float32(1 / 255))
+                        meets = K32.block_meets_ellipse(P, i, py0, r, by0, by1, bx0, bx1, c_lo, c_lo + 7)
+                        assert meets or not passes.any(), (i, px0, py0, r, h)
+                        kept += meets
+                        skipped += not meets
+    assert kept > 100 and skipped > 100  # both cases occur
