@@ -268,13 +268,9 @@ def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
 
 # ---- the verdicts of the captures' comparison (benchmarks/captures_compare.py) -------------------------------
 def _captures_compare():
-    import importlib.util
+    from _scripts import load_benchmark
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "captures_compare.py"
-    spec = importlib.util.spec_from_file_location("_bench_captures_compare", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("captures_compare")
 
 
 class _Numbers:

@@ -10,7 +10,6 @@ from strings_bench.core.results import CellKey
 from strings_bench.core.schedules import get_schedule
 
 import csv
-import importlib.util
 import json
 import math
 import sys
@@ -347,10 +346,9 @@ def test_broken_import_inside_cards_surfaces(monkeypatch):
 
 # ---- §4 benchmarks/baselines.py schedules ------------------------------------------------------------
 def _load_script(name):
-    spec = importlib.util.spec_from_file_location(f"_bench_{name}", REPO / "benchmarks" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from _scripts import load_benchmark
+
+    return load_benchmark(name)
 
 
 def test_baselines_script_uses_the_suite_schedule_table():

@@ -95,13 +95,9 @@ def test_the_gain_multiplies_the_first_position_step(tiny_scene_dir):
 
 
 def _agreement_module():
-    import importlib.util
+    from _scripts import load_benchmark
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "miniature.py"
-    spec = importlib.util.spec_from_file_location("_bench_miniature", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("miniature")
 
 
 def _cells(cers: dict) -> list[dict]:
