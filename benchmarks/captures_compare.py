@@ -9,7 +9,8 @@ own engine (saharov32: Tesseract, Russian), so a mean over captures would add up
 
 Writes into --out:
 - `comparison.csv`: per capture, method and checkpoint, the seeds, OCR-CER (mean over seeds, min, max), PSNR, SSIM,
-  Gaussians and training seconds (means over seeds); captures below their floor on GT characters have no OCR-CER;
+  Gaussians and training seconds (means over seeds), and the largest peak memory of its cells (results.csv);
+  captures below their floor on GT characters have no OCR-CER;
 - `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
   overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,
@@ -109,6 +110,21 @@ def set_column(table: Path, verdicts: list[dict]) -> None:
     atomic_write_text(table, buf.getvalue())
 
 
+def peak_memory(run_dirs) -> dict:
+    """{(method, capture, checkpoint): the largest peak resident memory (MB) of its cells over the folders}, from
+    each folder's results.csv (the process's peak while the cell trained and was evaluated)."""
+    out: dict = {}
+    for d in run_dirs:
+        path = Path(d) / "results.csv"
+        if not path.is_file():
+            continue
+        for r in csv.DictReader(path.open()):
+            if r.get("dataset") == "captures" and r.get("peak_memory_mb"):
+                key = (r["method"], r["scene"], r["label"])
+                out[key] = max(out.get(key, 0.0), float(r["peak_memory_mb"]))
+    return out
+
+
 def captures_of(run_dirs) -> list[str]:
     from strings_bench.reports.compare import collect
 
@@ -126,6 +142,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     rows, verdicts = [], []
+    memory = peak_memory(args.run_dirs)
     for scene in captures_of(args.run_dirs):
         c = compare(args.run_dirs, dataset="captures", scenes=[scene])
         for m in c.methods:
@@ -139,7 +156,8 @@ def main(argv=None) -> int:
                              "OCR-CER max": _fmt(cer and cer["max"]),
                              **{name: _fmt((c.get(m, label, v) or {}).get("mean"), d) for name, v, d in
                                 (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
-                                 ("training s", "train_seconds", 0))}})
+                                 ("training s", "train_seconds", 0))},
+                             "peak memory MB": _fmt(memory.get((m, scene, label)), 0)})
         if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
             for name, fn in CLAIMS:
                 verdict, figures = fn(c)

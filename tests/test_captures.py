@@ -317,3 +317,14 @@ def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_
     assert rows[0] == ["the paper's claim", "x0.1", cc.REAL_CAPTURES_COLUMN, "flips?"]
     assert rows[1] == ["fewer Gaussians", "no", "bundler_et: not holding (STRinGS 2); saharov32: not decided", "no"]
     assert rows[2] == ["less training time", "no", "not measured", "yes"]
+
+
+def test_the_comparison_keeps_each_cells_largest_peak_memory_over_the_folders(tmp_path):
+    cc = _captures_compare()
+    for seed, mb in ((0, "900.5"), (1, "1200.0")):
+        d = tmp_path / f"seed{seed}"
+        d.mkdir()
+        (d / "results.csv").write_text("method,dataset,scene,label,peak_memory_mb\n"
+                                       f"3dgs,captures,bundler_et,30K,{mb}\n3dgs,synthetic360-cpu,storeroom,30K,5000\n")
+    assert cc.peak_memory([tmp_path / "seed0", tmp_path / "seed1", tmp_path / "none"]) == {
+        ("3dgs", "bundler_et", "30K"): 1200.0}
