@@ -15,7 +15,9 @@ loop on the vector units:
   float64 kernels (the box's columns and rows, power > 0, alpha < 1/255, the transmittance stop, a
   pixel already done or, in the backward, behind its last contributor) is a per-pixel mask that
   selects between the updated and the old value. Pixels outside the alpha >= 1/255 ellipse fail the
-  alpha test, so no per-row span is needed; a tile stops when all of its pixels are done, as before;
+  alpha test; a block of two rows x 8 columns that the ellipse misses altogether (`block_meets_ellipse`,
+  the float64 kernels' row spans) is skipped, as it would only add zeros. A tile stops when all of its
+  pixels are done, as before;
 - `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
   (`pow2_f32`), inlined, branch-free;
 - the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
