@@ -9,8 +9,10 @@ own engine (saharov32: Tesseract, Russian), so a mean over captures would add up
 
 Writes into --out:
 - `comparison.csv`: per capture, method and checkpoint, the seeds, OCR-CER (mean over seeds, min, max), PSNR, SSIM,
-  Gaussians and training seconds (means over seeds), and the largest peak memory of its cells (results.csv);
-  captures below their floor on GT characters have no OCR-CER;
+  Gaussians and training seconds (means over seeds), and the largest `peak_memory_mb` of its cells (results.csv:
+  the run process's peak so far, and a run trains its methods one after another in one process, so it is the
+  cell's own peak only for the first method of a run, an upper bound for the others); captures below their floor
+  on GT characters have no OCR-CER;
 - `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
   overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,
@@ -111,8 +113,8 @@ def set_column(table: Path, verdicts: list[dict]) -> None:
 
 
 def peak_memory(run_dirs) -> dict:
-    """{(method, capture, checkpoint): the largest peak resident memory (MB) of its cells over the folders}, from
-    each folder's results.csv (the process's peak while the cell trained and was evaluated)."""
+    """{(method, capture, checkpoint): the largest `peak_memory_mb` of its cells over the folders}, from each
+    folder's results.csv (the run process's peak resident memory up to the cell: engine/trainer.py)."""
     out: dict = {}
     for d in run_dirs:
         path = Path(d) / "results.csv"
@@ -157,7 +159,7 @@ def main(argv=None) -> int:
                              **{name: _fmt((c.get(m, label, v) or {}).get("mean"), d) for name, v, d in
                                 (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
                                  ("training s", "train_seconds", 0))},
-                             "peak memory MB": _fmt(memory.get((m, scene, label)), 0)})
+                             "process peak memory MB": _fmt(memory.get((m, scene, label)), 0)})
         if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
             for name, fn in CLAIMS:
                 verdict, figures = fn(c)
