@@ -63,7 +63,9 @@ def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, 
         s = side(ref, o)
         sides.append(s)
         if o is not None:
-            figures.append(f"{m} {_fmt(o['mean'], 3 if value != 'gaussians' and value != 'train_seconds' else 0)}")
+            other_seeds = "" if ref is None or o["seeds"] == ref["seeds"] else f" ({o['seeds']} seeds)"
+            figures.append(f"{m} {_fmt(o['mean'], 3 if value != 'gaussians' and value != 'train_seconds' else 0)}"
+                           + other_seeds)
     if ref is None or "missing" in sides:
         return "not measured", ""
     digits = 3 if value not in ("gaussians", "train_seconds") else 0
