@@ -57,6 +57,7 @@ def side(a: dict | None, b: dict | None) -> str:
 def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, str]:
     """The verdict of "STRinGS is `want` every method of `others` in `value` at `label`" and its figures."""
     ref = c.get(REFERENCE, label, value)
+    digits = 3 if value not in ("gaussians", "train_seconds") else 0
     figures, sides = [], []
     for m in others:
         o = c.get(m, label, value)
@@ -64,11 +65,9 @@ def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, 
         sides.append(s)
         if o is not None:
             other_seeds = "" if ref is None or o["seeds"] == ref["seeds"] else f" ({o['seeds']} seeds)"
-            figures.append(f"{m} {_fmt(o['mean'], 3 if value != 'gaussians' and value != 'train_seconds' else 0)}"
-                           + other_seeds)
+            figures.append(f"{m} {_fmt(o['mean'], digits)}{other_seeds}")
     if ref is None or "missing" in sides:
         return "not measured", ""
-    digits = 3 if value not in ("gaussians", "train_seconds") else 0
     seeds = ref["seeds"]
     text = f"STRinGS {_fmt(ref['mean'], digits)} against " + ", ".join(figures) + f" ({seeds} seed{'s' * (seeds > 1)})"
     opposite = "above" if want == "below" else "below"

@@ -174,7 +174,9 @@ class Runner:
 
     def _rho(self, job: Job, scene) -> float | None:
         if job.scene_path not in self._rhos:
-            self._rhos[job.scene_path] = _scene_rho(scene)
+            from strings_bench.scene.difficulty import measured_rho
+
+            self._rhos[job.scene_path] = measured_rho(scene)
         return self._rhos[job.scene_path]
 
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene,
@@ -207,18 +209,6 @@ class Runner:
         write_cell(key.path(Path(job.run_dir)), record, {n: img for n, img in result.renders.items() if n in evaluator.names})
         if self.results_csv:
             write_results_csv(job.run_dir)
-
-
-def _scene_rho(scene) -> float | None:
-    """The scene's rho (scene/difficulty.py; kept in its record when the scene is in the cache), None where it
-    cannot be measured (no known words and no text masks) or the measurement fails."""
-    from strings_bench.scene.difficulty import recorded_difficulty
-
-    try:
-        return recorded_difficulty(scene).rho
-    except Exception as exc:  # a scene property for the record: never worth a failed cell
-        log.warning("rho of %s not measured: %s", getattr(scene, "root", scene), exc)
-        return None
 
 
 def _preprocess_seconds(result) -> float:

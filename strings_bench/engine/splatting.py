@@ -69,8 +69,8 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 3DGS default (black)
     lrs: LearningRates = field(default_factory=LearningRates)
     position_lr_steps: int = 30_000  # nominal length of the position-LR decay
-    # multiplies the position LR at every step (1: the paper's per-step LRs). A shrunk schedule's miniature
-    # `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a Gaussian can move) is the paper's.
+    # A shrunk schedule's miniature `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a
+    # Gaussian can move) is the paper's.
     position_lr_gain: float = 1.0  # x the position LR at every step (1: the paper's; miniature lr-sum: 1/steps_scale)
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians

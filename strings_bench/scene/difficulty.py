@@ -26,9 +26,12 @@ camera-space depth of the SfM points observed inside the polygon. rho uses the m
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 POSITION_LR_INIT = 1.6e-4  # 3DGS' initial position learning rate, times the extent (Kerbl et al. 2023)
 MIN_WORD_PX = 6  # a word box lower than this (pixels) is too small to measure its strokes
@@ -191,3 +194,13 @@ def recorded_difficulty(scene) -> Difficulty:
         return d
     atomic_write_json(path, {"version": DIFFICULTY_VERSION, **d.as_dict()})
     return d
+
+
+def measured_rho(scene) -> float | None:
+    """`recorded_difficulty(scene).rho`, or None (with a warning) where it cannot be measured (no known words and no
+    text masks) or the measurement fails: a scene property for the record, never worth a failed build or cell."""
+    try:
+        return recorded_difficulty(scene).rho
+    except Exception as exc:
+        log.warning("rho of %s not measured: %s", getattr(scene, "root", scene), exc)
+        return None

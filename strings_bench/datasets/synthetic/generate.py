@@ -218,14 +218,12 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
 
 
 def _record_rho(folder: Path) -> None:
-    """Keep the built scene's rho in its record (difficulty.json; scene/difficulty.py)."""
-    from strings_bench.scene.difficulty import recorded_difficulty
+    """Keep the built scene's rho in its record (difficulty.json; scene/difficulty.py). The scene itself is
+    complete without it: a missing record is measured again on first use."""
+    from strings_bench.scene.difficulty import measured_rho
     from strings_bench.scene.scene import Scene
 
-    try:
-        recorded_difficulty(Scene.load(folder))
-    except Exception as exc:  # the scene itself is complete: a missing record is measured again on first use
-        log.warning("rho of %s not recorded: %s", folder.name, exc)
+    measured_rho(Scene.load(folder))
 
 
 # ---- cameras -------------------------------------------------------------------------------
