@@ -10,7 +10,14 @@ Stages (in order of value; `list` prints them):
   cal7k-rs1.5    3DGS on synthetic360/storeroom built at 1280x960 with 100 views, room_scale 1.5, the
   cal7k-rs2      card's photometric settings, to 7K (room_scale 2 for the second point);
   cal30k         3DGS to 30K on the banked 7K point closest to the paper's 3DGS OCR-CER (0.736);
-  strings-frozen STRinGS to 7K and 30K on that setting.
+  strings-frozen STRinGS to 7K and 30K on that setting;
+  x1-rooms       the paper's schedule (x1) on the three synthetic360 rooms built at 1280x960 in the
+                 synthetic360-cpu configuration (48 views, room_scale 0.6) with the text heights scaled
+                 with the width (10-16 px at 320 -> 40-64 px at 1280: the same rooms, four times the
+                 pixels): 3DGS, STRinGS, STRinGS without the lock and EDC-AbsGS, seed 0, each cell its
+                 own step; every cell to 7K first (checkpoints 3K, 7K), then each to 30K (3K, 7K, 30K)
+                 in a run folder of its own (a run folder keeps its checkpoints). The full-size
+                 counterparts of the CPU reference cells at x1.
 
 Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
@@ -20,6 +27,13 @@ short, the steps already banked ok are skipped at the next round (gsplat's compi
 builds excepted: a round starts on a fresh machine), and so is a run or benchmark step whose every
 result row an earlier round banked, though that round cut the step after them. Runs train under RUNS/<stage> (--runs, default
 OUT_DIR/runs) and resume there while the machine is the same; each step's log is RUNS/logs/<stage>_<step>.log.
+
+STAGE may be a comma-separated list (verify,x1-rooms): the stages run in that order within the one
+--budget, each on the time the ones before it left.
+
+--prepare: only gsplat's compilation and the stages' scene builds, which need neither OCR nor a
+result folder (their rows go to RUNS/logs, not OUT_DIR): on a machine that takes its wheels in two
+loads, run it in the background after the first load while the second travels.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
 the GPU column "cpu (dry run)"; tests/test_gpu_campaign.py runs it in CI.
@@ -41,6 +55,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_3DGS_CER_7K = 0.736  # the paper's 3DGS row (Table 1, STRinGS-360, 7K)
+# x1-rooms: the rooms and methods of the CPU reference cells at the paper's schedule
+X1_ROOMS = ("storeroom", "pantry", "office")
+X1_METHODS = ("3dgs", "strings", "strings-pos-lr", "edc-absgs")
 STEP_COLUMNS = ["date", "stage", "step", "status", "seconds", "detail", "gpu", "torch", "cuda", "gsplat", "python",
                 "dry_run"]
 
@@ -108,14 +125,16 @@ def banked_benchmark(out: Path, stage: str, name: str, want: set[tuple[str, str]
 
 
 class Round:
-    def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None):
-        self.out, self.stage, self.dry_run = out, stage, dry_run
+    def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None,
+                 prepare: bool = False):
+        self.out, self.stage, self.dry_run, self.prepare = out, stage, dry_run, prepare
         self.runs = runs or out / "runs"
         self.done = banked_steps(out, stage, dry_run)
         self.t0, self.budget_s = time.monotonic(), budget_s
         self.v = versions(dry_run)
         self.date = dt.date.today().isoformat()
-        self.csv = out / f"{self.date}_{stage}_{slug(self.v['gpu'])}.csv"
+        # --prepare's rows (compilation, builds) must not bank anything: they go beside the logs
+        self.csv = (self.runs / "logs" if prepare else out) / f"{self.date}_{stage}_{slug(self.v['gpu'])}.csv"
         self.rows: list[dict] = []
         self.py = sys.executable
         self.device = "cpu" if dry_run else "cuda"
@@ -130,6 +149,8 @@ class Round:
         A step an earlier round banked as ok is not run again (except ALWAYS and scene builds), nor one
         whose results an earlier round banked whole (`banked_in`: the CSV that holds them), even where
         that round's step was cut after them."""
+        if self.prepare and name != "compile" and not name.startswith("build_"):
+            return "skipped"  # --prepare: compilation and scene builds only
         where = banked_in or (self.done.get(name) if name not in ALWAYS and not name.startswith("build_") else None)
         if where:
             self.record(name, "ok", 0.0, f"banked in {where}")
@@ -170,7 +191,7 @@ class Round:
     def bank_results(self, src: Path, name: str) -> None:
         """Copy a step's results CSV (a run's results.csv, the benchmark's rows) next to the steps CSV,
         versions added (partial rows as they are)."""
-        if not src.exists():
+        if self.prepare or not src.exists():
             return
         with open(src, newline="") as fh:
             rows = list(csv.DictReader(fh))
@@ -191,18 +212,36 @@ class Round:
         os.replace(tmp, path)  # atomic: a round cut anywhere leaves a whole file
 
     # ---- shared pieces ----------------------------------------------------------------------------
+    def compile(self) -> str:
+        """gsplat's first CUDA use as a step, timed (its kernels compile then; later processes load them)."""
+        if self.dry_run:
+            compile_code = "import gsplat, strings_bench.raster.gsplat_backend; print('import only (dry run)')"
+        else:
+            compile_code = (
+                "import time, torch\nt0 = time.perf_counter()\nimport gsplat\n"
+                "d = 'cuda'\nmeans = torch.tensor([[0.0, 0.0, 3.0]], device=d)\n"
+                "K = torch.tensor([[[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]], device=d)\n"
+                "gsplat.rasterization(means, torch.tensor([[1.0, 0, 0, 0]], device=d), torch.full((1, 3), 0.1, device=d),"
+                " torch.ones(1, device=d), torch.ones(1, 3, device=d), torch.eye(4, device=d)[None], K, 64, 48)\n"
+                "torch.cuda.synchronize()\nprint(f'gsplat first use (compilation included): {time.perf_counter() - t0:.0f} s')\n")
+        env = {} if self.dry_run else {"TORCH_CUDA_ARCH_LIST": os.environ.get("TORCH_CUDA_ARCH_LIST", "9.0"),
+                                    "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
+        return self.step("compile", [self.py, "-c", compile_code], 180, env)
+
     def size(self) -> tuple[int, int]:
         return (64, 48) if self.dry_run else (1280, 960)
 
-    def build(self, scene: str, **settings) -> str | None:
-        """Build (or find in the cache) a synthetic scene as a step; returns its path."""
+    def build(self, scene: str, dataset: str | None = None, **settings) -> str | None:
+        """Build (or find in the cache) a synthetic scene as a step, with the settings of `dataset` (a
+        configuration such as synthetic360-cpu; default: the scene's own card) and `settings` over them;
+        returns its path."""
         w, h = self.size()
         settings = {"width": w, "height": h, **settings}
         if self.dry_run and "n_views" in settings:
             settings["n_views"] = 8
         code = ("import json, sys\nfrom strings_bench.datasets.synthetic import build_scene, default_settings\n"
                 "from dataclasses import replace\n"
-                f"s = replace(default_settings({scene!r}), **json.loads(sys.argv[1]))\n"
+                f"s = replace(default_settings({scene!r}, {dataset!r}), **json.loads(sys.argv[1]))\n"
                 f"p = build_scene({scene!r}, s, progress=False)\n"
                 "open(sys.argv[2], 'w').write(str(p))\n")
         where = self.runs / "logs" / f"{self.stage}_scene_{scene}.path"
@@ -218,6 +257,8 @@ class Round:
 
         label = iteration_label(max(int(c) for c in checkpoints.split(",")))
         banked_in = banked_run(self.out, self.stage, banked_as or name, methods.split(","), label, self.dry_run)
+        if self.prepare:
+            return
         run_dir = self.runs / self.stage / name
         schedule = ["--schedule", "tiny"] if self.dry_run else ["--schedule", "paper"]
         argv = [self.py, "-m", "strings_bench", "run", "--device", self.device, "--methods", methods,
@@ -232,6 +273,8 @@ class Round:
     def benchmark(self, size: str, limit_s: float, with_cpu: bool) -> None:
         """benchmarks/gpu.py for 3dgs and strings at one size (the CPU backend's rows beside it when
         `with_cpu`); banked when every (method, device) row of an earlier round is in a CSV."""
+        if self.prepare:
+            return
         name, methods = f"benchmark_{size}", ("3dgs",) if self.dry_run else ("3dgs", "strings")
         want = {(m, d) for m in methods for d in (self.device,) + (("cpu",) if with_cpu and not self.dry_run else ())}
         banked_in = banked_benchmark(self.out, self.stage, name, want, self.dry_run)
@@ -249,25 +292,19 @@ class Round:
 
 def stage_verify(s: Round) -> None:
     s.record("versions", "ok", 0.0, json.dumps(s.v))
-    if s.dry_run:
-        compile_code = "import gsplat, strings_bench.raster.gsplat_backend; print('import only (dry run)')"
-    else:
-        compile_code = (
-            "import time, torch\nt0 = time.perf_counter()\nimport gsplat\n"
-            "d = 'cuda'\nmeans = torch.tensor([[0.0, 0.0, 3.0]], device=d)\n"
-            "K = torch.tensor([[[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]], device=d)\n"
-            "gsplat.rasterization(means, torch.tensor([[1.0, 0, 0, 0]], device=d), torch.full((1, 3), 0.1, device=d),"
-            " torch.ones(1, device=d), torch.ones(1, 3, device=d), torch.eye(4, device=d)[None], K, 64, 48)\n"
-            "torch.cuda.synchronize()\nprint(f'gsplat first use (compilation included): {time.perf_counter() - t0:.0f} s')\n")
-    env = {} if s.dry_run else {"TORCH_CUDA_ARCH_LIST": os.environ.get("TORCH_CUDA_ARCH_LIST", "9.0"),
-                                "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
-    if s.step("compile", [s.py, "-c", compile_code], 180, env) != "ok":
+    if s.compile() != "ok":
         return  # nothing else can run without gsplat
     # Measured on an H200 (docs/results/gpu.md): pytest -m gpu needs more than 150 s (14 tests, each a
     # run with its OCR); the CPU rows of the benchmark at 1280x960 cost minutes, so its CPU ratio is the
     # 320x240 one. Order: correctness, the 320x240 ratio, the paper runs, then the large benchmark.
-    s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_gpu.py",
-                          "tests/test_raster.py"], 300)
+    # pytest: every test file with a test marked gpu (not all of tests/, whose other modules may need
+    # packages a GPU node lacks), on four workers where pytest-xdist is installed (each test is a short
+    # run whose OCR takes the CPU, so they overlap on one GPU; CUDA memory figures are per process).
+    import importlib.util
+
+    files = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "tests").glob("test_*.py") if "mark.gpu" in f.read_text())
+    workers = ["-n", "4"] if not s.dry_run and importlib.util.find_spec("xdist") else []
+    s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", *workers, *files], 300)
     s.benchmark("320x240", 120, with_cpu=True)
     scene = s.build("books")
     if scene:
@@ -281,6 +318,8 @@ def stage_verify(s: Round) -> None:
 def _cal7k(room_scale: float):
     def stage(s: Round) -> None:
         s.record("versions", "ok", 0.0, json.dumps(s.v))
+        if s.compile() != "ok":  # here, not inside the run's first step and its training time
+            return
         scene = s.build("storeroom", n_views=100, room_scale=room_scale)
         if scene:
             s.run("run", "3dgs", scene, "7000", s.left())
@@ -323,8 +362,27 @@ def stage_strings_frozen(s: Round) -> None:
         s.run("run", "strings", scene, "7000,30000", s.left())
 
 
+def stage_x1_rooms(s: Round) -> None:
+    """Every cell to 7K first, room by room (storeroom first: the CPU reference's first room), then each
+    to 30K in its run folder."""
+    s.record("versions", "ok", 0.0, json.dumps(s.v))
+    if s.compile() != "ok":
+        return
+    lo, hi = (10.0, 16.0)  # synthetic360-cpu's text heights at 320 px, scaled with the width below
+    w = s.size()[0]
+    scenes = {room: s.build(room, "synthetic360-cpu", text_px=[lo * w / 320, hi * w / 320]) for room in X1_ROOMS}
+    for label, checkpoints in (("7k", "3000,7000"), ("30k", "3000,7000,30000")):
+        for room, scene in scenes.items():
+            for method in X1_METHODS if scene else ():
+                cell = f"x1_{room}_{method}"
+                # banked_as: a 30K run's 3K and 7K rows bank the 7K cell too
+                s.run(f"{cell}_{label}", method, scene, checkpoints, s.left(), banked_as=f"{cell}_*")
+                if s.left() <= 0:
+                    return
+
+
 STAGES = {"verify": stage_verify, "cal7k-rs1.5": _cal7k(1.5), "cal7k-rs2": _cal7k(2.0), "cal30k": stage_cal30k,
-          "strings-frozen": stage_strings_frozen}
+          "strings-frozen": stage_strings_frozen, "x1-rooms": stage_x1_rooms}
 
 
 def banked(out: Path, stage: str, dry_run: bool) -> Path | None:
@@ -340,9 +398,11 @@ def banked(out: Path, stage: str, dry_run: bool) -> Path | None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", metavar="OUT_DIR")
-    ap.add_argument("stage", choices=[*STAGES, "list"])
+    ap.add_argument("stage", metavar="STAGE", help=f"one of {', '.join(STAGES)} or several, comma-separated; list")
     ap.add_argument("--dry-run", action="store_true", help="on the CPU at a tiny size (CI)")
     ap.add_argument("--force", action="store_true", help="run a banked stage again")
+    ap.add_argument("--prepare", action="store_true",
+                    help="only gsplat's compilation and the stages' scene builds (no OCR needed; nothing banked)")
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
     ap.add_argument("--runs", type=Path, default=None,
                     help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
@@ -351,12 +411,12 @@ def main(argv=None) -> int:
     if args.stage == "list":
         print("\n".join(STAGES))
         return 0
+    stages = [x for x in args.stage.split(",") if x]
+    unknown = [x for x in stages if x not in STAGES]
+    if unknown or not stages:
+        ap.error(f"unknown stage {', '.join(unknown) or '(none)'}: choose from {', '.join(STAGES)} (or list)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    done = banked(out, args.stage, args.dry_run)
-    if done and not args.force:
-        print(f"{args.stage}: banked in {done}; skipped (--force to run it again)")
-        return 0
     if not args.dry_run:
         import torch
 
@@ -364,12 +424,24 @@ def main(argv=None) -> int:
             print("gpu_campaign: torch sees no CUDA device (use --dry-run to check the script on the CPU)",
                   file=sys.stderr)
             return 2
-    s = Round(out, args.stage, args.dry_run, args.budget, args.runs)
-    STAGES[args.stage](s)
-    bad = [r for r in s.rows if r["status"] != "ok"]
-    print(f"{args.stage}: {len(s.rows) - len(bad)}/{len(s.rows)} steps ok in {time.monotonic() - s.t0:.0f} s; "
-          f"{s.csv}")
-    return 1 if bad else 0
+    t0, failed = time.monotonic(), False
+    for stage in stages:
+        done = banked(out, stage, args.dry_run)
+        if done and not args.force and not args.prepare:
+            print(f"{stage}: banked in {done}; skipped (--force to run it again)")
+            continue
+        left = args.budget - (time.monotonic() - t0)
+        if left <= 0:
+            print(f"{stage}: no time left in the budget; not started")
+            failed = True
+            continue
+        s = Round(out, stage, args.dry_run, left, args.runs, prepare=args.prepare)
+        STAGES[stage](s)
+        bad = [r for r in s.rows if r["status"] != "ok"]
+        failed |= bool(bad)
+        print(f"{stage}: {len(s.rows) - len(bad)}/{len(s.rows)} steps ok in {time.monotonic() - s.t0:.0f} s; "
+              f"{s.csv}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

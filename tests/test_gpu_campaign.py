@@ -90,7 +90,7 @@ def test_dry_run_of_a_calibration_point_banks_its_run(tmp_path):
     out = tmp_path / "gpu"
     done = campaign("--dry-run", out, "cal7k-rs2", timeout=300)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert [r["step"] for r in rows(next(out.glob("*_cal7k-rs2_cpu-dry-run.csv")))] == ["versions", "build_storeroom", "run"]
+    assert [r["step"] for r in rows(next(out.glob("*_cal7k-rs2_cpu-dry-run.csv")))] == ["versions", "compile", "build_storeroom", "run"]
     (run,) = rows(next(out.glob("*_cal7k-rs2_run_cpu-dry-run.csv")))
     assert run["method"] == "3dgs" and run["iteration"] == "35" and run["label"] == "7K"
 
