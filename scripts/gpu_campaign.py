@@ -58,6 +58,7 @@ PAPER_3DGS_CER_7K = 0.736  # the paper's 3DGS row (Table 1, STRinGS-360, 7K)
 # x1-rooms: the rooms and methods of the CPU reference cells at the paper's schedule
 X1_ROOMS = ("storeroom", "pantry", "office")
 X1_METHODS = ("3dgs", "strings", "strings-pos-lr", "edc-absgs")
+X1_TEXT_PX_320 = (10.0, 16.0)  # synthetic360-cpu's word heights at 320 px; scaled with the build's width
 STEP_COLUMNS = ["date", "stage", "step", "status", "seconds", "detail", "gpu", "torch", "cuda", "gsplat", "python",
                 "dry_run"]
 
@@ -364,21 +365,29 @@ def stage_strings_frozen(s: Round) -> None:
 
 def stage_x1_rooms(s: Round) -> None:
     """Every cell to 7K first, room by room (storeroom first: the CPU reference's first room), then each
-    to 30K in its run folder."""
+    to 30K. A room is built just before its first cell that is not banked: a build at 1280x960 costs
+    two to three minutes of a 16-core machine (docs/results/gpu.md), too much to spend on rooms a round
+    does not reach."""
     s.record("versions", "ok", 0.0, json.dumps(s.v))
     if s.compile() != "ok":
         return
-    lo, hi = (10.0, 16.0)  # synthetic360-cpu's text heights at 320 px, scaled with the width below
     w = s.size()[0]
-    scenes = {room: s.build(room, "synthetic360-cpu", text_px=[lo * w / 320, hi * w / 320]) for room in X1_ROOMS}
-    for label, checkpoints in (("7k", "3000,7000"), ("30k", "3000,7000,30000")):
-        for room, scene in scenes.items():
-            for method in X1_METHODS if scene else ():
-                cell = f"x1_{room}_{method}"
-                # banked_as: a 30K run's 3K and 7K rows bank the 7K cell too
-                s.run(f"{cell}_{label}", method, scene, checkpoints, s.left(), banked_as=f"{cell}_*")
+    text_px = [v * w / 320 for v in X1_TEXT_PX_320]
+    scenes: dict[str, str | None] = {}
+    for label, checkpoints in (("7k", "3000,7000"), ("30k", "3000,7000,30000")):  # label: the last checkpoint's
+        for room in X1_ROOMS:
+            for method in X1_METHODS:
                 if s.left() <= 0:
                     return
+                cell = f"x1_{room}_{method}"
+                if room not in scenes and not banked_run(s.out, s.stage, f"{cell}_*", [method], label.upper(),
+                                                         s.dry_run):
+                    scenes[room] = s.build(room, "synthetic360-cpu", text_px=text_px)
+                    if scenes[room] is None:
+                        break
+                # banked_as: a 30K run's 3K and 7K rows bank the 7K cell too (a banked cell is skipped
+                # without its scene)
+                s.run(f"{cell}_{label}", method, scenes.get(room) or "", checkpoints, s.left(), banked_as=f"{cell}_*")
 
 
 STAGES = {"verify": stage_verify, "cal7k-rs1.5": _cal7k(1.5), "cal7k-rs2": _cal7k(2.0), "cal30k": stage_cal30k,

@@ -7,6 +7,7 @@ The dry run takes ~70 s on a loaded 2-core machine (most of it OCR of the render
 from __future__ import annotations
 
 import csv
+import json
 import importlib.util
 import os
 import subprocess
@@ -151,3 +152,43 @@ def test_the_next_real_round_skips_what_the_first_one_banked():
     assert mod.banked_benchmark(out, "verify", "benchmark_1280x960", {("3dgs", "cuda")}, False) is None
     assert "pytest_gpu" not in mod.banked_steps(out, "verify", False)
     assert mod.banked(out, "verify", False) is None
+
+
+def test_x1_rooms_builds_a_room_only_for_the_cells_it_runs(tmp_path):
+    """Storeroom's four 7K cells banked by an earlier round: this round skips them without building
+    storeroom, builds pantry (synthetic360-cpu's rooms with the text heights scaled with the width) and
+    starts its first cell."""
+    out = tmp_path / "gpu"
+    out.mkdir()
+    mod = _module()
+    for method in mod.X1_METHODS:
+        (out / f"2026-12-01_x1-rooms_x1_storeroom_{method}_7k_cpu-dry-run.csv").write_text(
+            f"method,iteration,label,cer,dry_run\n{method},15,3K,0.9,true\n{method},35,7K,0.8,true\n")
+    campaign("--dry-run", "--budget", "25", out, "x1-rooms", timeout=180)
+    (today,) = [p for p in out.glob("*_x1-rooms_cpu-dry-run.csv")]
+    steps = [r["step"] for r in rows(today)]
+    assert steps[:2] == ["versions", "compile"] and "build_storeroom" not in steps
+    assert steps[2:6] == [f"x1_storeroom_{m}_7k" for m in mod.X1_METHODS]
+    assert all(r["detail"].startswith("banked in 2026-12-01") for r in rows(today)[2:6])
+    assert steps[6] == "build_pantry" and rows(today)[6]["status"] == "ok", rows(today)[6]
+    assert steps[7:] == ["x1_pantry_3dgs_7k"]  # started, then cut by the budget (or done on a fast machine)
+    pantry = Path((out / "runs" / "logs" / "x1-rooms_scene_pantry.path").read_text().strip())
+    meta = json.loads((pantry / "scene_meta.json").read_text())
+    assert meta["text_px"] == [2.0, 3.2]  # synthetic360-cpu's 10-16 px at 320 wide, at 64 wide
+    assert (meta["settings"]["width"], meta["settings"]["n_views"]) == (64, 48)  # the configuration's 48 views
+
+
+def test_prepare_compiles_and_builds_but_banks_nothing(tmp_path):
+    out = tmp_path / "gpu"
+    done = campaign("--dry-run", "--prepare", "--budget", "200", out, "verify,x1-rooms", timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert not list(out.glob("*.csv"))  # nothing a later round would take as banked
+    logged = {r["stage"]: [x["step"] for x in rows(p)] for p in (out / "runs" / "logs").glob("*.csv")
+              for r in rows(p)[:1]}
+    assert logged == {"verify": ["versions", "compile", "build_books"],
+                      "x1-rooms": ["versions", "compile", "build_storeroom", "build_pantry", "build_office"]}
+
+
+def test_unknown_stage_is_refused_with_the_list(tmp_path):
+    done = campaign("--dry-run", tmp_path, "verify,nope", timeout=60)
+    assert done.returncode == 2 and "nope" in done.stderr and "x1-rooms" in done.stderr
