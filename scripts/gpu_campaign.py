@@ -17,7 +17,9 @@ Stages (in order of value; `list` prints them):
                  pixels): 3DGS, STRinGS, STRinGS without the lock and EDC-AbsGS, seed 0, each cell its
                  own step; every cell to 7K first (checkpoints 3K, 7K), then each to 30K (3K, 7K, 30K)
                  in a run folder of its own (a run folder keeps its checkpoints). The full-size
-                 counterparts of the CPU reference cells at x1.
+                 counterparts of the CPU reference cells at x1;
+  x1-rooms-320   the same cells on the rooms as synthetic360-cpu registers them (320x240): the CPU
+                 reference cells themselves, through the CUDA backend.
 
 Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
@@ -363,35 +365,41 @@ def stage_strings_frozen(s: Round) -> None:
         s.run("run", "strings", scene, "7000,30000", s.left())
 
 
-def stage_x1_rooms(s: Round) -> None:
-    """Every cell to 7K first, room by room (storeroom first: the CPU reference's first room), then each
-    to 30K. A room is built just before its first cell that is not banked: a build at 1280x960 costs
-    two to three minutes of a 16-core machine (docs/results/gpu.md), too much to spend on rooms a round
-    does not reach."""
-    s.record("versions", "ok", 0.0, json.dumps(s.v))
-    if s.compile() != "ok":
-        return
-    w = s.size()[0]
-    text_px = [v * w / 320 for v in X1_TEXT_PX_320]
-    scenes: dict[str, str | None] = {}
-    for label, checkpoints in (("7k", "3000,7000"), ("30k", "3000,7000,30000")):  # label: the last checkpoint's
-        for room in X1_ROOMS:
-            for method in X1_METHODS:
-                if s.left() <= 0:
-                    return
-                cell = f"x1_{room}_{method}"
-                if room not in scenes and not banked_run(s.out, s.stage, f"{cell}_*", [method], label.upper(),
-                                                         s.dry_run):
-                    scenes[room] = s.build(room, "synthetic360-cpu", text_px=text_px)
-                    if scenes[room] is None:
-                        break
-                # banked_as: a 30K run's 3K and 7K rows bank the 7K cell too (a banked cell is skipped
-                # without its scene)
-                s.run(f"{cell}_{label}", method, scenes.get(room) or "", checkpoints, s.left(), banked_as=f"{cell}_*")
+def _x1_rooms(width: int, height: int):
+    def stage(s: Round) -> None:
+        """Every cell to 7K first, room by room (storeroom first: the CPU reference's first room), then
+        each to 30K. A room is built just before its first cell that is not banked: a build at 1280x960
+        costs two to three minutes of a 16-core machine (docs/results/gpu.md), too much to spend on rooms
+        a round does not reach."""
+        s.record("versions", "ok", 0.0, json.dumps(s.v))
+        if s.compile() != "ok":
+            return
+        w, h = (width, height) if not s.dry_run else s.size()
+        text_px = [v * w / 320 for v in X1_TEXT_PX_320]
+        scenes: dict[str, str | None] = {}
+        for label, checkpoints in (("7k", "3000,7000"), ("30k", "3000,7000,30000")):  # label: the last checkpoint's
+            for room in X1_ROOMS:
+                for method in X1_METHODS:
+                    if s.left() <= 0:
+                        return
+                    cell = f"x1_{room}_{method}"
+                    if not banked_run(s.out, s.stage, f"{cell}_*", [method], label.upper(), s.dry_run):
+                        if room not in scenes:
+                            scenes[room] = s.build(room, "synthetic360-cpu", width=w, height=h, text_px=text_px)
+                        if scenes[room] is None:
+                            break  # its build failed or was cut: the next room
+                    # banked_as: a 30K run's 3K and 7K rows bank the 7K cell too (a banked cell is skipped
+                    # without its scene)
+                    s.run(f"{cell}_{label}", method, scenes.get(room) or "", checkpoints, s.left(),
+                          banked_as=f"{cell}_*")
+    return stage
 
 
 STAGES = {"verify": stage_verify, "cal7k-rs1.5": _cal7k(1.5), "cal7k-rs2": _cal7k(2.0), "cal30k": stage_cal30k,
-          "strings-frozen": stage_strings_frozen, "x1-rooms": stage_x1_rooms}
+          "strings-frozen": stage_strings_frozen, "x1-rooms": _x1_rooms(1280, 960),
+          # the CPU reference cells' own scenes (synthetic360-cpu as registered, 320x240): the same cells
+          # as the CPU's x1 reference, through the CUDA backend, in about a minute each
+          "x1-rooms-320": _x1_rooms(320, 240)}
 
 
 def banked(out: Path, stage: str, dry_run: bool) -> Path | None:

@@ -192,3 +192,28 @@ def test_prepare_compiles_and_builds_but_banks_nothing(tmp_path):
 def test_unknown_stage_is_refused_with_the_list(tmp_path):
     done = campaign("--dry-run", tmp_path, "verify,nope", timeout=60)
     assert done.returncode == 2 and "nope" in done.stderr and "x1-rooms" in done.stderr
+
+
+def test_x1_rooms_320_builds_the_registered_cpu_rooms_and_1280_scales_their_text(tmp_path, monkeypatch):
+    """x1-rooms-320's scenes are synthetic360-cpu's own (the same settings, so the same cache key as the
+    CPU reference cells); x1-rooms' are the same rooms at 1280x960 with the word heights x4."""
+    from dataclasses import replace
+
+    from strings_bench.datasets.synthetic import default_settings
+
+    mod = _module()
+    for stage, (w, h, scale) in (("x1-rooms-320", (320, 240, 1)), ("x1-rooms", (1280, 960, 4))):
+        built = []
+        monkeypatch.setattr(mod.Round, "compile", lambda self: "ok")
+        monkeypatch.setattr(mod.Round, "build", lambda self, scene, dataset=None, **kw: built.append((scene, dataset, kw)))
+        monkeypatch.setattr(mod.Round, "run", lambda self, *a, **kw: None)
+        s = mod.Round(tmp_path / stage, stage, dry_run=False, budget_s=60)
+        mod.STAGES[stage](s)
+        assert [b[0] for b in built] == list(mod.X1_ROOMS)  # a build that fails moves on to the next room
+        for room, dataset, kw in built:
+            registered = default_settings(room, dataset)
+            assert dataset == "synthetic360-cpu"
+            settings = replace(registered, width=kw["width"], height=kw["height"], text_px=tuple(kw["text_px"]))
+            assert (settings.width, settings.height, settings.text_px) == (w, h, (10.0 * scale, 16.0 * scale))
+            if scale == 1:
+                assert settings == registered
