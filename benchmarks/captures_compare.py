@@ -9,9 +9,9 @@ own engine (saharov32: Tesseract, Russian), so a mean over captures would add up
 
 Writes into --out:
 - `comparison.csv`: per capture, method and checkpoint, the seeds, OCR-CER (mean over seeds, min, max), PSNR, SSIM,
-  Gaussians and training seconds (means over seeds), and the largest `peak_memory_mb` of its cells (results.csv:
-  the run process's peak so far, and a run trains its methods one after another in one process, so it is the
-  cell's own peak only for the first method of a run, an upper bound for the others); captures below their floor
+  Gaussians and training seconds (means over seeds), and the largest `peak_memory_mb` of its cells with its scope
+  (`training`: each cell's own peak; `process`: some cell was written before the peak was reset per training and
+  holds its run process's peak so far, an upper bound for every method but a run's first); captures below their floor
   on GT characters have no OCR-CER;
 - `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
@@ -54,6 +54,10 @@ def side(a: dict | None, b: dict | None) -> str:
     return "below" if a["max"] < b["min"] else "above"
 
 
+def _seeds(n: int) -> str:
+    return f"{n} seed{'s' * (n != 1)}"
+
+
 def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, str]:
     """The verdict of "STRinGS is `want` every method of `others` in `value` at `label`" and its figures."""
     ref = c.get(REFERENCE, label, value)
@@ -64,12 +68,12 @@ def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, 
         s = side(ref, o)
         sides.append(s)
         if o is not None:
-            other_seeds = "" if ref is None or o["seeds"] == ref["seeds"] else f" ({o['seeds']} seeds)"
+            other_seeds = "" if ref is None or o["seeds"] == ref["seeds"] else f" ({_seeds(o['seeds'])})"
             figures.append(f"{m} {_fmt(o['mean'], digits)}{other_seeds}")
     if ref is None or "missing" in sides:
         return "not measured", ""
-    seeds = ref["seeds"]
-    text = f"STRinGS {_fmt(ref['mean'], digits)} against " + ", ".join(figures) + f" ({seeds} seed{'s' * (seeds > 1)})"
+    # the seeds once, after STRinGS' figure; a method with another count names its own
+    text = f"STRinGS {_fmt(ref['mean'], digits)} ({_seeds(ref['seeds'])}) against " + ", ".join(figures)
     opposite = "above" if want == "below" else "below"
     if all(s == want for s in sides):
         return "holding", text
@@ -114,8 +118,10 @@ def set_column(table: Path, verdicts: list[dict]) -> None:
 
 
 def peak_memory(run_dirs) -> dict:
-    """{(method, capture, checkpoint): the largest `peak_memory_mb` of its cells over the folders}, from each
-    folder's results.csv (the run process's peak resident memory up to the cell: engine/trainer.py)."""
+    """{(method, capture, checkpoint): (the largest `peak_memory_mb` of its cells over the folders, scope)}, from
+    each folder's results.csv. The scope is `training` when every one of those cells measured its own training's
+    peak (`peak_memory_scope`, engine/trainer.py), else `process`: some cell holds its run process's peak so far,
+    the cell's own only for the first method of a run and an upper bound for the others."""
     out: dict = {}
     for d in run_dirs:
         path = Path(d) / "results.csv"
@@ -124,7 +130,9 @@ def peak_memory(run_dirs) -> dict:
         for r in csv.DictReader(path.open()):
             if r.get("dataset") == "captures" and r.get("peak_memory_mb"):
                 key = (r["method"], r["scene"], r["label"])
-                out[key] = max(out.get(key, 0.0), float(r["peak_memory_mb"]))
+                mb, scope = out.get(key, (0.0, "training"))
+                cell_scope = r.get("peak_memory_scope") or "process"
+                out[key] = (max(mb, float(r["peak_memory_mb"])), scope if cell_scope == "training" else "process")
     return out
 
 
@@ -160,7 +168,8 @@ def main(argv=None) -> int:
                              **{name: _fmt((c.get(m, label, v) or {}).get("mean"), d) for name, v, d in
                                 (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
                                  ("training s", "train_seconds", 0))},
-                             "process peak memory MB": _fmt(memory.get((m, scene, label)), 0)})
+                             "peak memory MB": _fmt(memory.get((m, scene, label), (None,))[0], 0),
+                             "peak memory scope": memory.get((m, scene, label), (None, ""))[1]})
         if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
             for name, fn in CLAIMS:
                 verdict, figures = fn(c)

@@ -294,7 +294,9 @@ def test_a_claim_holds_only_when_every_method_is_beaten_with_the_seeds_ranges_ap
     assert cc.claim(_Numbers(apart), "cer", "30K", cc.BASELINES)[0] == "holding"
     overlap = {**apart, ("improved-gs", "30K", "cer"): [0.44, 0.60, 0.5]}
     verdict, figures = cc.claim(_Numbers(overlap), "cer", "30K", cc.BASELINES)
-    assert verdict == "not decided" and figures.startswith("STRinGS 0.423 against 3dgs 0.617")
+    assert verdict == "not decided" and figures.startswith("STRinGS 0.423 (3 seeds) against 3dgs 0.617")
+    fewer = {**overlap, ("edc-absgs", "30K", "cer"): [0.50]}  # a method with another count names its own
+    assert "edc-absgs 0.500 (1 seed)," in cc.claim(_Numbers(fewer), "cer", "30K", cc.BASELINES)[1]
     # one method ahead of STRinGS with ranges apart outweighs the others
     behind = {**overlap, ("edc-absgs", "30K", "cer"): [0.20, 0.25, 0.22]}
     assert cc.claim(_Numbers(behind), "cer", "30K", cc.BASELINES)[0] == "not holding"
@@ -321,10 +323,13 @@ def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_
 
 def test_the_comparison_keeps_each_cells_largest_peak_memory_over_the_folders(tmp_path):
     cc = _captures_compare()
-    for seed, mb in ((0, "900.5"), (1, "1200.0")):
+    for seed, mb, scope in ((0, "900.5", "training"), (1, "1200.0", "training"), (2, "800.0", "")):
         d = tmp_path / f"seed{seed}"
         d.mkdir()
-        (d / "results.csv").write_text("method,dataset,scene,label,peak_memory_mb\n"
-                                       f"3dgs,captures,bundler_et,30K,{mb}\n3dgs,synthetic360-cpu,storeroom,30K,5000\n")
-    assert cc.peak_memory([tmp_path / "seed0", tmp_path / "seed1", tmp_path / "none"]) == {
-        ("3dgs", "bundler_et", "30K"): 1200.0}
+        (d / "results.csv").write_text("method,dataset,scene,label,peak_memory_mb,peak_memory_scope\n"
+                                       f"3dgs,captures,bundler_et,30K,{mb},{scope}\n"
+                                       "3dgs,synthetic360-cpu,storeroom,30K,5000,training\n")
+    own = [tmp_path / "seed0", tmp_path / "seed1", tmp_path / "none"]
+    assert cc.peak_memory(own) == {("3dgs", "bundler_et", "30K"): (1200.0, "training")}
+    # a cell written before the per-training reset (no scope) makes the figure a process peak
+    assert cc.peak_memory(own + [tmp_path / "seed2"]) == {("3dgs", "bundler_et", "30K"): (1200.0, "process")}

@@ -540,3 +540,24 @@ def test_keep_freed_memory_serves_large_blocks_from_the_heap():
     assert got["default"][0] >= 64 and got["default"][1] < 64, got  # mmap'ed, then returned
     assert got["keep"][0] < 64 and got["keep"][1] >= 64, got  # from the heap, kept after the free
     assert got["switched-off"][0] >= 64 and got["switched-off"][1] < 64, got  # as the default
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="Linux's resident high-water mark reset")
+def test_peak_memory_is_the_trainings_own_not_the_process_peak(tiny_scene):
+    """After a 400 MB allocation is freed, the reset peak is far below the process's lifetime peak
+    (ru_maxrss, which the reset does not touch), and a training reports its figure with scope `training`."""
+    import resource
+
+    from strings_bench.engine.trainer import peak_memory_mb, reset_peak_memory
+
+    import mmap
+
+    big = mmap.mmap(-1, 400 * 2 ** 20)  # an anonymous mapping, unmapped on close (a freed numpy array can stay
+    for offset in range(0, len(big), mmap.PAGESIZE):  # with the allocator, still resident)
+        big[offset] = 1  # touched: resident
+    big.close()
+    lifetime_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 10
+    assert reset_peak_memory("cpu") == "training"
+    assert 0 < peak_memory_mb("cpu") < lifetime_mb - 300, (peak_memory_mb("cpu"), lifetime_mb)
+    (result,) = list(Trainer(GaussianSplatting(TrainConfig(steps_scale=0.005)), tiny_scene, (5,), progress=False).train())
+    assert result.extra["peak_memory_scope"] == "training" and 0 < result.peak_memory_mb <= lifetime_mb + 1

@@ -161,11 +161,35 @@ class SaveEvery:
         return self.minutes is not None and seconds_since_save >= 60.0 * self.minutes
 
 
+def reset_peak_memory(device: str | torch.device = "cpu") -> str:
+    """Start a new peak for `peak_memory_mb`, so that a training's figure is its own and not the peak of the
+    methods trained before it in the same process: CUDA's allocator statistics, or on Linux the process's
+    resident high-water mark (writing 5 to /proc/self/clear_refs resets VmHWM, Linux >= 4.0). Returns the
+    scope recorded with the figures: "training" where the peak was reset, "process" (a process-lifetime
+    peak, an upper bound) where it could not be."""
+    if torch.device(device).type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+        return "training"
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return "training"
+    except OSError:
+        return "process"
+
+
 def peak_memory_mb(device: str | torch.device = "cpu") -> float:
-    """The process's peak resident set size (a process-lifetime peak), or on CUDA
-    torch.cuda.max_memory_allocated."""
+    """The peak since `reset_peak_memory` (or the process's start): torch.cuda.max_memory_allocated on CUDA,
+    else the resident high-water mark (VmHWM on Linux, ru_maxrss elsewhere)."""
     if torch.device(device).type == "cuda":
         return torch.cuda.max_memory_allocated(device) / 2 ** 20
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 2 ** 10  # kB
+    except OSError:
+        pass
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return rss / 2 ** 20 if sys.platform == "darwin" else rss / 2 ** 10  # bytes on macOS, KiB on Linux
 
@@ -237,6 +261,7 @@ class Trainer:
         self.render_test = render_test
         self.fingerprint = fingerprint or {}
         self.resumed_from_step = 0
+        self.peak_memory_scope = "process"  # until train() resets the peak
         if cpu_torch_threads is not None and int(cpu_torch_threads) < 1:
             raise StringsBenchError(f"cpu_torch_threads must be >= 1 or None, got {cpu_torch_threads}")
         self.cpu_torch_threads = cpu_torch_threads
@@ -302,6 +327,8 @@ class Trainer:
                         "strings_bench first, or set ATEN_CPU_CAPABILITY=avx2)",
                         torch.backends.cpu.get_cpu_capability())
         self.method.progress = self.progress
+        # this training's own peak (set-up included), not the peak of what the process did before
+        self.peak_memory_scope = reset_peak_memory(self.device)
         t0 = self._clock()
         self.method.setup(self.scene, downscale=self.downscale, device=self.device, seed=self.seed)
         preprocess_seconds = self._clock() - t0
@@ -351,7 +378,8 @@ class Trainer:
         renders = {}
         if self.render_test:
             renders = {self.scene.names[i]: self.method.render(i) for i in self.scene.test_idx}
-        extra = {**self.method.checkpoint_extra(step), "device": self.device}
+        extra = {**self.method.checkpoint_extra(step), "device": self.device,
+                 "peak_memory_scope": self.peak_memory_scope}
         if self.model_path is not None:
             path = Path(self.model_path(step))
             self.method.save_model(path)

@@ -14,7 +14,7 @@ CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
     "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "budget", "peak_gaussians", "budget_reached_at",
-    "peak_memory_mb", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
+    "peak_memory_mb", "peak_memory_scope", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]
 # Former names of the run folder's fields: "preset" named the run's schedule before "schedule" did (run.json,
