@@ -10,9 +10,9 @@ own engine (saharov32: Tesseract, Russian), so a mean over captures would add up
 Writes into --out:
 - `comparison.csv`: per capture, method and checkpoint, the seeds, OCR-CER (mean over seeds, min, max), PSNR, SSIM,
   Gaussians and training seconds (means over seeds), and the largest `peak_memory_mb` of its cells with its scope
-  (`training`: each cell's own peak; `process`: some cell was written before the peak was reset per training and
-  holds its run process's peak so far, an upper bound for every method but a run's first); captures below their floor
-  on GT characters have no OCR-CER;
+  (`training`: each cell's own peak; `process`: some cell records `process` or no scope (written before the peak
+  was reset per training) and holds its run process's peak so far, an upper bound for every method but a run's
+  first); captures below their floor on GT characters have no OCR-CER;
 - `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
   overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,

@@ -79,8 +79,9 @@ def cell_row(rec: dict) -> dict:
         "peak_gaussians": num((rec.get("extra") or {}).get("peak_gaussians")),
         "budget_reached_at": num((rec.get("extra") or {}).get("budget_reached_at")),
         "peak_memory_mb": num(rec.get("peak_memory_mb")),
-        # cells written before the peak was reset per training carry none: theirs is the process's peak
-        "peak_memory_scope": (rec.get("extra") or {}).get("peak_memory_scope") or "process",
+        # empty for cells that record none: written before the peak was reset per training (theirs is the
+        # process's peak), or by a method that trains itself and reports its own figure
+        "peak_memory_scope": (rec.get("extra") or {}).get("peak_memory_scope") or "",
         # the scene's rho (one early 3DGS position step in text strokes, docs/difficulty.md; "" where not measured)
         "rho": num(((rec.get("config") or {}).get("scene") or {}).get("rho")),
         "cer_errors": c.get("errors", ""), "cer_chars": c.get("chars", ""), "cer_views": len(c.get("images") or {}),
