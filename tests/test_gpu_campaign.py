@@ -38,6 +38,9 @@ def _module():
     return mod
 
 
+# The whole verify stage (about 2 minutes loaded): opt-in; the later-round, budget, calibration and x1 tests below
+# run its steps in CI.
+@pytest.mark.slow
 def test_dry_run_of_verify_banks_every_step_then_skips(tmp_path):
     out = tmp_path / "gpu"
     done = campaign("--dry-run", out, "verify")

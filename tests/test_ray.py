@@ -104,6 +104,8 @@ def _wait_for(pattern: str, folder: Path, count: int = 1, timeout: float = 240) 
     raise AssertionError(f"no {pattern} in {folder} after {timeout} s")
 
 
+# The heaviest test of the suite (about 3 minutes loaded): opt-in, `pytest -m slow tests/test_ray.py`.
+@pytest.mark.slow
 def test_killed_worker_is_retried_and_the_grid_equals_the_local_run(ray_session, scenes, tmp_path):
     local_out, ray_out, pause = tmp_path / "local", tmp_path / "ray", tmp_path / "pause"
     pause.mkdir()
