@@ -228,7 +228,7 @@ class Round:
                 " torch.ones(1, device=d), torch.ones(1, 3, device=d), torch.eye(4, device=d)[None], K, 64, 48)\n"
                 "torch.cuda.synchronize()\nprint(f'gsplat first use (compilation included): {time.perf_counter() - t0:.0f} s')\n")
         env = {} if self.dry_run else {"TORCH_CUDA_ARCH_LIST": os.environ.get("TORCH_CUDA_ARCH_LIST", "9.0"),
-                                    "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
+                                       "MAX_JOBS": os.environ.get("MAX_JOBS", str(os.cpu_count() or 16))}
         # One first import at a time across campaigns sharing RUNS: gsplat's loader deletes its build folder's lock
         # file at import, so two processes importing it at once both run the build (seen: 132 s instead of 1 s).
         import fcntl
