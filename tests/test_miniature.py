@@ -94,6 +94,54 @@ def test_the_gain_multiplies_the_first_position_step(tiny_scene_dir):
         TrainConfig(position_lr_gain=0.0)
 
 
+def _refinement_rounds(scale: float, miniature: str) -> int:
+    """The steps at which 3DGS' default strategy refines (start < step < stop, step % interval == 0), for 3DGS built
+    at `scale` under `miniature`, counted from the strategy's own schedule helpers."""
+    from strings_bench.methods.registry import get_method
+
+    settings = schedule("paper", steps_scale=scale, miniature=miniature).miniature_settings()
+    method = get_method("3dgs").build(default_steps_scale=scale, **settings)
+    st = method.strategy
+    state = {"steps_scale": scale, **({"interval_floor": settings["interval_floor"]} if "interval_floor" in settings
+                                      else {})}
+    start, stop, every = st.at(state, st.refine_start_iter), st.at(state, st.refine_stop_iter), st.every(state, st.refine_every)
+    return sum(1 for step in range(start + 1, stop) if step % every == 0)
+
+
+def test_rounds_keeps_the_papers_number_of_refinement_rounds():
+    """3DGS refines every 100 steps after 500 and before 15 000: 144 rounds. Shrunk by s with the 50-step floor it
+    refines far fewer times (28 at x0.1, 14 at x0.05); `rounds` and `lr-sum-rounds` scale the interval too and keep
+    144."""
+    paper = _refinement_rounds(1.0, "shrink")
+    assert paper == 144
+    assert _refinement_rounds(0.1, "shrink") == 28 and _refinement_rounds(0.05, "shrink") == 14
+    for s in (0.05, 0.1, 0.2):
+        assert _refinement_rounds(s, "rounds") == paper
+        assert _refinement_rounds(s, "lr-sum-rounds") == paper
+    assert schedule("cpu-long", miniature="lr-sum-rounds").miniature_settings() == {
+        "position_lr_gain": pytest.approx(10.0), "interval_floor": 1}
+    assert schedule("cpu-long", miniature="rounds").miniature_settings() == {"interval_floor": 1}
+
+
+def test_the_interval_floor_reaches_the_strategy_and_the_sh_schedule(tiny_scene_dir):
+    """A trained method under `rounds` at x0.05 refines every 5 steps (100 x 0.05) and raises the SH degree every 50
+    (1 000 x 0.05); without it, every 50 and every 50. A floor below 1 step is refused."""
+    from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
+    from strings_bench.engine.strategies import DefaultStrategy
+    from strings_bench.scene.scene import Scene
+
+    intervals = {}
+    for floor in (50, 1):
+        method = GaussianSplatting(TrainConfig(steps_scale=0.05, interval_floor=floor), DefaultStrategy())
+        method.setup(Scene.load(tiny_scene_dir), device="cpu")
+        intervals[floor] = (method.strategy.every(method.strategy_state, method.strategy.refine_every),
+                            method.every(method.config.sh_increase_every),
+                            method.strategy.reset_interval(method.strategy_state, method.strategy.reset_every))
+    assert intervals == {50: (50, 50, 200), 1: (5, 50, 200)}  # opacity resets keep their own 200-step floor
+    with pytest.raises(StringsBenchError, match="interval_floor"):
+        TrainConfig(interval_floor=0)
+
+
 def _agreement_module():
     from _scripts import load_benchmark
 

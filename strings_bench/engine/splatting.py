@@ -48,7 +48,7 @@ from strings_bench.engine.losses import gs_loss
 from strings_bench.engine.motion import motion_record, new_motion_log, note_motion
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
 from strings_bench.engine.optim_kernels import sums_finite
-from strings_bench.engine.strategies.base import Strategy, scaled_interval, scaled_step
+from strings_bench.engine.strategies.base import MIN_SCALED_INTERVAL, Strategy, scaled_interval, scaled_step
 from strings_bench.engine.strategies.default import DefaultStrategy
 from strings_bench.core.method import Method
 
@@ -72,6 +72,9 @@ class TrainConfig:
     # A shrunk schedule's miniature `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a
     # Gaussian can move) is the paper's.
     position_lr_gain: float = 1.0  # x the position LR at every step (1: the paper's; miniature lr-sum: 1/steps_scale)
+    # The miniature `rounds` sets 1, so that a shrunk run refines as many times as the paper's (an interval of 100
+    # at x0.1 is 10 steps) instead of at least every 50 steps.
+    interval_floor: int = MIN_SCALED_INTERVAL  # shortest refinement / SH interval of a shrunk run, in steps
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
     backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
@@ -81,6 +84,9 @@ class TrainConfig:
             raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
         if not (math.isfinite(self.position_lr_gain) and self.position_lr_gain > 0):
             raise StringsBenchError(f"position_lr_gain must be a finite number > 0, got {self.position_lr_gain}")
+        if isinstance(self.interval_floor, bool) or int(self.interval_floor) != self.interval_floor \
+                or self.interval_floor < 1:
+            raise StringsBenchError(f"interval_floor must be a whole number of steps >= 1, got {self.interval_floor}")
 
 
 def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, str]:
@@ -237,8 +243,9 @@ class GaussianSplatting(Method):
         return scaled_step(nominal, self.config.steps_scale)
 
     def every(self, nominal: float) -> int:
-        """The interval actually used for a nominal 3DGS interval (x steps_scale, at least 50 steps)."""
-        return scaled_interval(nominal, self.config.steps_scale)
+        """The interval actually used for a nominal 3DGS interval (x steps_scale, at least config.interval_floor
+        steps: 50 unless the miniature lowers it)."""
+        return scaled_interval(nominal, self.config.steps_scale, self.config.interval_floor)
 
     # ---- set-up --------------------------------------------------------------------------------
     def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:
@@ -356,6 +363,8 @@ class GaussianSplatting(Method):
         self.optimizer = self.make_optimizer(model)
         self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale,
                                                              [self.camera(i) for i in self.train_views()])
+        if self.config.interval_floor != MIN_SCALED_INTERVAL:  # read by Strategy.every (older states lack it)
+            self.strategy_state["interval_floor"] = int(self.config.interval_floor)
         reserved = self.reserved_gaussians()
         if reserved:
             self.strategy_state["reserved_gaussians"] = int(reserved)

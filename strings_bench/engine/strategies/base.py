@@ -315,7 +315,8 @@ class Strategy:
             >>> Strategy.every({"steps_scale": 0.01}, 100), Strategy.every({"steps_scale": 1.0}, 100)
             (50, 100)
         """
-        return scaled_interval(nominal, state.get("steps_scale", 1.0), floor)
+        # a run's own floor (TrainConfig.interval_floor; the miniature `rounds` lowers it) can only lower `floor`
+        return scaled_interval(nominal, state.get("steps_scale", 1.0), min(floor, int(state.get("interval_floor", floor))))
 
     @staticmethod
     def reset_interval(state: dict, nominal: float) -> int:
