@@ -25,8 +25,8 @@ hooks (docs/engine.md):
     extra_state() / load_extra_state(state)                          (a subclass's own resumable state)
 
 Every schedule inside (densification, opacity reset, SH degree, position-LR decay) is its nominal
-3DGS iteration number multiplied by `config.steps_scale` (intervals keep at least 50 steps,
-opacity resets at least 200: `strategies.base.scaled_interval`).
+3DGS iteration number multiplied by `config.steps_scale` (intervals keep at least `config.interval_floor`
+steps, 50 unless the miniature `rounds` lowers it; opacity resets at least 200: `strategies.base.scaled_interval`).
 """
 
 from __future__ import annotations
