@@ -136,9 +136,10 @@ def peak_memory(run_dirs) -> dict:
     return out
 
 
-def _peak(entry: tuple[float, str] | None) -> tuple[str, str]:
-    """A cell's (peak memory MB, scope) as the comparison prints them; empty where none was recorded."""
-    return ("", "") if entry is None else (_fmt(entry[0], 0), entry[1])
+def _peak(entry: tuple[float, str] | None) -> dict:
+    """A cell's peak memory columns (MB, scope) as the comparison prints them; empty where none was recorded."""
+    mb, scope = ("", "") if entry is None else (_fmt(entry[0], 0), entry[1])
+    return {"peak memory MB": mb, "peak memory scope": scope}
 
 
 def captures_of(run_dirs) -> list[str]:
@@ -173,8 +174,7 @@ def main(argv=None) -> int:
                              **{name: _fmt((c.get(m, label, v) or {}).get("mean"), d) for name, v, d in
                                 (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
                                  ("training s", "train_seconds", 0))},
-                             **dict(zip(("peak memory MB", "peak memory scope"),
-                                        _peak(memory.get((m, scene, label)))))})
+                             **_peak(memory.get((m, scene, label)))})
         if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
             for name, fn in CLAIMS:
                 verdict, figures = fn(c)
