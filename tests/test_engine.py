@@ -93,11 +93,19 @@ def test_adam_matches_torch_adam(fused):
         torch.testing.assert_close(m1.params[k], m2.params[k], rtol=1e-6, atol=1e-7)
 
 
-@pytest.mark.parametrize("n", [1, 7, 33, 4099])
-def test_fused_adam_is_bit_identical_to_the_torch_path(n):
+@pytest.mark.parametrize("one_pass", [True, False], ids=["one pass", "two passes"])
+@pytest.mark.parametrize("n", [1, 7, 33, 4099, 9000])
+def test_fused_adam_is_bit_identical_to_the_torch_path(n, one_pass, monkeypatch):
     """The numba Adam (engine/optim_kernels.py) must give the torch element-wise path's float32 results
     bit for bit: parameters and both moments, over steps with gradients from 1e-9 to 10, exact zeros,
-    a per-row scale on some steps, a zero learning rate, and state resized by gather_rows."""
+    a per-row scale on some steps, a zero learning rate, and state resized by gather_rows. Both of its
+    paths: one pass with MKL's vsSqrt per chunk (9000 values span three chunks), and two passes around
+    torch.sqrt."""
+    from strings_bench.engine import optim_kernels
+
+    if one_pass and not optim_kernels.vs_sqrt_available():
+        pytest.skip("this torch build does not export MKL's vsSqrt as its sqrt")
+    monkeypatch.setattr(optim_kernels, "_vs_sqrt_state", [one_pass])
     ma, mb = _random_model(n, seed=5, degree=3), _random_model(n, seed=5, degree=3)
     lrs = {"means": 1.6e-4 * 3.7, "quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 0.05, "sh0": 2.5e-3,
            "shN": 0.0}

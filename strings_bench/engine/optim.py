@@ -141,7 +141,7 @@ class GaussianAdam:
         tensors = (p, g, m, v)
         if not all(t.dtype == torch.float32 and t.device.type == "cpu" and t.is_contiguous() for t in tensors):
             return False
-        from strings_bench.engine.optim_kernels import adam_moments, adam_param, f32
+        from strings_bench.engine.optim_kernels import adam_fused, adam_moments, adam_param, f32, vs_sqrt_available
 
         b1, b2 = self.betas
         lr = self.lrs[name]
@@ -161,6 +161,10 @@ class GaussianAdam:
             scale_arr = np.empty(0, np.float32)
         row_len = max(n // max(rows, 1), 1)
         g_flat, m_flat, v_flat = g.view(-1), m.view(-1), v.view(-1)
+        if lr != 0.0 and vs_sqrt_available():  # one pass, torch's square root inside (optim_kernels.py)
+            adam_fused(p.detach().view(-1).numpy(), g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), scale_arr, row_len,
+                       f32(b1), f32(1 - b1), f32(b2), f32(1 - b2), f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
+            return True
         adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2))
         if lr == 0.0:
             return True
