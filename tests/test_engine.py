@@ -569,3 +569,18 @@ def test_peak_memory_is_the_trainings_own_not_the_process_peak(tiny_scene):
     assert 0 < peak_memory_mb("cpu") < lifetime_mb - 300, (peak_memory_mb("cpu"), lifetime_mb)
     (result,) = list(Trainer(GaussianSplatting(TrainConfig(steps_scale=0.005)), tiny_scene, (5,), progress=False).train())
     assert result.extra["peak_memory_scope"] == "training" and 0 < result.peak_memory_mb <= lifetime_mb + 1
+
+
+@pytest.mark.parametrize("shape,dtype", [((50,), torch.float32), ((50, 15, 3), torch.float32), ((50, 2), torch.bool),
+                                         ((50, 4), torch.int64)])
+def test_rows_then_is_indexing_then_concatenation(shape, dtype):
+    """Densification's row copies (`optim.rows_then`): old[index] then the added or zero rows, as torch.cat gives."""
+    from strings_bench.engine.optim import rows_then
+
+    g = torch.Generator().manual_seed(1)
+    old = (torch.randn(shape, generator=g) * 5).to(dtype)
+    for index in (torch.randperm(50, generator=g)[:31], torch.arange(0), torch.tensor([3, 3, 49, 0])):
+        add = (torch.randn((7,) + shape[1:], generator=g) * 5).to(dtype)
+        assert torch.equal(rows_then(old, index, add), torch.cat([old[index], add]))
+        assert torch.equal(rows_then(old, index, n_zero=5), torch.cat([old[index], torch.zeros((5,) + shape[1:], dtype=dtype)]))
+        assert torch.equal(rows_then(old, index), old[index])

