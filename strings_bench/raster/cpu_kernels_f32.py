@@ -15,8 +15,8 @@ loop on the vector units:
   float64 kernels (the box's columns and rows, power > 0, alpha < 1/255, the transmittance stop, a
   pixel already done or, in the backward, behind its last contributor) is a per-pixel mask that
   selects between the updated and the old value. Pixels outside the alpha >= 1/255 ellipse fail the
-  alpha test; a block of two rows x 8 columns that the ellipse misses altogether (`block_meets_ellipse`,
-  the float64 kernels' row spans) is skipped, as it would only add zeros. A tile stops when all of its
+  alpha test; a block of two rows x 8 columns that the ellipse misses altogether (`block_meets`, from the
+  region row by row that `ellipse_rows` solves once per Gaussian and tile) is skipped, as it would only add zeros. A tile stops when all of its
   pixels are done, as before;
 - `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
   (`pow2_f32`), inlined, branch-free;
@@ -41,7 +41,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from strings_bench.raster.cpu_kernels import (ALPHA_MAX, ALPHA_MIN, N_GRAD, N_PARAM, NF, SPAN_SLACK, T_MIN,
-                                              TILE, box_in_tile, row_span, splat_params, tight_box, tile_rect)
+                                              TILE, box_in_tile, splat_params, tight_box, tile_rect)
 
 F32 = np.float32
 ZERO = F32(0.0)
@@ -172,22 +172,44 @@ def even_rows(ys, ye, py0):
 
 
 @njit(cache=True, inline="always")
-def block_meets_ellipse(P, i, py0, r, ys, ye, xs, xe, c_lo, c_hi):
-    """Whether tile rows r and r + 1 (image row py0 + r on), columns c_lo..c_hi, meet the box rows ys..ye where
-    Gaussian i can reach alpha >= 1/255 (`cpu_kernels.row_span`, float64 with a pixel of slack). A 16-pixel block
-    it misses has no pixel that passes the exact tests, so skipping it adds nothing but zeros: the blends give the
-    same bits with or without the test (the partial sums start at +0 and never become -0)."""
+def ellipse_rows(P, i):
+    """Gaussian i's alpha >= 1/255 region (q <= qmin) row by row, in float64: the row at dy = my - (py + 0.5)
+    holds it at the columns px with |px - c| <= w, c = cx + slope dy, w^2 = k0 + k2 dy^2 (`cpu_kernels.row_span`'s
+    quadratic, solved once per Gaussian and tile instead of once per block and row). Returns (cx, slope, k0, k2,
+    my); a conic with a <= 0 (not an ellipse) gives w = inf, so no block is ever skipped for it."""
     ca = np.float64(P[i, 2])
     cb = np.float64(P[i, 3])
-    cc = np.float64(P[i, 4])
-    qmin = np.float64(P[i, 6 + NF])
-    mx = np.float64(P[i, 0])
-    my = np.float64(P[i, 1])
+    if not ca > 0.0:
+        return 0.0, 0.0, np.inf, 0.0, 0.0
+    inv = 1.0 / ca
+    return (np.float64(P[i, 0]) - 0.5, cb * inv, np.float64(P[i, 6 + NF]) * inv,
+            (cb * cb - ca * np.float64(P[i, 4])) * inv * inv, np.float64(P[i, 1]))
+
+
+@njit(cache=True, inline="always")
+def block_meets(E, py0, r, ys, ye, lo_col, hi_col):
+    """Whether tile rows r and r + 1 (image row py0 + r on), within the box rows ys..ye, hold a pixel of columns
+    lo_col..hi_col (floats) within one pixel of the region `ellipse_rows` gives as E. The pixel of slack is far
+    larger than the float64 rounding, and a NaN (opacity below 1/255) skips."""
+    cx, slope, k0, k2, my = E
     for py in range(max(py0 + r, ys), min(py0 + r + 1, ye) + 1):
-        lo, hi = row_span(ca, cb, cc, qmin, 1.0 / ca, mx, my - (py + 0.5), xs, xe)
-        if lo <= hi and hi >= c_lo and lo <= c_hi:
+        dy = my - (py + 0.5)
+        w2 = k0 + k2 * dy * dy
+        c = cx + slope * dy
+        d = max(lo_col - c, c - hi_col) - 1.0  # the distance from c to the columns, less the slack
+        if w2 >= 0.0 and (d <= 0.0 or d * d <= w2):
             return True
     return False
+
+
+@njit(cache=True, inline="always")
+def block_meets_ellipse(P, i, py0, r, ys, ye, xs, xe, c_lo, c_hi):
+    """Whether tile rows r and r + 1 (image row py0 + r on), columns c_lo..c_hi, meet the box (rows ys..ye,
+    columns xs..xe) where Gaussian i can reach alpha >= 1/255, with a pixel of slack (`ellipse_rows`,
+    `block_meets`). A 16-pixel block it misses has no pixel that passes the exact tests, so skipping it adds
+    nothing but zeros: the blends give the same bits with or without the test (the partial sums start at +0 and
+    never become -0)."""
+    return block_meets(ellipse_rows(P, i), py0, r, ys, ye, float(max(xs, c_lo)), float(min(xe, c_hi)))
 
 
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
@@ -222,6 +244,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
             # lanes a row, an even number of rows (two rows a 16-lane vector; a row outside the box is
             # added and masked when needed); the mask keeps the box's columns and rows
             r0, r1 = even_rows(ys, ye, py0)
+            E = ellipse_rows(P, i)
             j_lo = F32(xs - px0) - HALF
             j_hi = F32(xe - px0) + HALF
             i_lo = F32(ys - py0 - r0) - HALF  # box rows, relative to r0
@@ -233,9 +256,10 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                 base = np.uint64(h * HSZ + r0 * HW)
                 cxh = cx0 + F32(h * HW)
                 fjh = F32(h * HW)
+                lo_col = float(max(xs, px0 + h * HW))
+                hi_col = float(min(xe, px0 + h * HW + HW - 1))
                 for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
-                    if not block_meets_ellipse(P, i, py0, r0 + q0 // HW, ys, ye, xs, xe, px0 + h * HW,
-                                               px0 + h * HW + HW - 1):
+                    if not block_meets(E, py0, r0 + q0 // HW, ys, ye, lo_col, hi_col):
                         continue
                     for ln in range(LANES):
                         q = q0 + ln
@@ -262,10 +286,14 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                         last[p] = k1 if blend else last[p]
                         S[F_DONE + p] = ONE if stop else S[F_DONE + p]
                         D[ln] += ONE if stop else ZERO  # pixels stopped, per lane (whole numbers: exact)
-            nd = ZERO
-            for ln in range(LANES):
-                nd += D[ln]
-            n_done += nd
+            # the lanes' counts added in a tree (whole numbers: exact in any order; a chain of 16 additions
+            # would wait on each one)
+            w = LANES // 2
+            while w > 0:
+                for ln in range(w):
+                    D[ln] += D[ln + w]
+                w //= 2
+            n_done += D[0]
             if n_done == n_pix:
                 break
         for py in range(ph):
@@ -321,6 +349,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                 A[j] = ZERO
             if xs <= xe and ys <= ye:
                 r0, r1 = even_rows(ys, ye, py0)
+                E = ellipse_rows(P, i)
                 j_lo = F32(xs - px0) - HALF
                 j_hi = F32(xe - px0) + HALF
                 i_lo = F32(ys - py0 - r0) - HALF
@@ -333,9 +362,10 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     base = np.uint64(h * HSZ + r0 * HW)
                     cxh = cx0 + F32(h * HW)
                     fjh = F32(h * HW)
+                    lo_col = float(max(xs, px0 + h * HW))
+                    hi_col = float(min(xe, px0 + h * HW + HW - 1))
                     for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
-                        if not block_meets_ellipse(P, i, py0, r0 + q0 // HW, ys, ye, xs, xe, px0 + h * HW,
-                                                   px0 + h * HW + HW - 1):
+                        if not block_meets(E, py0, r0 + q0 // HW, ys, ye, lo_col, hi_col):
                             continue
                         for ln in range(LANES):
                             q = q0 + ln
