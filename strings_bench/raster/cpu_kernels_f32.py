@@ -158,6 +158,20 @@ L1, L2, L3, L4, L5, L6, L7, L8, L9, L10, L11 = (np.uint64(j * LANES) for j in ra
 
 
 @njit(cache=True, inline="always")
+def lane_tree(A, b):
+    """A[b] <- the LANES (16) partial sums A[b:b + 16] added in one fixed tree: lane l += lane l + w for w = 8,
+    4, 2, 1. Each level's additions are independent, and written with constant trip counts LLVM does each
+    level in a few vector operations (a loop over w left them scalar, one dependent store and load each)."""
+    for ln in range(8):
+        A[b + np.uint64(ln)] += A[b + np.uint64(ln + 8)]
+    for ln in range(4):
+        A[b + np.uint64(ln)] += A[b + np.uint64(ln + 4)]
+    for ln in range(2):
+        A[b + np.uint64(ln)] += A[b + np.uint64(ln + 2)]
+    A[b] += A[b + np.uint64(1)]
+
+
+@njit(cache=True, inline="always")
 def even_rows(ys, ye, py0):
     """The box's first and last row in the tile, widened by one row (down, else up) to an even count: two
     rows a 16-lane vector, a whole number of LANES pixels per half."""
@@ -288,11 +302,7 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
                         D[ln] += ONE if stop else ZERO  # pixels stopped, per lane (whole numbers: exact)
             # the lanes' counts added in a tree (whole numbers: exact in any order; a chain of 16 additions
             # would wait on each one)
-            w = LANES // 2
-            while w > 0:
-                for ln in range(w):
-                    D[ln] += D[ln + w]
-                w //= 2
+            lane_tree(D, np.uint64(0))
             n_done += D[0]
             if n_done == n_pix:
                 break
@@ -422,13 +432,8 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                             A[a + L10] += abs(gx)
                             A[a + L11] += abs(gy)
             # the lanes of every sum in one fixed tree: lane l += lane l + w for w = 8, 4, 2, 1
-            w = LANES // 2
-            while w > 0:
-                for j in range(N_GRAD):
-                    for ln in range(w):
-                        a = np.uint64(j * LANES + ln)
-                        A[a] += A[a + np.uint64(w)]
-                w //= 2
+            for j in range(N_GRAD):
+                lane_tree(A, np.uint64(j * LANES))
             g_mx = A[0]
             g_my = A[L1]
             g_ca = A[L2]
