@@ -1,5 +1,9 @@
 """Float32 blend kernels of the CPU rasterizer (the default; `cpu_kernels` keeps the float64 reference).
 
+Size (~460 lines): the forward and backward blends with the inlined helpers they share (the tile's
+layout, the block skip, exp, the lane trees); each helper's cost is read in the compiled kernels, so they stay in
+one module.
+
 Same rules, layout and binning as `cpu_kernels` (its docstring): P rows are (mean2d x, y, conic a, b,
 c, opacity, NF features, qmin), here in float32; BB the tight pixel boxes; per 16x16 tile a slice of
 `lst` front to back. What differs is the arithmetic and the loop shape, so that LLVM puts the pixel
