@@ -57,6 +57,10 @@ def ray_session():
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("PYTHONPATH", os.pathsep.join([str(TESTS.parent), str(TESTS), os.environ.get("PYTHONPATH", "")]))
         mp.setenv("RAY_USAGE_STATS_ENABLED", "0")
+        # Ray's own memory monitor kills workers when the machine as a whole passes 95 % of its memory: other
+        # work on the machine (training runs beside the tests) then failed these tests with a message about Ray,
+        # not about the code under test. The tests' jobs are small; the monitor is off for them.
+        mp.setenv("RAY_memory_monitor_refresh_ms", "0")
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=100 * 2**20,
                  logging_level="WARNING")
         try:
