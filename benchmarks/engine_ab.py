@@ -9,7 +9,8 @@ versions run the same training steps (`train_step` + `refine`, each under its ow
 thread setting) in fresh processes: the old commit from a `git worktree` of it, this checkout
 from its own tree. Arms alternate within every repetition (old first in even repetitions).
 
-Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
+Each arm seeds the random generators alike after restoring its state, so densification rounds draw the same
+splits. Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
 and process CPU time of all threads, which a loaded machine disturbs less), and whether both arms
 ended with bit-identical parameters (not expected across the float32 blend change: the float32 blends follow another
 trajectory; `--new-backend cpu-f64` runs the new arm on the float64 kernels, whose parameters should
@@ -61,6 +62,9 @@ def worker(state: str, first: int, steps: int) -> int:
         method.setup(scene, device="cpu")
     else:
         method = E.restore(scene, "early", Path(state))
+        # the random draws of densification (split samples) alike in both arms: unseeded, two runs of the same
+        # code over a densification round ended with different parameters
+        seed_everything(method.config.seed)
     if os.environ.get("ENGINE_AB_BACKEND"):
         method.config.backend = os.environ["ENGINE_AB_BACKEND"]
     with threads():  # one untimed step: loading each compiled kernel from the cache is not a step's time
