@@ -14,6 +14,13 @@ sign of their CER difference, a difference under --tie counting as a tie (a tie 
 prints, per candidate and checkpoint: pairs compared, the share of pairs ordered alike (known-text CER, and
 OCR-CER), and the mean |CER difference| of the cells. **It never prints a CER or which method is ahead**, so a
 miniature can be chosen on agreement without looking at the comparison it will run (`--show` lists the cells).
+
+    python benchmarks/miniature.py choose --reference CSV_OR_RUN [...] --baseline NAME CANDIDATE=CSV_OR_RUN [...]
+
+`choose` applies the rule of docs/miniature.md ("The rule that picks it") to the same inputs: eligibility (every
+reference cell present; training time at most --max-cost x the baseline candidate's on the same cells), the score
+(mean of the four ordered-alike shares), level within --level of the best, then cost, then the mean known-text
+difference. It prints each candidate's figures and the choice with its reason, and no CER either.
 """
 
 from __future__ import annotations
@@ -90,8 +97,12 @@ def _sign(d: float, tie: float) -> int:
     return 0 if abs(d) < tie else (1 if d > 0 else -1)
 
 
-def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[dict]:
-    """Per checkpoint label: pairs compared, shares ordered alike, mean |CER difference| (module docstring)."""
+CER_COLUMNS = (("cer_known", "known-text CER"), ("cer", "OCR-CER"))
+
+
+def agreement_stats(reference: list[dict], candidate: list[dict], tie: float) -> list[tuple]:
+    """(checkpoint label, cells, {column name: (pairs, pairs ordered alike, [|CER difference| per cell])}) per
+    checkpoint label of the cells both sides have."""
     def table(rows):
         return {(r["method"], r["scene"], r["label"]): r for r in rows}
 
@@ -100,8 +111,8 @@ def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[
     out = []
     for label in sorted({k[2] for k in common}, key=lambda s: (len(s), s)):
         keys = [k for k in common if k[2] == label]
-        row = {"ckpt": label, "cells": len(keys)}
-        for col, name in (("cer_known", "known-text CER"), ("cer", "OCR-CER")):
+        stats = {}
+        for col, name in CER_COLUMNS:
             pairs = agree = 0
             diffs = []
             for scene in sorted({k[1] for k in keys}):
@@ -113,11 +124,87 @@ def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[
                     s_cand = _sign(float(cand[a][col]) - float(cand[b][col]), tie)
                     pairs += 1
                     agree += s_ref == s_cand
+            stats[name] = (pairs, agree, diffs)
+        out.append((label, len(keys), stats))
+    return out
+
+
+def agreement(reference: list[dict], candidate: list[dict], tie: float) -> list[dict]:
+    """Per checkpoint label: pairs compared, shares ordered alike, mean |CER difference| (module docstring)."""
+    out = []
+    for label, n_cells, stats in agreement_stats(reference, candidate, tie):
+        row = {"ckpt": label, "cells": n_cells}
+        for _, name in CER_COLUMNS:
+            pairs, agree, diffs = stats[name]
             row[f"pairs ({name})"] = pairs
             row[f"ordered alike ({name})"] = "" if not pairs else f"{agree / pairs:.2f}"
             row[f"mean abs. difference ({name})"] = "" if not diffs else f"{sum(diffs) / len(diffs):.3f}"
         out.append(row)
     return out
+
+
+def training_seconds(rows: list[dict], keys: set) -> float:
+    """The training time of the (method, scene) cells in `keys`: each cell's time at its last checkpoint (a cell's
+    train_seconds is cumulative over its checkpoints), summed."""
+    last: dict = {}
+    for r in rows:
+        key = (r["method"], r["scene"])
+        if key in keys and r.get("train_seconds") not in ("", None):
+            it = int(r["iteration"])
+            if key not in last or it > last[key][0]:
+                last[key] = (it, float(r["train_seconds"]))
+    return sum(t for _, t in last.values())
+
+
+def choose(reference: list[dict], candidates: dict[str, list[dict]], baseline: str, tie: float = 0.02,
+           max_cost: float = 2.0, level: float = 0.05) -> tuple[list[dict], str | None, str]:
+    """The rule of docs/miniature.md: per candidate its coverage, cost (training seconds over the reference's
+    (method, scene) cells, and as a multiple of the baseline's), score (mean of the ordered-alike shares over the
+    checkpoints and both CERs) and mean known-text difference; then the choice and its reason. Returns (rows,
+    chosen name or None, reason)."""
+    ref_cells = {(r["method"], r["scene"], r["label"]) for r in reference}
+    ref_pairs = {(m, sc) for m, sc, _ in ref_cells}
+    if baseline not in candidates:
+        raise SystemExit(f"the baseline {baseline!r} is not among the candidates {sorted(candidates)}")
+    base_cost = training_seconds(candidates[baseline], ref_pairs)
+    rows = []
+    for name, cand in candidates.items():
+        have = {(r["method"], r["scene"], r["label"]) for r in cand}
+        missing = len(ref_cells - have)
+        cost = training_seconds(cand, ref_pairs)
+        shares, diffs = [], []
+        for _, _, stats in agreement_stats(reference, cand, tie):
+            for _, col in CER_COLUMNS:
+                pairs, agree, _ = stats[col]
+                if pairs:
+                    shares.append(agree / pairs)
+            known = stats["known-text CER"][2]
+            if known:
+                diffs.append(sum(known) / len(known))
+        ratio = cost / base_cost if base_cost > 0 else float("nan")
+        eligible = missing == 0 and ratio <= max_cost
+        rows.append({"candidate": name, "reference cells missing": missing, "training s": f"{cost:.0f}",
+                     "cost / baseline": f"{ratio:.2f}", "eligible": "yes" if eligible else "no",
+                     "score": "" if not shares else f"{sum(shares) / len(shares):.3f}",
+                     "mean abs. difference (known-text CER)": "" if not diffs else f"{sum(diffs) / len(diffs):.3f}",
+                     "_score": sum(shares) / len(shares) if shares else None, "_cost": cost,
+                     "_diff": sum(diffs) / len(diffs) if diffs else float("inf"), "_eligible": eligible})
+    ok = [r for r in rows if r["_eligible"] and r["_score"] is not None]
+    if not ok:
+        reason = "no candidate is eligible yet (every reference cell present, cost within the limit)"
+        chosen = None
+    else:
+        best = max(r["_score"] for r in ok)
+        level_rows = [r for r in ok if r["_score"] >= best - level]
+        pick = min(level_rows, key=lambda r: (r["_cost"], r["_diff"]))
+        chosen = pick["candidate"]
+        others = [r["candidate"] for r in level_rows if r is not pick]
+        reason = (f"{chosen}: score {pick['score']} (best {best:.3f}, level within {level})"
+                  + (f"; cheaper than the level candidates {', '.join(others)}" if others else "; no other candidate level"))
+    for r in rows:
+        for k in ("_score", "_cost", "_diff", "_eligible"):
+            r.pop(k)
+    return rows, chosen, reason
 
 
 def _write(rows: list[dict], path: Path | None) -> None:
@@ -151,7 +238,25 @@ def main(argv=None) -> int:
     a.add_argument("--tie", type=float, default=0.02, help="CER differences under this are ties (default 0.02)")
     a.add_argument("--csv", type=Path)
     a.add_argument("--show", action="store_true", help="also list the CERs (not blind)")
+    c = sub.add_parser("choose", help="the frozen-miniature rule of docs/miniature.md (blind)")
+    c.add_argument("--reference", action="append", required=True, help="a run folder or results.csv (repeatable)")
+    c.add_argument("--baseline", required=True, help="the candidate whose training time is the cost unit (cpu-long)")
+    c.add_argument("candidates", nargs="+", metavar="NAME=RUN_OR_CSV[+RUN_OR_CSV]")
+    c.add_argument("--tie", type=float, default=0.02)
+    c.add_argument("--max-cost", type=float, default=2.0, help="eligible up to this multiple of the baseline's time")
+    c.add_argument("--level", type=float, default=0.05, help="scores within this of the best count as level")
+    c.add_argument("--csv", type=Path)
     args = ap.parse_args(argv)
+    if args.what == "choose":
+        reference = [r for src in args.reference for r in _rows(src)]
+        cands = {}
+        for spec in args.candidates:
+            name, _, sources = spec.partition("=")
+            cands[name] = [r for src in sources.split("+") for r in _rows(src)]
+        rows, chosen, reason = choose(reference, cands, args.baseline, args.tie, args.max_cost, args.level)
+        _write(rows, args.csv)
+        print(f"choice: {reason}")
+        return 0
     if args.what == "motion":
         _write(motion_rows(args.runs), args.csv)
         return 0

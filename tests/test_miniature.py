@@ -167,3 +167,37 @@ def test_agreement_counts_pairs_ordered_alike_with_ties():
     assert agreement(ref, swapped, tie=0.02)[0][alike] == "0.67"
     assert agreement(ref, tied, tie=0.02)[0][alike] == "0.00"
     assert agreement(tied, tied, tie=0.02)[0][alike] == "1.00"
+
+
+def _timed(cers: dict, seconds: float) -> list[dict]:
+    rows = _cells(cers)
+    for r in rows:
+        r["iteration"] = "3000" if r["label"] == "3K" else "7000"
+        r["train_seconds"] = str(seconds if r["label"] == "7K" else seconds / 2)
+    return rows
+
+
+def test_choose_applies_the_rule_coverage_cost_score_then_cost():
+    """The rule of docs/miniature.md: a candidate missing a reference cell, or costing more than twice the
+    baseline, is not eligible; the best score wins unless a cheaper one is level (within 0.05); nothing is chosen
+    while no candidate is eligible."""
+    choose = _agreement_module().choose
+    ref = {("a", "s", "3K"): 0.1, ("b", "s", "3K"): 0.5, ("c", "s", "3K"): 0.3,
+           ("a", "s", "7K"): 0.1, ("b", "s", "7K"): 0.5, ("c", "s", "7K"): 0.3}
+    swap = {**ref, ("b", "s", "3K"): 0.2}  # one pair of three out of order at 3K
+    reference = _cells(ref)
+    cands = {"base": _timed(swap, 100.0), "good": _timed(ref, 150.0), "dear": _timed(ref, 250.0),
+             "partial": _timed({k: v for k, v in ref.items() if k[2] == "3K"}, 10.0)}
+    rows, chosen, reason = choose(reference, cands, "base")
+    by = {r["candidate"]: r for r in rows}
+    assert chosen == "good" and "good" in reason
+    assert by["dear"]["eligible"] == "no" and by["dear"]["cost / baseline"] == "2.50"
+    assert by["partial"]["eligible"] == "no" and by["partial"]["reference cells missing"] == 3
+    assert by["good"]["score"] == "1.000" and by["base"]["score"] == "0.833"
+    # a level candidate (score within 0.05) that is cheaper wins
+    rows, chosen, reason = choose(reference, {"base": _timed(swap, 100.0), "good": _timed(ref, 150.0)}, "base",
+                                  level=0.2)
+    assert chosen == "base" and "cheaper" in reason
+    assert all("0.1" not in str(r.get("cer", "")) for r in rows)  # no CER in the rows
+    rows, chosen, _ = choose(reference, {"partial": cands["partial"]}, "partial")
+    assert chosen is None
