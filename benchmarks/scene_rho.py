@@ -5,8 +5,8 @@
 SCENE is a dataset id with a scene (default: the three synthetic360-cpu rooms, draw 0), built or located as
 `strings-bench datasets prepare` does, or a scene folder (e.g. a room built with other difficulty settings,
 named by LABEL in the table). Prints one row per scene (extent, median stroke in world units and
-pixels, words measured, rho; strings_bench/scene/difficulty.py) and, with `--csv`, writes them (the table
-of docs/results/difficulty.md).
+pixels, words measured, rho, where the strokes were measured and whether they were thick enough there to read
+true; strings_bench/scene/difficulty.py) and, with `--csv`, writes them (the table of docs/results/difficulty.md).
 """
 
 from __future__ import annotations
@@ -28,17 +28,18 @@ def main(argv=None) -> int:
     ap.add_argument("scenes", nargs="*", default=DEFAULT)
     ap.add_argument("--csv", type=Path, default=None)
     args = ap.parse_args(argv)
-    rows = [["scene", "extent", "median stroke (world)", "median stroke (px)", "words", "rho"]]
+    rows = [["scene", "extent", "median stroke (world)", "median stroke (px)", "words", "rho", "strokes measured on",
+             "reliable"]]
     for arg in args.scenes:
         label, _, spec = arg.rpartition("=")
         spec = spec or arg
         ref = resolve_scenes([spec])[0]
         d = recorded_difficulty(Scene.load(ref.path, settings=ref.settings))
         if d.rho is None:
-            rows.append([label or spec, f"{d.extent:.3g}", "", "", "0", ""])
+            rows.append([label or spec, f"{d.extent:.3g}", "", "", "0", "", d.measured_on, ""])
         else:
             rows.append([label or spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
-                         f"{d.rho:.3f}"])
+                         f"{d.rho:.3f}", d.measured_on, "yes" if d.reliable else "no"])
         print(",".join(rows[-1]))
     if args.csv is not None:
         atomic_write_text(args.csv, "\n".join(",".join(r) for r in rows) + "\n")

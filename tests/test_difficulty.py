@@ -38,6 +38,55 @@ def test_stroke_width_reads_drawn_strokes(width):
     assert stroke_width_px(250 - strokes_image(width), BOX) == pytest.approx(width, rel=0.08)
 
 
+def text_image(font_px: int, text: str, style: str, offset: tuple[int, int], factor: int = SUPER):
+    """`text` drawn at `factor` times the size and box-filtered down (anti-aliased as a renderer's), and the same
+    drawing at full size: (small image, large image)."""
+    from strings_bench.datasets.synthetic.textures import load_font
+
+    font = load_font(style, font_px * factor)
+    w = int(font.getlength(text)) + 8 * factor
+    w -= w % factor
+    h = 2 * font_px * factor
+    im = Image.new("L", (w, h), 225)
+    ImageDraw.Draw(im).text((2 * factor + offset[0], factor // 2 + offset[1]), text, font=font, fill=25)
+    return (np.asarray(im.resize((w // factor, h // factor), Image.BOX), np.float64), np.asarray(im, np.float64))
+
+
+def _box(img):
+    h, w = img.shape
+    return np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)
+
+
+def test_thin_strokes_read_wide_and_thick_ones_true():
+    """The measurement's limit, on words drawn 8x larger and box-filtered down (their true width: the same drawing
+    measured at 8x, 7-35 pixels there): 2.2-pixel strokes read 7 % wide, 3-pixel ones within 3 %, 1.5-pixel ones
+    1.2x and 0.9-pixel ones 1.6x wide (no pixel of a thin stroke is all ink), which is why the suite's synthetic
+    scenes are measured on their words rendered again finer (datasets/synthetic/rho.py)."""
+    rng = np.random.default_rng(0)
+    ratios = {}
+    for font_px in (10, 16, 24, 32):
+        r = []
+        for text in ("STORAGE", "Handle with care", "Flour 2kg", "batteries"):
+            for style in ("sans", "sans-bold", "serif"):
+                small, large = text_image(font_px, text, style, tuple(int(v) for v in rng.integers(0, SUPER, 2)))
+                r.append(stroke_width_px(small, _box(small)) / (stroke_width_px(large, _box(large)) / SUPER))
+        ratios[font_px] = float(np.median(r))
+    assert ratios[32] == pytest.approx(1.0, abs=0.03) and ratios[24] == pytest.approx(1.0, abs=0.1)
+    assert ratios[16] > 1.15 and ratios[10] > 1.4
+
+
+def test_reliable_says_whether_the_median_stroke_is_thick_enough():
+    from strings_bench.scene.difficulty import MIN_RELIABLE_STROKE_PX, difficulty_from_strokes
+
+    thin = difficulty_from_strokes(2.0, [1.5, 1.8, 2.0], [0.01, 0.012, 0.013])
+    assert thin.reliable is False and thin.measured_on == "images"
+    assert thin.rho == pytest.approx(1.6e-4 * 2.0 / 0.012)
+    # the same strokes measured 2x finer (re-rendered): reliable, the pixels still those of the images
+    fine = difficulty_from_strokes(2.0, [1.5, 1.8, 2.0], [0.01, 0.012, 0.013], [3.0, 3.6, 4.0], "crops x2")
+    assert fine.reliable is True and fine.stroke_px == pytest.approx(1.8) and MIN_RELIABLE_STROKE_PX <= 3.6
+    assert difficulty_from_strokes(2.0, [], []).rho is None
+
+
 def test_stroke_width_refuses_what_it_cannot_measure():
     assert stroke_width_px(np.full((30, 60), 128.0), BOX) is None  # one grey level: no ink
     assert stroke_width_px(strokes_image(2.0), np.array([[2, 2], [5, 2], [5, 5], [2, 5]], float)) is None  # tiny box

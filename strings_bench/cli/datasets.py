@@ -223,7 +223,7 @@ def _format(row: dict) -> str:
     d = row.get("difficulty")
     rho = ("\n  rho n/a (no known words and no text masks to measure strokes on)" if d is None or d.rho is None else
            f"\n  rho {d.rho:.3f} (one 3DGS position step = {100 * d.rho:.1f} % of a text stroke: extent {d.extent:.3g}, "
-           f"median stroke {d.stroke_world:.3g} in world units, {d.stroke_px:.2f} px, {d.words} words)")
+           f"median stroke {d.stroke_world:.3g} in world units, {d.stroke_px:.2f} px, {d.words} words{d.how_measured()})")
     return (f"{row['id']}: {row['path']}\n  views {row['views']}, points {row['points']}, points in text masks {text}, "
             f"{row['seconds']:.1f} s{build}{warn}{rho}")
 

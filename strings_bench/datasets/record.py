@@ -65,6 +65,8 @@ def scene_record(card: DatasetCard, scene: SceneCard, build: bool = False) -> di
 
 def format_record(rec: dict) -> str:
     """The record as lines of text."""
+    from strings_bench.scene.difficulty import Difficulty
+
     lines = [rec["id"]]
     if "not_built" in rec:
         return "\n".join([*lines, f"  {rec['not_built']}"])
@@ -99,5 +101,6 @@ def format_record(rec: dict) -> str:
         lines.append(f"  rho n/a (no text strokes measured), extent {d['extent']:.3g}")
     else:
         lines.append(f"  rho {d['rho']:.3f} (extent {d['extent']:.3g}, median stroke {d['stroke_world']:.3g} world "
-                     f"units = {d['stroke_px']:.2f} px, {d['words']} text regions)")
+                     f"units = {d['stroke_px']:.2f} px, {d['words']} text regions"
+                     f"{Difficulty(**d).how_measured()})")
     return "\n".join(lines)

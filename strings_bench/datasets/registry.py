@@ -122,6 +122,9 @@ def resolve_scenes(specs: list[str]) -> list[SceneRef]:
             if (path / "sparse").exists() or (path / "images").exists():
                 # Labelled by the scene folder itself: its parent is often a generic folder ("scenes", "data").
                 here = path.resolve()
+                from strings_bench.datasets.synthetic.generate import ensure_rho_record
+
+                ensure_rho_record(here)  # a synthetic room of the cache named by its folder: rho as its build keeps it
                 refs.append(SceneRef(dataset=here.name or "local", scene=here.name, path=here))
             else:
                 subs = sorted(p for p in path.iterdir() if (p / "sparse").exists())

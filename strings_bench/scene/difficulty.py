@@ -17,17 +17,26 @@ synthetic scenes' annotations, or OCR boxes of real photos), the word's pixels a
 background by Otsu's threshold inside the polygon (ink: the smaller class); each pixel's ink coverage is
 its grey level between the two classes' medians (anti-aliased edges count in part), and the stroke width
 in pixels is the ink's area over its skeleton's length (a stroke of width w and length L covers w L
-pixels). This reads sub-pixel widths, as in the CPU scenes' 320x240 images, where strokes are 1-2
-pixels wide; a skeleton pixel counts as one unit of length, diagonal steps too, so slanted strokes read
-up to ~1.4x wide. It becomes world units at the word's depth: the
-camera's distance to the word's centre where the scene records it (synthetic scenes), else the median
-camera-space depth of the SfM points observed inside the polygon. rho uses the median over words.
+pixels). A skeleton pixel counts as one unit of length, diagonal steps too, so slanted strokes read
+up to ~1.4x wide. It becomes world units at the word's depth: the camera's distance to the word's centre
+where the scene records it (synthetic scenes), else the median camera-space depth of the SfM points
+observed inside the polygon. rho uses the median over words.
+
+**Strokes under about 3 pixels read wide.** No pixel of a thinner stroke is all ink, so the ink class's
+median is a partial grey and the coverage normalised to it overstates the width: text drawn at 8x and
+box-filtered down reads 1.6x wide at 0.9-pixel strokes, 1.2x at 1.5, 1.07x at 2.2 and within 3 % from 3 pixels
+up (the measured width settles near 1.7 pixels however thin the stroke; tests/test_difficulty.py).
+Where the words can be rendered again at a finer resolution (the suite's synthetic scenes,
+`datasets/synthetic/rho.py`) they are measured there (`measured_on` in the record); elsewhere
+`reliable` says whether the median stroke is at least MIN_RELIABLE_STROKE_PX pixels.
 """
 
 from __future__ import annotations
 
+import json
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 
 import numpy as np
 
@@ -35,6 +44,8 @@ log = logging.getLogger(__name__)
 
 POSITION_LR_INIT = 1.6e-4  # 3DGS' initial position learning rate, times the extent (Kerbl et al. 2023)
 MIN_WORD_PX = 6  # a word box lower than this (pixels) is too small to measure its strokes
+MIN_RELIABLE_STROKE_PX = 3.0  # median strokes (pixels where measured) thinner than this read wide (module doc)
+ON_IMAGES = "images"  # `measured_on` of a measurement on the scene's own images
 
 
 @dataclass(frozen=True)
@@ -46,9 +57,32 @@ class Difficulty:
     stroke_world: float | None  # median stroke width, world units
     stroke_px: float | None  # median stroke width, pixels (at the images' full size)
     words: int  # words measured
+    # where the strokes were measured: ON_IMAGES, or how the words were rendered again (synthetic scenes)
+    measured_on: str = ON_IMAGES
+    reliable: bool | None = None  # the median stroke, where measured, at least MIN_RELIABLE_STROKE_PX pixels
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def how_measured(self) -> str:
+        """Where the strokes were measured, and a warning where they were too thin to read true."""
+        where = "" if self.measured_on == ON_IMAGES else f"; strokes measured on {self.measured_on}"
+        warn = ("" if self.reliable is not False else
+                f"; median stroke under {MIN_RELIABLE_STROKE_PX:g} px where measured: strokes read wide, so rho reads low")
+        return where + warn
+
+
+def difficulty_from_strokes(extent: float, strokes_px, strokes_world, measured_px=None,
+                            measured_on: str = ON_IMAGES) -> Difficulty:
+    """rho from per-word stroke widths: in the scene's image pixels, in world units, and in the pixels they were
+    measured at (default: the image pixels), medians over the words."""
+    if not strokes_world:
+        return Difficulty(None, extent, None, None, 0, measured_on, None)
+    stroke = float(np.median(strokes_world))
+    at = strokes_px if measured_px is None else measured_px
+    return Difficulty(rho=POSITION_LR_INIT * extent / stroke, extent=extent, stroke_world=stroke,
+                      stroke_px=float(np.median(strokes_px)), words=len(strokes_world), measured_on=measured_on,
+                      reliable=bool(np.median(at) >= MIN_RELIABLE_STROKE_PX))
 
 
 def stroke_width_px(gray: np.ndarray, polygon: np.ndarray) -> float | None:
@@ -162,37 +196,45 @@ def scene_difficulty(scene, words=None, views=None) -> Difficulty:
                 continue
             strokes_px.append(w)
             strokes_world.append(w * depth / fx)
-    if not strokes_world:
-        return Difficulty(None, extent, None, None, 0)
-    stroke = float(np.median(strokes_world))
-    return Difficulty(rho=POSITION_LR_INIT * extent / stroke, extent=extent, stroke_world=stroke,
-                      stroke_px=float(np.median(strokes_px)), words=len(strokes_world))
+    return difficulty_from_strokes(extent, strokes_px, strokes_world)
 
 
 DIFFICULTY_FILE = "difficulty.json"  # the scene's record of rho, beside its images (scenes in the cache)
-DIFFICULTY_VERSION = 1  # bump when the measurement changes: older records are measured again
+DIFFICULTY_VERSION = 2  # bump when the measurement changes: older records are measured again
+
+
+def read_difficulty(root) -> Difficulty | None:
+    """The record of the scene folder `root` when it is of the current version, else None."""
+    try:
+        rec = json.loads((Path(root) / DIFFICULTY_FILE).read_text())
+        if rec.get("version") == DIFFICULTY_VERSION:
+            return Difficulty(**{f.name: rec[f.name] for f in fields(Difficulty)})
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
+
+
+def write_difficulty(root, d: Difficulty) -> None:
+    """Keep `d` as the scene folder's record (atomic)."""
+    from strings_bench.core.io import atomic_write_json
+
+    atomic_write_json(Path(root) / DIFFICULTY_FILE, {"version": DIFFICULTY_VERSION, **d.as_dict()})
 
 
 def recorded_difficulty(scene) -> Difficulty:
     """`scene_difficulty`, kept in the scene folder's difficulty.json when the folder is in the suite's
     cache (built scenes: synthetic rooms, prepared photos); a folder of the user's is only read."""
-    import json
+    from strings_bench.core.io import cache_root
 
-    from strings_bench.core.io import atomic_write_json, cache_root
-
-    path = scene.root / DIFFICULTY_FILE
-    try:
-        rec = json.loads(path.read_text())
-        if rec.get("version") == DIFFICULTY_VERSION:
-            return Difficulty(**{k: rec[k] for k in ("rho", "extent", "stroke_world", "stroke_px", "words")})
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
+    rec = read_difficulty(scene.root)
+    if rec is not None:
+        return rec
     d = scene_difficulty(scene)
     try:
         scene.root.resolve().relative_to(cache_root().resolve())
     except ValueError:
         return d
-    atomic_write_json(path, {"version": DIFFICULTY_VERSION, **d.as_dict()})
+    write_difficulty(scene.root, d)
     return d
 
 

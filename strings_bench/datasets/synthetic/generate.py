@@ -1,7 +1,7 @@
 """Generate a synthetic scene folder: rendered views, GT text masks and polygons, and a sparse
 point cloud triangulated by pycolmap from SIFT matches on the rendered images with the known poses.
 
-Size (~650 lines): one pipeline in data-path order (render views, masks and polygons, SfM, write); splitting it would hide the order.
+Size (~700 lines): one pipeline in data-path order (render views, masks and polygons, SfM, write, the record of rho); splitting it would hide the order.
 
 Layout written (COLMAP style, loadable with `Scene.load`):
 
@@ -42,6 +42,7 @@ from strings_bench.core.errors import DatasetError
 from strings_bench.core.io import atomic_write_json, cache_root, sweep_stale_temps, writer_tag
 from strings_bench.scene.scene import KnownWord, write_annotations
 from strings_bench.datasets.synthetic.photometric import apply_photometry, draw_view_photometry
+from strings_bench.datasets.synthetic.rho import rendered_difficulty
 from strings_bench.datasets.synthetic.scenes import BUILDERS, SceneSpec
 from strings_bench.datasets.synthetic.multiscript import (MULTISCRIPT_VERSION, SCENE_NAMES_MULTI, WORDS, build_multi,
                                                          check_fonts, scene_script)
@@ -197,6 +198,7 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     if final.exists() and not force:
         problem = intact_problem(final)
         if problem is None:
+            _record_rho(final, scene, settings, only_if_missing=True)  # a record of an older measurement is redone
             return final
         log.warning("synthetic/%s: the cached scene is incomplete (%s); rebuilding it", scene, problem)
         shutil.rmtree(final, ignore_errors=True)  # not ours to trust
@@ -204,7 +206,7 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     tmp.mkdir(parents=True)
     try:
         _build_into(scene, settings, tmp, progress)
-        _record_rho(tmp)
+        _record_rho(tmp, scene, settings)
         if final.exists():
             if not force:  # another process finished first: keep its copy
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -217,13 +219,45 @@ def build_scene(scene: str, settings: SyntheticSettings | None = None, force: bo
     return final
 
 
-def _record_rho(folder: Path) -> None:
-    """Keep the built scene's rho in its record (difficulty.json; scene/difficulty.py). The scene itself is
-    complete without it: a missing record is measured again on first use."""
-    from strings_bench.scene.difficulty import measured_rho
+def _record_rho(folder: Path, scene: str, settings: SyntheticSettings, only_if_missing: bool = False) -> None:
+    """Keep the built scene's rho in its record (difficulty.json; scene/difficulty.py), its strokes measured on the
+    words rendered again finer (`rho.rendered_difficulty`). The scene itself is complete without it: a failed
+    measurement is logged and left to the next use."""
+    from strings_bench.scene.difficulty import read_difficulty, write_difficulty
     from strings_bench.scene.scene import Scene
 
-    measured_rho(Scene.load(folder))
+    if only_if_missing and read_difficulty(folder) is not None:
+        return
+    try:
+        write_difficulty(folder, synthetic_difficulty(scene, settings, Scene.load(folder).extent))
+    except Exception as exc:  # a property for the record: never worth a failed build
+        log.warning("rho of synthetic/%s not measured: %s", scene, exc)
+
+
+def ensure_rho_record(folder: Path) -> None:
+    """For a synthetic scene folder of the suite's cache named directly (`run --datasets FOLDER`, a room built with
+    other settings): its record of rho as `build_scene` keeps it (the settings read from its scene_meta.json).
+    Anything else is left to the scene layer's measurement on the images."""
+    folder = Path(folder)
+    try:
+        folder.resolve().relative_to(cache_root().resolve())
+        meta = json.loads((folder / META_FILE).read_text())
+        settings = meta["settings"]
+        settings = SyntheticSettings(**{**settings, "text_px": None if settings.get("text_px") is None
+                                        else tuple(settings["text_px"])})
+        scene = meta["scene"]
+    except (ValueError, OSError, KeyError, TypeError, DatasetError):
+        return
+    _record_rho(folder, scene, settings, only_if_missing=True)
+
+
+def synthetic_difficulty(scene: str, settings: SyntheticSettings, extent: float, views=None):
+    """rho of synthetic `scene` built with `settings`, its words re-rendered finer (`rho.rendered_difficulty`) over
+    `views` (default: every view); `extent` the built scene's."""
+    spec = make_spec(scene, settings.seed, settings)
+    cams = orbit_cameras(spec, settings, np.random.default_rng([settings.seed, 2]))
+    return rendered_difficulty(spec, cams, lambda cam: visible_words(spec, cam, settings), settings.supersample,
+                               extent, views)
 
 
 # ---- cameras -------------------------------------------------------------------------------
