@@ -422,20 +422,37 @@ def reduce_intersections(buf, g_start, isect_pos, order, g_means2d, g_conics, g_
         if with_abs:
             g_abs[i, 0] = 0.0
             g_abs[i, 1] = 0.0
+    # The sums in twelve scalars, not a small array per Gaussian: an array allocated in the loop is a heap
+    # allocation per Gaussian, and a loop over buf's columns of unknown length kept them in memory. Each sum
+    # still adds its rows in intersection order, so the bits are the same.
+    assert n == N_GRAD and NF == 4
     for v in prange(V):
-        acc = np.zeros(N_GRAD, np.float64)
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = a10 = a11 = 0.0
         for s in range(g_start[v], g_start[v + 1]):
             k = isect_pos[s]
-            for j in range(n):
-                acc[j] += buf[k, j]
+            a0 += buf[k, 0]
+            a1 += buf[k, 1]
+            a2 += buf[k, 2]
+            a3 += buf[k, 3]
+            a4 += buf[k, 4]
+            a5 += buf[k, 5]
+            a6 += buf[k, 6]
+            a7 += buf[k, 7]
+            a8 += buf[k, 8]
+            a9 += buf[k, 9]
+            a10 += buf[k, 10]
+            a11 += buf[k, 11]
         i = order[v]
-        g_means2d[i, 0] = acc[0]
-        g_means2d[i, 1] = acc[1]
-        for j in range(3):
-            g_conics[i, j] = acc[2 + j]
-        g_opacities[i] = acc[5]
-        for j in range(NF):
-            g_feats[i, j] = acc[6 + j]
+        g_means2d[i, 0] = a0
+        g_means2d[i, 1] = a1
+        g_conics[i, 0] = a2
+        g_conics[i, 1] = a3
+        g_conics[i, 2] = a4
+        g_opacities[i] = a5
+        g_feats[i, 0] = a6
+        g_feats[i, 1] = a7
+        g_feats[i, 2] = a8
+        g_feats[i, 3] = a9
         if with_abs:
-            g_abs[i, 0] = acc[6 + NF]
-            g_abs[i, 1] = acc[7 + NF]
+            g_abs[i, 0] = a10
+            g_abs[i, 1] = a11
