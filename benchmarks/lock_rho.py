@@ -26,14 +26,12 @@ hurts) to negative (it helps) between two neighbouring rho values of the table, 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
-from io import StringIO
 from pathlib import Path
 
-from strings_bench.core.io import atomic_write_text
+from strings_bench.reports.doc_tables import show_and_save
 
 CERS = (("cer_known", "known-text CER"), ("cer", "OCR-CER"))
 
@@ -150,21 +148,7 @@ def crossover(rows: list[dict]) -> list[dict]:
 
 
 def _write(rows: list[dict], path: Path | None) -> None:
-    rows = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
-    if not rows:
-        print("(no rows)")
-        return
-    header = list(rows[0])
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(str(r.get(h, "")) for h in header) + " |")
-    if path is not None:
-        buf = StringIO()
-        w = csv.DictWriter(buf, fieldnames=header, lineterminator="\n", restval="")
-        w.writeheader()
-        w.writerows(rows)
-        atomic_write_text(path, buf.getvalue())
+    show_and_save([{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], path)
 
 
 def main(argv=None) -> int:

@@ -32,7 +32,7 @@ import json
 import sys
 from pathlib import Path
 
-from strings_bench.core.io import atomic_write_text
+from strings_bench.reports.doc_tables import show_and_save
 
 POSITION_STEP = 1.6e-4  # 3DGS' initial position LR, in scene extents (Kerbl et al. 2023, section 7.1)
 
@@ -207,25 +207,6 @@ def choose(reference: list[dict], candidates: dict[str, list[dict]], baseline: s
     return rows, chosen, reason
 
 
-def _write(rows: list[dict], path: Path | None) -> None:
-    if not rows:
-        print("(no rows)")
-        return
-    header = list(rows[0])
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(str(r[h]) for h in header) + " |")
-    if path is not None:
-        from io import StringIO
-
-        buf = StringIO()
-        w = csv.DictWriter(buf, fieldnames=header, lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
-        atomic_write_text(path, buf.getvalue())
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -254,11 +235,11 @@ def main(argv=None) -> int:
             name, _, sources = spec.partition("=")
             cands[name] = [r for src in sources.split("+") for r in _rows(src)]
         rows, chosen, reason = choose(reference, cands, args.baseline, args.tie, args.max_cost, args.level)
-        _write(rows, args.csv)
+        show_and_save(rows, args.csv)
         print(f"choice: {reason}")
         return 0
     if args.what == "motion":
-        _write(motion_rows(args.runs), args.csv)
+        show_and_save(motion_rows(args.runs), args.csv)
         return 0
     reference = [r for src in args.reference for r in _rows(src)]
     out = []
@@ -270,7 +251,7 @@ def main(argv=None) -> int:
         if args.show:
             for r in cand:
                 print(name, r["method"], r["scene"], r["label"], r.get("cer_known"), r.get("cer"))
-    _write(out, args.csv)
+    show_and_save(out, args.csv)
     return 0
 
 

@@ -1,5 +1,8 @@
 """Numba kernels of the CPU rasterizer: tile binning, forward blending, hand-written backward.
 
+Size (~460 lines): the float64 reference blends and the helpers the float32 kernels share with them (binning, the
+tight boxes, the per-Gaussian reduction); splitting them would separate a rule from the kernels that must agree on it.
+
 Layout: Gaussians are first sorted front to back; `P` holds their parameters in that order, one row
 each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera depth), then
 qmin = 2 (log(255 o) + slack), NaN where o < 1/255: a pixel can pass alpha >= 1/255 only where

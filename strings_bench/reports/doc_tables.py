@@ -120,6 +120,26 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def show_and_save(rows: list[dict], path: Path | None) -> None:
+    """Print dict rows as a Markdown table (columns: the first row's keys) and, with `path`, write them as the CSV
+    a results page's table is generated from (atomic). The benchmarks' table output."""
+    from io import StringIO
+
+    from strings_bench.core.io import atomic_write_text
+
+    if not rows:
+        print("(no rows)")
+        return
+    header = list(rows[0])
+    print(markdown(header, [[str(r.get(h, "")) for h in header] for r in rows]), end="")
+    if path is not None:
+        buf = StringIO()
+        w = csv.DictWriter(buf, fieldnames=header, lineterminator="\n", restval="")
+        w.writeheader()
+        w.writerows(rows)
+        atomic_write_text(path, buf.getvalue())
+
+
 def _number(text: str) -> float | None:
     try:
         v = float(text)
