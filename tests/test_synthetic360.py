@@ -67,6 +67,21 @@ def office_small():
     return build_scene("office", st, progress=False), st
 
 
+def test_a_built_room_keeps_rho_measured_on_its_words_rendered_finer(office_small):
+    """The build records rho from the words' crops rendered finer; a record removed (or of an older measurement) is
+    measured the same way again when the room's folder is named directly (`run --datasets FOLDER`)."""
+    from strings_bench.datasets.registry import resolve_scenes
+    from strings_bench.scene.difficulty import DIFFICULTY_FILE, ON_IMAGES, read_difficulty
+
+    path, _ = office_small
+    first = read_difficulty(path)
+    assert first is not None and first.rho is not None and first.measured_on != ON_IMAGES
+    (path / DIFFICULTY_FILE).unlink()
+    resolve_scenes([str(path)])
+    again = read_difficulty(path)
+    assert again == first
+
+
 def test_no_word_is_copied_from_the_synthetic_scenes():
     easy = {w.text.upper() for s in SCENE_NAMES for w in generate.make_spec(s, 0).words}
     for scene in SCENE_NAMES_360:

@@ -242,6 +242,8 @@ def ensure_rho_record(folder: Path) -> None:
     try:
         folder.resolve().relative_to(cache_root().resolve())
         meta = json.loads((folder / META_FILE).read_text())
+        if str(meta["generator_version"]) != str(GENERATOR_VERSION):
+            return  # built by another generator: this one would render another world
         settings = meta["settings"]
         settings = SyntheticSettings(**{**settings, "text_px": None if settings.get("text_px") is None
                                         else tuple(settings["text_px"])})
