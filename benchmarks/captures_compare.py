@@ -16,8 +16,9 @@ Writes into --out:
 - `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
   overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,
-  `not decided` otherwise (ranges overlap, or a single seed), `not measured` when a method the claim needs was not
-  run; with the figures behind each verdict;
+  `not decided` otherwise (ranges overlap, or a single seed, or, for a CER, both sides reading nothing: an
+  OCR-CER of at least READS_NOTHING on every seed, where the figures differ only by the spurious characters OCR
+  adds), `not measured` when a method the claim needs was not run; with the figures behind each verdict;
 - `compare-NAME.md`: `strings-bench compare`'s tables of each capture.
 Prints both CSVs.
 """
@@ -37,19 +38,23 @@ BASELINES = ("3dgs", "edc-absgs", "improved-gs")
 LOCK_ABLATION = "strings-pos-lr"
 TEXT_DENSIFICATION_ABLATION = "strings-no-td"
 LABELS = ("3K", "7K", "30K")
+# An OCR-CER this high on every seed reads at most 1 GT character in 100: nothing. Two such figures differ only by
+# how many spurious characters OCR added (CERs above 1), so a claim about them is not decided.
+READS_NOTHING = 0.99
 
 
 def _fmt(x, digits=3) -> str:
     return "" if x is None else f"{x:.{digits}f}"
 
 
-def side(a: dict | None, b: dict | None) -> str:
+def side(a: dict | None, b: dict | None, floor: float | None = None) -> str:
     """Whether `a` is below `b` with the seeds' ranges apart ("below"), above them ("above"), or neither
-    ("undecided"; also with one seed); "missing" when either has no figure."""
+    ("undecided"; also with one seed, or when both are at or above `floor` on every seed: a CER of two methods
+    that read nothing); "missing" when either has no figure."""
     verdict = decided(a, b)
     if not verdict:
         return "missing"
-    if verdict != "decided":
+    if verdict != "decided" or (floor is not None and a["min"] >= floor and b["min"] >= floor):
         return "undecided"
     return "below" if a["max"] < b["min"] else "above"
 
@@ -65,7 +70,7 @@ def claim(c, value: str, label: str, others, want: str = "below") -> tuple[str, 
     figures, sides = [], []
     for m in others:
         o = c.get(m, label, value)
-        s = side(ref, o)
+        s = side(ref, o, READS_NOTHING if value == "cer" else None)
         sides.append(s)
         if o is not None:
             other_seeds = "" if ref is None or o["seeds"] == ref["seeds"] else f" ({_seeds(o['seeds'])})"

@@ -305,6 +305,21 @@ def test_a_claim_holds_only_when_every_method_is_beaten_with_the_seeds_ranges_ap
     assert cc.claim(_Numbers(apart), "cer", "30K", ("strings-no-td",))[0] == "not measured"
 
 
+def test_a_cer_claim_between_two_methods_that_read_nothing_is_not_decided():
+    """OCR-CERs of at least 0.99 on every seed on both sides (saharov32 at 30K: 1.006-1.012 against 1.018-1.030)
+    differ only by OCR's spurious characters: not decided, ranges apart or not. One side that reads decides as
+    before; the floor is for CERs only (Gaussian counts are never 'nothing read')."""
+    cc = _captures_compare()
+    nothing = {("strings", "30K", "cer"): [1.006, 1.012], ("strings-pos-lr", "30K", "cer"): [1.018, 1.030]}
+    assert cc.claim(_Numbers(nothing), "cer", "30K", ("strings-pos-lr",))[0] == "not decided"
+    reads = {**nothing, ("strings-pos-lr", "30K", "cer"): [0.898, 0.988]}
+    assert cc.claim(_Numbers(reads), "cer", "30K", ("strings-pos-lr",))[0] == "not holding"
+    barely = {**nothing, ("strings-pos-lr", "30K", "cer"): [0.985, 1.03]}  # one seed read a little
+    assert cc.claim(_Numbers(barely), "cer", "30K", ("strings-pos-lr",))[0] == "not decided"  # ranges overlap
+    counts = {("strings", "30K", "gaussians"): [1.006, 1.012], ("3dgs", "30K", "gaussians"): [1.018, 1.030]}
+    assert cc.claim(_Numbers(counts), "gaussians", "30K", ("3dgs",))[0] == "holding"
+
+
 def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_run(tmp_path):
     cc = _captures_compare()
     table = tmp_path / "verdicts.csv"
