@@ -8,7 +8,7 @@ CROP_BOX_PX pixels tall and at most MAX_FACTOR (the text textures hold 5 texels 
 resolution, `scenes360.TEXELS_PER_PIXEL`), without the photometric effects of the views (a clean render), and
 measured there: the words of every view that the scene annotates (a quarter of the views gave rho 3-8 % apart
 from one quarter to the next on the CPU rooms), the depth the camera's distance to the word's centre, as for the
-scene's own words. On the CPU rooms (320x240) this takes 10-30 s of one core.
+scene's own words. On the CPU rooms (320x240) this takes 10-35 s of one core (35 s for the storeroom on a loaded core).
 """
 
 from __future__ import annotations
