@@ -6,7 +6,9 @@
 rho (docs/difficulty.md) is how much of a text stroke one early 3DGS position step moves a Gaussian. Each run
 folder holds cells of STRinGS with the lock (`--lock`, default `strings`) and without it (`--no-lock`, default
 `strings-pos-lr`, the paper's ablation) on scenes of known rho, any seeds (`--set seed=N`, one folder per seed or
-per setting). A scene's rho is the one its record holds (`config.scene.rho` of each cell). A position-LR gain set
+per setting). A scene's rho is the one its record holds now (the scene folder named in each cell's config; the
+value the cell recorded when the folder is gone, as cells written before a change of the measurement hold another
+value for the same scene, docs/difficulty.md). A position-LR gain set
 on top of the run's miniature (`--set position_lr_gain=G`, G the miniature's own gain times the stand-in factor)
 stands in for a scene with that factor times the rho (every position step, text and not, is G times larger): the
 table's `rho (effective)` is the scene's rho times that factor.
@@ -51,10 +53,25 @@ def _miniature_gain(run_dir: Path) -> float:
     return float(MINIATURES[name].settings(float(sched.get("steps_scale", 1.0))).get("position_lr_gain", 1.0))
 
 
+def _current_rho(path: str | None, cache: dict) -> float | None:
+    """rho of the scene folder `path` as its record holds it now (a synthetic room of the cache measured as its
+    build keeps it), or None when the folder is gone or holds no measurable text."""
+    if not path or not Path(path).is_dir():
+        return None
+    if path not in cache:
+        from strings_bench.datasets.synthetic.generate import ensure_rho_record
+        from strings_bench.scene.difficulty import recorded_difficulty
+        from strings_bench.scene.scene import Scene
+
+        ensure_rho_record(Path(path))
+        cache[path] = recorded_difficulty(Scene.load(Path(path))).rho
+    return cache[path]
+
+
 def read_cells(run_dirs: list[str]) -> list[dict]:
     """One dict per finished cell of the run folders: method, scene, label, seed, rho, gain (the stand-in factor
     over the miniature's gain), rho_eff and both CERs."""
-    cells = []
+    cells, rhos = [], {}
     for run_dir in map(Path, run_dirs):
         if not (run_dir / "run.json").is_file():
             print(f"{run_dir}: no run.json (not started yet), left out", file=sys.stderr)
@@ -64,7 +81,9 @@ def read_cells(run_dirs: list[str]) -> list[dict]:
             rec = json.loads(result.read_text())
             config = rec.get("config") or {}
             settings = (config.get("method") or {}).get("settings") or {}
-            rho = (config.get("scene") or {}).get("rho")
+            scene_cfg = config.get("scene") or {}
+            rho = _current_rho(scene_cfg.get("path"), rhos)
+            rho = scene_cfg.get("rho") if rho is None else rho
             if rho is None:
                 print(f"{result}: the scene records no rho, left out", file=sys.stderr)
                 continue

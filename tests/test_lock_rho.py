@@ -18,7 +18,7 @@ def lock_rho():
     return load_benchmark("lock_rho")
 
 
-def _run(root: Path, miniature: str, scale: float, cells: list[tuple]) -> Path:
+def _run(root: Path, miniature: str, scale: float, cells: list[tuple], scene_path: str | None = None) -> Path:
     """A run folder with run.json and one result.json per (method, scene, label, seed, gain or None, rho, cer)."""
     root.mkdir(parents=True)
     (root / "run.json").write_text(json.dumps({"schedule": {"miniature": miniature, "steps_scale": scale}}))
@@ -29,7 +29,7 @@ def _run(root: Path, miniature: str, scale: float, cells: list[tuple]) -> Path:
         (d / "result.json").write_text(json.dumps({
             "method": method, "scene": scene, "label": label, "iteration": 300 if label == "3K" else 700,
             "cer_known": {"cer": cer}, "cer": cer + 0.05,
-            "config": {"method": {"settings": settings}, "scene": {"rho": rho}}}))
+            "config": {"method": {"settings": settings}, "scene": {"rho": rho, "path": scene_path}}}))
     return root
 
 
@@ -76,3 +76,19 @@ def test_no_crossover_when_the_lock_never_turns_to_help(lock_rho, tmp_path):
     rows = lock_rho.lock_table(lock_rho.read_cells([str(_run(tmp_path / "r", "shrink", 0.1, cells))]),
                                "strings", "strings-pos-lr", [], tie=0.02)
     assert {x["crossover rho"] for x in lock_rho.crossover(rows)} == {"none in range"}
+
+
+def test_a_scene_folder_that_is_still_there_gives_its_current_rho(lock_rho, tmp_path):
+    """Cells record the rho of their day; the scene's record may hold a newer measurement (the synthetic rooms' rho
+    was re-measured finer): the table uses the scene folder's current record, the recorded value only without it."""
+    from _engine_helpers import make_tiny_scene
+    from strings_bench.scene.difficulty import Difficulty, write_difficulty
+
+    scene = tmp_path / "scene"
+    make_tiny_scene(scene)
+    write_difficulty(scene, Difficulty(0.5, 2.0, 0.00064, 1.5, 10, "crops", True))
+    cells = [(m, "a", "3K", 0, None, 0.03, 0.4) for m in ("strings", "strings-pos-lr")]
+    now = lock_rho.read_cells([str(_run(tmp_path / "r1", "shrink", 0.1, cells, str(scene)))])
+    assert {c["rho"] for c in now} == {0.5}
+    gone = lock_rho.read_cells([str(_run(tmp_path / "r2", "shrink", 0.1, cells, str(tmp_path / "moved")))])
+    assert {c["rho"] for c in gone} == {0.03}
