@@ -36,6 +36,16 @@ from pathlib import Path
 from strings_bench.reports.doc_tables import show_and_save
 
 CERS = (("cer_known", "known-text CER"), ("cer", "OCR-CER"))
+# Settings that make a method a variant of itself: a cell that sets one is named METHOD[KEY=VALUE] (a run folder of
+# `--methods strings --set strings.phase1_step_strokes=0.4` gives `strings[phase1_step_strokes=0.4]`, for --variant)
+VARIANT_KEYS = ("phase1_step_strokes",)
+
+
+def cell_method(method: str, settings: dict) -> str:
+    """The method's name, with the variant settings it sets: `strings[phase1_step_strokes=0.4]`."""
+    tags = [f"{k}={settings[k]:g}" if isinstance(settings[k], (int, float)) else f"{k}={settings[k]}"
+            for k in VARIANT_KEYS if settings.get(k) is not None]
+    return f"{method}[{','.join(tags)}]" if tags else method
 
 
 def _cer(value) -> float | None:
@@ -88,7 +98,7 @@ def read_cells(run_dirs: list[str]) -> list[dict]:
                 print(f"{result}: the scene records no rho, left out", file=sys.stderr)
                 continue
             gain = float(settings.get("position_lr_gain", mini_gain)) / mini_gain
-            cells.append({"method": rec["method"], "scene": rec["scene"], "label": rec["label"],
+            cells.append({"method": cell_method(rec["method"], settings), "scene": rec["scene"], "label": rec["label"],
                           "iteration": int(rec["iteration"]), "seed": int(settings.get("seed", 0)),
                           "rho": float(rho), "gain": gain, "rho_eff": float(rho) * gain,
                           "cer_known": _cer(rec.get("cer_known")), "cer": _cer(rec.get("cer"))})

@@ -92,3 +92,23 @@ def test_a_scene_folder_that_is_still_there_gives_its_current_rho(lock_rho, tmp_
     assert {c["rho"] for c in now} == {0.5}
     gone = lock_rho.read_cells([str(_run(tmp_path / "r2", "shrink", 0.1, cells, str(tmp_path / "moved")))])
     assert {c["rho"] for c in gone} == {0.03}
+
+
+def test_a_variant_setting_names_the_cell_and_joins_the_same_rows(lock_rho, tmp_path):
+    """STRinGS with the phase-1 step capped, run in a folder of its own as `strings`, is named by its setting and
+    lands in the rows of the lock and its ablation at the same rho."""
+    assert lock_rho.cell_method("strings", {"seed": 0, "phase1_step_strokes": 0.4}) == "strings[phase1_step_strokes=0.4]"
+    assert lock_rho.cell_method("strings", {"seed": 0, "phase1_step_strokes": None}) == "strings"
+    pair = _run(tmp_path / "pair", "shrink", 0.1, [(m, "a", "7K", s, None, 0.05, c + 0.01 * s) for s in (0, 1)
+                                                    for m, c in (("strings", 0.5), ("strings-pos-lr", 0.3))])
+    var = tmp_path / "var"
+    _run(var, "shrink", 0.1, [("strings", "a", "7K", s, None, 0.05, 0.2 + 0.01 * s) for s in (0, 1)])
+    for result in var.glob("cells/*/*/*/*/result.json"):
+        rec = json.loads(result.read_text())
+        rec["config"]["method"]["settings"]["phase1_step_strokes"] = 0.4
+        result.write_text(json.dumps(rec))
+    rows = lock_rho.lock_table(lock_rho.read_cells([str(pair), str(var)]), "strings", "strings-pos-lr",
+                               ["strings[phase1_step_strokes=0.4]"], tie=0.02)
+    [row] = rows
+    assert row["lock (known-text CER)"] == "0.500 0.510" and row["verdict (known-text CER)"] == "hurts"
+    assert row["strings[phase1_step_strokes=0.4] - no lock (known-text CER)"] == "-0.100"

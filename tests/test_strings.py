@@ -269,6 +269,12 @@ def test_phase1_step_in_strokes_follows_the_scenes_rho(tiny_text_scene):
         assert trainer.position_lr(1500) == pytest.approx(factor * 1.2709251755588504e-4 * ext, rel=1e-9)
         assert trainer.checkpoint_extra(1)["phase1_position_factor"] == pytest.approx(factor)
         assert trainer.position_lr(3001) == pytest.approx(1.5997544097736427e-4 * ext, rel=1e-9)  # phase 2 as the paper
+    # a position-LR gain G makes every step G rho strokes: the cap counts the step as taken
+    method = get_method("strings").build(default_steps_scale=paper, mask_dilation_fraction=0.0,
+                                         phase1_step_strokes=rho, position_lr_gain=4.0)
+    trainer = _setup(method, scene)
+    assert trainer.checkpoint_extra(1)["phase1_position_factor"] == pytest.approx(0.25)
+    assert trainer.position_lr(1500) == pytest.approx(0.25 * 4.0 * 1.2709251755588504e-4 * ext, rel=1e-9)
     with pytest.raises(StringsBenchError, match="phase1_step_strokes"):
         get_method("strings").build(phase1_step_strokes=-1.0)
 

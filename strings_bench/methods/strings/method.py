@@ -53,8 +53,8 @@ class StringsSettings:
     max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
     # This suite's variant, not the paper's: the phase-1 position LR follows the scene's rho (one early position step
-    # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / rho) x the 3DGS schedule, so that an early
-    # step moves text at most this many strokes. None: phase1_position_lr as given. A scene whose rho cannot be
+    # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / (rho x position_lr_gain)) x the 3DGS
+    # schedule, so that an early step, as taken (the gain multiplies every step), moves text at most this many strokes. None: phase1_position_lr as given. A scene whose rho cannot be
     # measured (no known words, no masks) keeps phase1_position_lr (result extra['phase1_rho'] is then None).
     phase1_step_strokes: float | None = None  # cap on a phase-1 text position step, in text strokes (None: off)
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
@@ -190,7 +190,9 @@ class Strings(GaussianSplatting):
 
             self.phase1_rho = recorded_difficulty(scene).rho
             if self.phase1_rho:
-                self.phase1_factor = min(1.0, float(st.phase1_step_strokes) / self.phase1_rho)
+                # the step as taken: rho strokes x the gain on every position step (a miniature's, a stand-in's)
+                step_strokes = self.phase1_rho * float(self.config.position_lr_gain)
+                self.phase1_factor = min(1.0, float(st.phase1_step_strokes) / step_strokes)
             else:
                 log.warning("STRinGS: rho of scene %s cannot be measured; phase 1 keeps phase1_position_lr %g",
                             scene.name, st.phase1_position_lr)
