@@ -32,6 +32,7 @@ from pathlib import Path
 
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.compare import compare, comparison_markdown, decided
+from strings_bench.reports.doc_tables import set_table_column
 
 REFERENCE = "strings"
 BASELINES = ("3dgs", "edc-absgs", "improved-gs")
@@ -103,23 +104,11 @@ REAL_CAPTURES_COLUMN = "real captures (`cpu`, full size)"
 def set_column(table: Path, verdicts: list[dict]) -> None:
     """Set (add or replace) the real captures' column of a verdict table: per claim, each scored capture's verdict
     and figures."""
-    with table.open(newline="") as f:
-        rows = list(csv.reader(f))
-    header, body = rows[0], rows[1:]
-    if REAL_CAPTURES_COLUMN in header:
-        col = header.index(REAL_CAPTURES_COLUMN)
-    else:
-        col = len(header) - 1 if header[-1] == "flips?" else len(header)  # before the "flips?" column
-        header.insert(col, REAL_CAPTURES_COLUMN)
-        for row in body:
-            row.insert(col, "")
-    for row in body:
-        cells = [v for v in verdicts if v["claim"] == row[0]]
-        row[col] = "; ".join(f"{v['capture']}: {v['verdict']}" + (f" ({v['figures']})" if v["figures"] else "")
-                             for v in cells) or "not measured"
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerows([header] + body)
-    atomic_write_text(table, buf.getvalue())
+    texts = {}
+    for v in verdicts:
+        text = f"{v['capture']}: {v['verdict']}" + (f" ({v['figures']})" if v["figures"] else "")
+        texts[v["claim"]] = f"{texts[v['claim']]}; {text}" if v["claim"] in texts else text
+    set_table_column(table, REAL_CAPTURES_COLUMN, texts)
 
 
 def peak_memory(run_dirs) -> dict:

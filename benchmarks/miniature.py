@@ -21,6 +21,15 @@ miniature can be chosen on agreement without looking at the comparison it will r
 reference cell present; training time at most --max-cost x the baseline candidate's on the same cells), the score
 (mean of the four ordered-alike shares), level within --level of the best, then cost, then the mean known-text
 difference. It prints each candidate's figures and the choice with its reason, and no CER either.
+
+    python benchmarks/miniature.py verdicts --reference CSV_OR_RUN [...] [--verdict-table CSV]
+
+`verdicts` holds the paper's claims (the verdict table of docs/results/cpu-long.md) against the reference itself,
+once the miniature is frozen (it prints CERs): per claim the reference can speak to (CER at 7K against 3DGS and
+EDC-AbsGS, Gaussians at 7K, the lock at 3K and 7K), per room, `yes` when STRinGS is on the claimed side on every room
+and CER, `no` when it is on the other side on every one, `mixed` otherwise; a CER difference under --tie, or a count
+within 5 %, is level. One seed: the verdicts say what the seed-0 cells show, not what seeds decide.
+`--verdict-table` sets that table's column REFERENCE_COLUMN.
 """
 
 from __future__ import annotations
@@ -32,7 +41,7 @@ import json
 import sys
 from pathlib import Path
 
-from strings_bench.reports.doc_tables import show_and_save
+from strings_bench.reports.doc_tables import set_table_column, show_and_save
 
 POSITION_STEP = 1.6e-4  # 3DGS' initial position LR, in scene extents (Kerbl et al. 2023, section 7.1)
 
@@ -207,6 +216,78 @@ def choose(reference: list[dict], candidates: dict[str, list[dict]], baseline: s
     return rows, chosen, reason
 
 
+REFERENCE_COLUMN = "x1 (the paper's schedule; storeroom, pantry; seed 0)"
+CLAIM_BASELINES = ("3dgs", "edc-absgs")  # the reference's baselines (STRinGS' ablation aside)
+COUNT_TIE = 0.05  # Gaussian counts within 5 % are level
+
+
+def _value(rows: list[dict], method: str, scene: str, label: str, key: str) -> float | None:
+    for r in rows:
+        if r["method"] == method and r["scene"] == scene and r["label"] == label and r.get(key) not in (None, ""):
+            return float(r[key])
+    return None
+
+
+def _side(ours: float, others: list[float], tie: float, relative: bool = False) -> str:
+    """"below" when `ours` is below every one of `others` by more than the tie, "above" when above some one by
+    more than it, else "level"."""
+    def apart(a, b):  # a below b by more than the tie
+        return a < b * (1 - tie) if relative else a < b - tie
+    if all(apart(ours, o) for o in others):
+        return "below"
+    if any(apart(o, ours) for o in others):
+        return "above"
+    return "level"
+
+
+def _holds(sides: list[str], want: str) -> str:
+    if sides and all(s == want for s in sides):
+        return "yes"
+    if sides and all(s not in (want, "level") for s in sides):
+        return "no"
+    return "mixed"
+
+
+def _num(x: float, key: str) -> str:
+    return f"{x:,.0f}".replace(",", " ") if key in ("gaussians", "train_seconds") else f"{x:.3f}"
+
+
+def reference_verdicts(rows: list[dict], tie: float = 0.02) -> dict[str, str]:
+    """The claims of the verdict table that the reference speaks to, each as "yes/no/mixed: figures"."""
+    scenes = sorted({r["scene"] for r in rows})
+    out = {}
+
+    def claim(labels, keys, others, want, relative=False, what=""):
+        sides, parts = [], []
+        for label in labels:
+            for key, name in keys:
+                figs = []
+                for scene in scenes:
+                    ours = _value(rows, "strings", scene, label, key)
+                    theirs = [_value(rows, m, scene, label, key) for m in others]
+                    if ours is None or None in theirs:
+                        continue
+                    sides.append(_side(ours, theirs, COUNT_TIE if relative else tie, relative))
+                    figs.append(f"{scene} {_num(ours, key)} against " + ", ".join(
+                        f"{m} {_num(v, key)}" for m, v in zip(others, theirs)))
+                if figs:
+                    parts.append(f"{label} {name}: " + "; ".join(figs))
+        if not sides:
+            return "not measured"
+        return f"{_holds(sides, want)}{what} (STRinGS; {' | '.join(parts)})"
+
+    cers = (("cer_known", "known-text CER"), ("cer", "OCR-CER"))
+    out["lower CER than every baseline at 7K"] = claim(("7K",), cers, CLAIM_BASELINES, "below")
+    out["lower CER at 30K"] = "not measured (the reference ends at 7K)"
+    out["fewer Gaussians"] = claim(("7K",), (("gaussians", "Gaussians"),), ("3dgs",), "below", relative=True,
+                                   what=" at 7K")
+    out["less training time"] = "not decided: one shared core under a varying load " + claim(
+        ("7K",), (("train_seconds", "training s"),), ("3dgs",), "below", relative=True).partition(" ")[2]
+    out["text densification helps"] = "not measured (no ablation in the reference)"
+    out["the phase-1 position lock helps"] = claim(("3K", "7K"), cers, ("strings-pos-lr",), "below")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -227,7 +308,18 @@ def main(argv=None) -> int:
     c.add_argument("--max-cost", type=float, default=2.0, help="eligible up to this multiple of the baseline's time")
     c.add_argument("--level", type=float, default=0.05, help="scores within this of the best count as level")
     c.add_argument("--csv", type=Path)
+    v = sub.add_parser("verdicts", help="the paper's claims held against the reference (prints CERs)")
+    v.add_argument("--reference", action="append", required=True, help="a run folder or results.csv (repeatable)")
+    v.add_argument("--tie", type=float, default=0.02)
+    v.add_argument("--verdict-table", type=Path, help="set this verdict table's column REFERENCE_COLUMN")
     args = ap.parse_args(argv)
+    if args.what == "verdicts":
+        texts = reference_verdicts([r for src in args.reference for r in _rows(src)], args.tie)
+        for claim_name, text in texts.items():
+            print(f"{claim_name}: {text}")
+        if args.verdict_table:
+            set_table_column(args.verdict_table, REFERENCE_COLUMN, texts)
+        return 0
     if args.what == "choose":
         reference = [r for src in args.reference for r in _rows(src)]
         cands = {}

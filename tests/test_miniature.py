@@ -201,3 +201,34 @@ def test_choose_applies_the_rule_coverage_cost_score_then_cost():
     assert all("0.1" not in str(r.get("cer", "")) for r in rows)  # no CER in the rows
     rows, chosen, _ = choose(reference, {"partial": cands["partial"]}, "partial")
     assert chosen is None
+
+
+def test_the_reference_verdicts_hold_claims_per_room_and_cer(tmp_path):
+    """STRinGS behind a baseline on one room and ahead on the other: mixed; behind the lock's ablation everywhere: no;
+    fewer Gaussians than 3DGS by more than 5 % on both rooms: yes; within 5 %: not yes. The column lands in a
+    verdict table before its "flips?" column, and a claim the reference cannot speak to says so."""
+    mini = _agreement_module()
+    rows = []
+    for scene, s, g3, e, lock_free, n_s, n_3 in (("a", 0.10, 0.20, 0.15, 0.05, 90, 100), ("b", 0.30, 0.20, 0.25, 0.10, 80, 100)):
+        for label in ("3K", "7K"):
+            for method, cer, n in (("strings", s, n_s), ("3dgs", g3, n_3), ("edc-absgs", e, n_3),
+                                   ("strings-pos-lr", lock_free, n_3)):
+                rows.append({"method": method, "scene": scene, "label": label, "cer": f"{cer}",
+                             "cer_known": f"{cer}", "gaussians": f"{n}", "train_seconds": "10"})
+    got = mini.reference_verdicts(rows, tie=0.02)
+    assert got["lower CER than every baseline at 7K"].startswith("mixed (STRinGS; 7K known-text CER: a 0.100 against")
+    assert got["the phase-1 position lock helps"].startswith("no (")
+    assert got["fewer Gaussians"].startswith("yes at 7K")
+    assert got["lower CER at 30K"].startswith("not measured")
+    level = [dict(r, gaussians="97") if r["method"] == "strings" else r for r in rows]
+    assert mini.reference_verdicts(level)["fewer Gaussians"].startswith("mixed")
+    table = tmp_path / "verdicts.csv"
+    table.write_text("the paper's claim,x0.1,flips?\nfewer Gaussians,no,no\nsomething else,no,no\n")
+    from strings_bench.reports.doc_tables import set_table_column
+
+    set_table_column(table, mini.REFERENCE_COLUMN, got)
+    import csv
+
+    lines = list(csv.reader(table.open(newline="")))
+    assert lines[0] == ["the paper's claim", "x0.1", mini.REFERENCE_COLUMN, "flips?"]
+    assert lines[1][2].startswith("yes at 7K") and lines[2] == ["something else", "no", "not measured", "no"]

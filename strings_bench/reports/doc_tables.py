@@ -140,6 +140,32 @@ def show_and_save(rows: list[dict], path: Path | None) -> None:
         atomic_write_text(path, buf.getvalue())
 
 
+def set_table_column(table: Path, column: str, texts: dict[str, str], before: str | None = "flips?",
+                     missing: str = "not measured") -> None:
+    """Set (add or replace) the column `column` of a CSV table whose first column names its rows (a verdict table:
+    one row per claim): row `key` gets texts[key], `missing` where texts has none. A new column goes before the
+    column `before` when the table has it, else last. Written atomically."""
+    import io
+
+    from strings_bench.core.io import atomic_write_text
+
+    with table.open(newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    if column in header:
+        col = header.index(column)
+    else:
+        col = header.index(before) if before in header else len(header)
+        header.insert(col, column)
+        for row in body:
+            row.insert(col, "")
+    for row in body:
+        row[col] = texts.get(row[0], missing)
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows([header] + body)
+    atomic_write_text(table, buf.getvalue())
+
+
 def _number(text: str) -> float | None:
     try:
         v = float(text)
