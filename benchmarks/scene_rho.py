@@ -12,6 +12,8 @@ true; strings_bench/scene/difficulty.py) and, with `--csv`, writes them (the tab
 from __future__ import annotations
 
 import argparse
+import csv
+import io
 import sys
 from pathlib import Path
 
@@ -41,8 +43,10 @@ def main(argv=None) -> int:
             rows.append([label or spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
                          f"{d.rho:.3f}", d.measured_on, "yes" if d.reliable else "no"])
         print(",".join(rows[-1]))
-    if args.csv is not None:
-        atomic_write_text(args.csv, "\n".join(",".join(r) for r in rows) + "\n")
+    if args.csv is not None:  # csv quotes a label with a comma in it (--text-px 10,16)
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="\n").writerows(rows)
+        atomic_write_text(args.csv, buf.getvalue())
     return 0
 
 

@@ -240,3 +240,17 @@ def test_a_marker_without_its_end_is_an_error(tmp_path):
     (tmp_path / "t.csv").write_text("a,b\n1,2\n")
     with pytest.raises(StringsBenchError, match="table markers"):
         refresh_text("<!-- table (strings-bench docs refresh): t.csv -->\n| a | b |\n", tmp_path / "p.md")
+
+
+def test_a_row_with_more_fields_than_its_header_is_an_error(tmp_path):
+    """An unquoted comma in a value (a label such as `--text-px 10,16`) shifts every later column of its row: the
+    table is refused, naming the line; quoted, the same value is one field."""
+    from strings_bench.core.errors import StringsBenchError
+
+    page = tmp_path / "p.md"
+    block = "<!-- table (strings-bench docs refresh): t.csv -->\n<!-- end table -->\n"
+    (tmp_path / "t.csv").write_text("scene,rho\nroom --text-px 10,16,0.054\n")
+    with pytest.raises(StringsBenchError, match="line 2: 3 fields where the header has 2"):
+        refresh_text(block, page)
+    (tmp_path / "t.csv").write_text('scene,rho\n"room --text-px 10,16",0.054\n')
+    assert "| room --text-px 10,16 | 0.054 |" in refresh_text(block, page)

@@ -96,7 +96,12 @@ def read_csv(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         raise StringsBenchError(f"table data {path} does not exist")
     with path.open(newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
+        rows = list(csv.DictReader(f))
+    for n, row in enumerate(rows, start=2):
+        if None in row:  # more fields than the header: an unquoted comma would shift every later column
+            raise StringsBenchError(f"table data {path}, line {n}: {len(row) - 1 + len(row[None])} fields where the "
+                                    f"header has {len(row) - 1} (a value with a comma must be quoted)")
+    return rows
 
 
 def _filter(rows: list[dict[str, str]], options: dict[str, list[str]], path: Path) -> list[dict[str, str]]:
