@@ -2,6 +2,7 @@
 
     python benchmarks/lock_rho.py RUN_DIR [RUN_DIR ...] [--lock strings] [--no-lock strings-pos-lr]
                                   [--variant METHOD ...] [--tie 0.02] [--csv FILE] [--crossover-csv FILE]
+                                  [--lock-any-gain 3K]
 
 rho (docs/difficulty.md) is how much of a text stroke one early 3DGS position step moves a Gaussian. Each run
 folder holds cells of STRinGS with the lock (`--lock`, default `strings`) and without it (`--no-lock`, default
@@ -19,6 +20,11 @@ when every seed with the lock reads better than every seed without by more than 
 `not decided` otherwise (one seed is never decided). `--variant METHOD` adds a method's mean CER and its
 difference from each side (e.g. STRinGS with the phase-1 step capped in text strokes, `--set
 phase1_step_strokes=X`).
+
+At the end of phase 1 (3K) the locked side has not used the position LR at all, so its cells at factor 1 are its
+cells at every factor (the grid at x0.1 gives the same figures to the last digit at factors 1-20): `--lock-any-gain
+3K` lets them stand in where a run trained only the unlocked side at a factor (the full schedule, where a cell
+costs an hour).
 
 The crossover, per checkpoint and CER: the effective rho where the mean effect turns from positive (the lock
 hurts) to negative (it helps) between two neighbouring rho values of the table, interpolated linearly in log rho;
@@ -121,11 +127,19 @@ def _mean(xs: list[float]) -> float:
     return sum(xs) / len(xs)
 
 
-def lock_table(cells: list[dict], lock: str, no_lock: str, variants: list[str], tie: float) -> list[dict]:
+def lock_table(cells: list[dict], lock: str, no_lock: str, variants: list[str], tie: float,
+               lock_any_gain: tuple[str, ...] = ()) -> list[dict]:
+    """Rows per effective rho, scene, stand-in factor and checkpoint. `lock_any_gain`: checkpoints at or before the end
+    of phase 1, where the locked side never uses the position LR (its positions do not move), so its cells at
+    factor 1 stand for every factor of the same scene where the run has none of its own."""
     groups: dict = {}
     for c in cells:
         key = (round(c["rho_eff"], 6), c["scene"], round(c["gain"], 6), c["label"])
         groups.setdefault(key, []).append(c)
+    for (rho_eff, scene, gain, label), group in groups.items():
+        if label in lock_any_gain and not any(c["method"] == lock for c in group):
+            group += [c for c in cells if c["method"] == lock and c["scene"] == scene and c["label"] == label
+                      and round(c["gain"], 6) == 1.0]
     rows = []
     for (rho_eff, scene, gain, label), group in sorted(groups.items(), key=lambda kv: (kv[0][3], kv[0][0], kv[0][1])):
         row = {"ckpt": label, "scene": scene, "rho": f"{group[0]['rho']:.3f}", "LR factor": f"{gain:g}",
@@ -186,11 +200,15 @@ def main(argv=None) -> int:
     ap.add_argument("--lock", default="strings")
     ap.add_argument("--no-lock", default="strings-pos-lr")
     ap.add_argument("--variant", action="append", default=[])
+    ap.add_argument("--lock-any-gain", action="append", default=[], metavar="LABEL",
+                    help="a checkpoint at or before the end of phase 1 (e.g. 3K): the lock's cells at factor 1 stand "
+                         "for every factor there (locked positions never use the LR in phase 1)")
     ap.add_argument("--tie", type=float, default=0.02, help="CER differences under this do not decide (default 0.02)")
     ap.add_argument("--csv", type=Path)
     ap.add_argument("--crossover-csv", type=Path)
     args = ap.parse_args(argv)
-    rows = lock_table(read_cells(args.runs), args.lock, args.no_lock, args.variant, args.tie)
+    rows = lock_table(read_cells(args.runs), args.lock, args.no_lock, args.variant, args.tie,
+                      tuple(args.lock_any_gain))
     _write(rows, args.csv)
     print()
     _write(crossover(rows), args.crossover_csv)

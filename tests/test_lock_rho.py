@@ -112,3 +112,20 @@ def test_a_variant_setting_names_the_cell_and_joins_the_same_rows(lock_rho, tmp_
     [row] = rows
     assert row["lock (known-text CER)"] == "0.500 0.510" and row["verdict (known-text CER)"] == "hurts"
     assert row["strings[phase1_step_strokes=0.4] - no lock (known-text CER)"] == "-0.100"
+
+
+def test_the_locked_side_at_factor_one_stands_for_every_factor_at_the_end_of_phase_one(lock_rho, tmp_path):
+    """Only when asked, only at the checkpoints named, and only from the same scene at factor 1."""
+    base = _run(tmp_path / "base", "shrink", 1.0, [("strings", "a", "3K", 0, None, 0.034, 0.43),
+                                                   ("strings", "a", "7K", 0, None, 0.034, 0.10),
+                                                   ("strings", "b", "3K", 0, None, 0.034, 0.99)])
+    free = _run(tmp_path / "free", "shrink", 1.0, [("strings-pos-lr", "a", lab, 0, 20.0, 0.034, 0.90)
+                                                   for lab in ("3K", "7K")])
+    cells = lock_rho.read_cells([str(base), str(free)])
+    plain = {(r["ckpt"], r["LR factor"]): r for r in lock_rho.lock_table(cells, "strings", "strings-pos-lr", [], 0.02)}
+    assert plain[("3K", "20")]["lock (known-text CER)"] == ""
+    shared = {(r["ckpt"], r["scene"], r["LR factor"]): r for r in
+              lock_rho.lock_table(cells, "strings", "strings-pos-lr", [], 0.02, lock_any_gain=("3K",))}
+    assert shared[("3K", "a", "20")]["lock (known-text CER)"] == "0.430"
+    assert shared[("3K", "a", "20")]["effect (known-text CER)"] == "-0.470"
+    assert shared[("7K", "a", "20")]["lock (known-text CER)"] == ""  # phase 2 uses the LR: not shared
