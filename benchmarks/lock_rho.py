@@ -2,7 +2,7 @@
 
     python benchmarks/lock_rho.py RUN_DIR [RUN_DIR ...] [--lock strings] [--no-lock strings-pos-lr]
                                   [--variant METHOD ...] [--tie 0.02] [--csv FILE] [--crossover-csv FILE]
-                                  [--lock-any-gain 3K]
+                                  [--lock-any-gain 3K] [--cer both|known|ocr]
 
 rho (docs/difficulty.md) is how much of a text stroke one early 3DGS position step moves a Gaussian. Each run
 folder holds cells of STRinGS with the lock (`--lock`, default `strings`) and without it (`--no-lock`, default
@@ -204,14 +204,21 @@ def main(argv=None) -> int:
                     help="a checkpoint at or before the end of phase 1 (e.g. 3K): the lock's cells at factor 1 stand "
                          "for every factor there (locked positions never use the LR in phase 1)")
     ap.add_argument("--tie", type=float, default=0.02, help="CER differences under this do not decide (default 0.02)")
+    ap.add_argument("--cer", choices=("both", "known", "ocr"), default="both",
+                    help="the CER(s) whose columns are written (default both; one keeps a table narrow enough to read)")
     ap.add_argument("--csv", type=Path)
     ap.add_argument("--crossover-csv", type=Path)
     args = ap.parse_args(argv)
     rows = lock_table(read_cells(args.runs), args.lock, args.no_lock, args.variant, args.tie,
                       tuple(args.lock_any_gain))
+    cross = crossover(rows)
+    if args.cer != "both":
+        drop = dict(CERS)["cer" if args.cer == "known" else "cer_known"]
+        rows = [{k: v for k, v in r.items() if not k.endswith(f"({drop})")} for r in rows]
+        cross = [c for c in cross if c["CER"] != drop]
     _write(rows, args.csv)
     print()
-    _write(crossover(rows), args.crossover_csv)
+    _write(cross, args.crossover_csv)
     return 0
 
 

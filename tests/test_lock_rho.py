@@ -129,3 +129,12 @@ def test_the_locked_side_at_factor_one_stands_for_every_factor_at_the_end_of_pha
     assert shared[("3K", "a", "20")]["lock (known-text CER)"] == "0.430"
     assert shared[("3K", "a", "20")]["effect (known-text CER)"] == "-0.470"
     assert shared[("7K", "a", "20")]["lock (known-text CER)"] == ""  # phase 2 uses the LR: not shared
+
+
+def test_one_cer_keeps_only_its_columns(lock_rho, tmp_path, capsys):
+    cells = [(m, "a", "7K", s, None, 0.03, c + 0.01 * s) for s in (0, 1) for m, c in (("strings", 0.5), ("strings-pos-lr", 0.3))]
+    run = _run(tmp_path / "r", "shrink", 0.1, cells)
+    out = tmp_path / "known.csv"
+    assert lock_rho.main([str(run), "--cer", "known", "--csv", str(out)]) == 0
+    header = out.read_text().splitlines()[0]
+    assert "verdict (known-text CER)" in header and "OCR-CER" not in header
