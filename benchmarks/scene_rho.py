@@ -12,12 +12,10 @@ true; strings_bench/scene/difficulty.py) and, with `--csv`, writes them (the tab
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import sys
 from pathlib import Path
 
-from strings_bench.core.io import atomic_write_text
+from strings_bench.reports.doc_tables import write_csv
 from strings_bench.scene.difficulty import recorded_difficulty
 from strings_bench.datasets.registry import resolve_scenes
 from strings_bench.scene.scene import Scene
@@ -43,10 +41,8 @@ def main(argv=None) -> int:
             rows.append([label or spec, f"{d.extent:.3g}", f"{d.stroke_world:.4f}", f"{d.stroke_px:.2f}", str(d.words),
                          f"{d.rho:.3f}", d.measured_on, "yes" if d.reliable else "no"])
         print(",".join(rows[-1]))
-    if args.csv is not None:  # csv quotes a label with a comma in it (--text-px 10,16)
-        buf = io.StringIO()
-        csv.writer(buf, lineterminator="\n").writerows(rows)
-        atomic_write_text(args.csv, buf.getvalue())
+    if args.csv is not None:  # quoted where a label has a comma in it (--text-px 10,16)
+        write_csv(args.csv, rows)
     return 0
 
 

@@ -29,12 +29,14 @@ Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whos
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.io import atomic_write_text
 
 OPEN = "<!-- table (strings-bench docs refresh): "
 CLOSE = "<!-- end table -->"
@@ -125,24 +127,23 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_csv(path: Path, rows: list[list]) -> None:
+    """Write rows (the header first) as CSV, atomically; csv quotes a value with a comma in it."""
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(rows)
+    atomic_write_text(path, buf.getvalue())
+
+
 def show_and_save(rows: list[dict], path: Path | None) -> None:
     """Print dict rows as a Markdown table (columns: the first row's keys) and, with `path`, write them as the CSV
     a results page's table is generated from (atomic). The benchmarks' table output."""
-    from io import StringIO
-
-    from strings_bench.core.io import atomic_write_text
-
     if not rows:
         print("(no rows)")
         return
     header = list(rows[0])
     print(markdown(header, [[str(r.get(h, "")) for h in header] for r in rows]), end="")
     if path is not None:
-        buf = StringIO()
-        w = csv.DictWriter(buf, fieldnames=header, lineterminator="\n", restval="")
-        w.writeheader()
-        w.writerows(rows)
-        atomic_write_text(path, buf.getvalue())
+        write_csv(path, [header] + [[r.get(h, "") for h in header] for r in rows])
 
 
 def set_table_column(table: Path, column: str, texts: dict[str, str], before: str | None = "flips?",
@@ -150,10 +151,6 @@ def set_table_column(table: Path, column: str, texts: dict[str, str], before: st
     """Set (add or replace) the column `column` of a CSV table whose first column names its rows (a verdict table:
     one row per claim): row `key` gets texts[key], `missing` where texts has none. A new column goes before the
     column `before` when the table has it, else last. Written atomically."""
-    import io
-
-    from strings_bench.core.io import atomic_write_text
-
     with table.open(newline="") as f:
         rows = list(csv.reader(f))
     header, body = rows[0], rows[1:]
@@ -166,9 +163,7 @@ def set_table_column(table: Path, column: str, texts: dict[str, str], before: st
             row.insert(col, "")
     for row in body:
         row[col] = texts.get(row[0], missing)
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerows([header] + body)
-    atomic_write_text(table, buf.getvalue())
+    write_csv(table, [header] + body)
 
 
 def _number(text: str) -> float | None:

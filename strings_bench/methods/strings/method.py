@@ -54,8 +54,9 @@ class StringsSettings:
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
     # This suite's variant, not the paper's: the phase-1 position LR follows the scene's rho (one early position step
     # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / (rho x position_lr_gain)) x the 3DGS
-    # schedule, so that an early step, as taken (the gain multiplies every step), moves text at most this many strokes. None: phase1_position_lr as given. A scene whose rho cannot be
-    # measured (no known words, no masks) keeps phase1_position_lr (result extra['phase1_rho'] is then None).
+    # schedule, so that an early step, as taken (the gain multiplies every step), moves text at most this many
+    # strokes. None: phase1_position_lr as given. A scene whose rho cannot be measured (no known words, no masks)
+    # keeps phase1_position_lr (result extra['phase1_rho'] is then None).
     phase1_step_strokes: float | None = None  # cap on a phase-1 text position step, in text strokes (None: off)
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
     # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
