@@ -3,7 +3,8 @@
     python benchmarks/captures_compare.py RUN_DIR ... [--out docs/results/data/captures]
 
 RUN_DIRs: run folders of the captures' regime (`strings-bench run --schedule cpu --downscale 1 --datasets
-captures/NAME --set seed=N`), one seed each; folders of one seed and different captures may be given together.
+captures/NAME --set seed=N`), one seed each (several folders may hold one seed's methods); folders of different
+captures may be given together; banked folders (benchmarks/bank_cells.py) count as run folders.
 Each capture is compared on its own (`strings-bench compare --scenes NAME`, reports/compare/): its GT is read by its
 own engine (saharov32: Tesseract, Russian), so a mean over captures would add up two different measurements.
 
@@ -13,14 +14,16 @@ Writes into --out:
   (`training`: each cell's own peak; `process`: some cell records `process` or no scope (written before the peak
   was reset per training) and holds its run process's peak so far, an upper bound for every method but a run's
   first); captures below their floor on GT characters have no OCR-CER;
-- `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each scored capture:
+- `verdicts.csv`: each claim of the paper (the verdict table of docs/results/cpu-long.md) on each capture (on a
+  capture below the floor only the claims on counts, COUNT_CLAIMS; its CER claims are `not scored`):
   `holding` when STRinGS is on the claimed side of every method it is held against and the seeds' ranges do not
   overlap (reports/compare `decided`), `not holding` when some method is on the other side with ranges apart,
   `not decided` otherwise (ranges overlap, or a single seed, or, for a CER, both sides reading nothing: an
   OCR-CER of at least READS_NOTHING on every seed, where the figures differ only by the spurious characters OCR
   adds), `not measured` when a method the claim needs was not run; with the figures behind each verdict;
 - `compare-NAME.md`: `strings-bench compare`'s tables of each capture.
-Prints both CSVs.
+A capture that none of the RUN_DIRs holds keeps its rows of the comparison.csv and verdicts.csv already in --out
+(each capture's rows come from the folders given for it). Prints both CSVs.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from pathlib import Path
 from strings_bench.core.io import atomic_write_text
 from strings_bench.reports.compare import compare, comparison_markdown, decided
 from strings_bench.reports.doc_tables import set_table_column
+from strings_bench.store import cell_row, iter_cells
 
 REFERENCE = "strings"
 BASELINES = ("3dgs", "edc-absgs", "improved-gs")
@@ -98,6 +102,19 @@ CLAIMS = (
 )
 
 
+# The claims a capture below its floor on GT characters is still held to: counts, not CER (its OCR-CER is not scored).
+COUNT_CLAIMS = ("less training time", "fewer Gaussians")
+NOT_SCORED = "not scored"
+
+
+def kept_rows(path: Path, compared: set) -> list[dict]:
+    """The rows of a banked comparison.csv or verdicts.csv whose capture is not in `compared`, in their order: each
+    capture's rows come from the folders given for it, and a capture compared before keeps its rows."""
+    if not path.is_file():
+        return []
+    return [r for r in csv.DictReader(path.open(newline="")) if r["capture"] not in compared]
+
+
 REAL_CAPTURES_COLUMN = "real captures (`cpu`, full size)"
 
 
@@ -106,6 +123,8 @@ def set_column(table: Path, verdicts: list[dict]) -> None:
     and figures."""
     texts = {}
     for v in verdicts:
+        if v["verdict"] == NOT_SCORED:
+            continue
         text = f"{v['capture']}: {v['verdict']}" + (f" ({v['figures']})" if v["figures"] else "")
         texts[v["claim"]] = f"{texts[v['claim']]}; {text}" if v["claim"] in texts else text
     set_table_column(table, REAL_CAPTURES_COLUMN, texts)
@@ -113,16 +132,14 @@ def set_column(table: Path, verdicts: list[dict]) -> None:
 
 def peak_memory(run_dirs) -> dict:
     """{(method, capture, checkpoint): (the largest `peak_memory_mb` of its cells over the folders, scope)}, from
-    each folder's results.csv. The scope is `training` when every one of those cells measured its own training's
-    peak (`peak_memory_scope`, engine/trainer.py), else `process`: some cell holds its run process's peak so far,
-    the cell's own only for the first method of a run and an upper bound for the others."""
+    the cells' records (run folders or banked ones). The scope is `training` when every one of those cells measured
+    its own training's peak (`peak_memory_scope`, engine/trainer.py), else `process`: some cell holds its run
+    process's peak so far, the cell's own only for the first method of a run and an upper bound for the others."""
     out: dict = {}
     for d in run_dirs:
-        path = Path(d) / "results.csv"
-        if not path.is_file():
-            continue
-        for r in csv.DictReader(path.open()):
-            if r.get("dataset") == "captures" and r.get("peak_memory_mb"):
+        for rec in iter_cells(d):
+            r = cell_row(rec)
+            if r["dataset"] == "captures" and r["peak_memory_mb"] != "":
                 key = (r["method"], r["scene"], r["label"])
                 mb, scope = out.get(key, (0.0, "training"))
                 cell_scope = r.get("peak_memory_scope") or "process"
@@ -169,19 +186,28 @@ def main(argv=None) -> int:
                                 (("PSNR", "psnr", 2), ("SSIM", "ssim", 3), ("Gaussians", "gaussians", 0),
                                  ("training s", "train_seconds", 0))},
                              **_peak(memory.get((m, scene, label)))})
-        if any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS):  # scored: its GT clears the floor
-            for name, fn in CLAIMS:
+        scored = any(c.get(m, lab, "cer") for m in c.methods for lab in LABELS)  # its GT clears the floor
+        for name, fn in CLAIMS:
+            if scored or name in COUNT_CLAIMS:
                 verdict, figures = fn(c)
-                verdicts.append({"claim": name, "capture": scene, "verdict": verdict, "figures": figures})
+            else:
+                verdict, figures = NOT_SCORED, ""
+            verdicts.append({"claim": name, "capture": scene, "verdict": verdict, "figures": figures})
         if args.out:
             args.out.mkdir(parents=True, exist_ok=True)
             atomic_write_text(args.out / f"compare-{scene}.md", comparison_markdown(c))
+    compared = {r["capture"] for r in rows}
+    if args.out:  # the captures not compared this time keep their banked rows
+        rows = kept_rows(args.out / "comparison.csv", compared) + rows
+        verdicts = kept_rows(args.out / "verdicts.csv", compared) + verdicts
     if args.verdict_table:
         set_column(args.verdict_table, verdicts)
     for name, table in (("comparison.csv", rows), ("verdicts.csv", verdicts)):
         buf = io.StringIO()
         if table:
-            w = csv.DictWriter(buf, fieldnames=list(table[0]), lineterminator="\n")
+            # the columns of this version first (the new rows are last), then any a kept row has besides
+            fields = list(dict.fromkeys(k for r in table[::-1] for k in r))
+            w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
             w.writeheader()
             w.writerows(table)
         print(f"# {name}\n{buf.getvalue()}")

@@ -336,15 +336,93 @@ def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_
     assert rows[2] == ["less training time", "no", "not measured", "yes"]
 
 
+def _capture_cell(run, method, scene, label, iteration, *, seed=0, cer=1.0, gaussians=1000, seconds=60.0,
+                  peak_mb=None, scope="", dataset="captures"):
+    """A finished cell's result.json as `strings-bench run` writes it (the fields the comparison reads)."""
+    rec = {"method": method, "dataset": dataset, "scene": scene, "iteration": iteration, "label": label,
+           "metrics": {"psnr": 17.0, "ssim": 0.6, "lpips": 0.5}, "timings": {"train_seconds": seconds},
+           "config": {"method": {"name": method, "settings": {"seed": seed}}}, "evaluation": "full",
+           "cer": {"cer": cer}, "gaussians": gaussians, "extra": {"peak_memory_scope": scope},
+           **({} if peak_mb is None else {"peak_memory_mb": peak_mb})}
+    folder = Path(run) / "cells" / method / dataset / scene / str(iteration)
+    folder.mkdir(parents=True)
+    (folder / "result.json").write_text(json.dumps(rec))
+
+
 def test_the_comparison_keeps_each_cells_largest_peak_memory_over_the_folders(tmp_path):
     cc = _captures_compare()
-    for seed, mb, scope in ((0, "900.5", "training"), (1, "1200.0", "training"), (2, "800.0", "")):
+    for seed, mb, scope in ((0, 900.5, "training"), (1, 1200.0, "training"), (2, 800.0, "")):
         d = tmp_path / f"seed{seed}"
-        d.mkdir()
-        (d / "results.csv").write_text("method,dataset,scene,label,peak_memory_mb,peak_memory_scope\n"
-                                       f"3dgs,captures,bundler_et,30K,{mb},{scope}\n"
-                                       "3dgs,synthetic360-cpu,storeroom,30K,5000,training\n")
+        _capture_cell(d, "3dgs", "bundler_et", "30K", 1500, seed=seed, peak_mb=mb, scope=scope)
+        _capture_cell(d, "3dgs", "storeroom", "30K", 1500, seed=seed, peak_mb=5000.0, scope="training",
+                      dataset="synthetic360-cpu")
     own = [tmp_path / "seed0", tmp_path / "seed1", tmp_path / "none"]
     assert cc.peak_memory(own) == {("3dgs", "bundler_et", "30K"): (1200.0, "training")}
     # a cell written before the per-training reset (no scope) makes the figure a process peak
     assert cc.peak_memory(own + [tmp_path / "seed2"]) == {("3dgs", "bundler_et", "30K"): (1200.0, "process")}
+
+
+def test_a_capture_below_the_floor_is_held_to_the_count_claims_and_other_captures_keep_their_banked_rows(tmp_path,
+                                                                                                      capsys):
+    """Cells of a capture whose GT reads below the floor (no OCR-CER), seeds 0-1 split over folders one method each
+    (as two lanes run them): its CER claims are `not scored`, its count claims judged by the seeds' ranges; the rows
+    of a capture compared before (already in --out) are kept, and the verdict table gets the scored verdicts only."""
+    cc = _captures_compare()
+    import csv
+
+    for seed in (0, 1):
+        for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
+            # STRinGS: fewer Gaussians (ranges apart), training time overlapping 3DGS's
+            _capture_cell(tmp_path / f"s{seed}-strings", "strings", "tum", label, it, seed=seed, cer=None,
+                          gaussians=1000 + seed, seconds=100.0 + 50 * seed)
+            _capture_cell(tmp_path / f"s{seed}-3dgs", "3dgs", "tum", label, it, seed=seed, cer=None,
+                          gaussians=2000 + seed, seconds=120.0)
+    out = tmp_path / "bank"
+    out.mkdir()
+    (out / "comparison.csv").write_text("capture,method,checkpoint,seeds,OCR-CER\nbundler_et,3dgs,30K,3,0.957\n"
+                                        "tum,3dgs,30K,1,\n")
+    (out / "verdicts.csv").write_text("claim,capture,verdict,figures\nfewer Gaussians,bundler_et,not holding,X\n")
+    table = tmp_path / "table.csv"
+    table.write_text("the paper's claim,x0.1\nfewer Gaussians,no\nless training time,no\nlower CER at 30K,no\n")
+    folders = [tmp_path / f"s{s}-{m}" for s in (0, 1) for m in ("strings", "3dgs")]
+    assert cc.main([*map(str, folders), "--out", str(out), "--verdict-table", str(table)]) == 0
+    capsys.readouterr()
+    rows = list(csv.DictReader((out / "comparison.csv").open()))
+    assert [(r["capture"], r["method"], r["checkpoint"]) for r in rows][:1] == [("bundler_et", "3dgs", "30K")]
+    tum = [r for r in rows if r["capture"] == "tum"]
+    assert len(tum) == 6 and all(r["seeds"] == "2" and r["OCR-CER"] == "" for r in tum)  # the old tum row replaced
+    verdicts = {(v["capture"], v["claim"]): v["verdict"] for v in csv.DictReader((out / "verdicts.csv").open())}
+    assert verdicts[("bundler_et", "fewer Gaussians")] == "not holding"  # kept
+    assert verdicts[("tum", "fewer Gaussians")] == "holding"
+    assert verdicts[("tum", "less training time")] == "not decided"  # 100-150 s against 120 s: ranges overlap
+    assert verdicts[("tum", "lower CER at 30K")] == verdicts[("tum", "the phase-1 position lock helps")] == "not scored"
+    col = {r[0]: r[2] for r in csv.reader(table.open())}
+    assert col["fewer Gaussians"].startswith("bundler_et: not holding (X); tum: holding (STRinGS 1000 (2 seeds)")
+    assert col["lower CER at 30K"] == "not measured"  # no scored capture in this bank
+
+
+def test_banked_cells_compare_as_their_run_folder_and_a_conflict_is_an_error(tmp_path, capsys):
+    from _scripts import load_benchmark
+
+    from strings_bench.core.errors import StringsBenchError
+    from strings_bench.reports.compare import collect
+
+    bank = load_benchmark("bank_cells")
+    run = tmp_path / "runs" / "cap-tum-seed1-3dgs"
+    _capture_cell(run, "3dgs", "tum", "30K", 1500, seed=1, gaussians=2001)
+    _capture_cell(run, "3dgs", "tum", "7K", 350, seed=1)
+    (run / "cells" / "3dgs" / "captures" / "tum" / "7K-unfinished").mkdir()  # no result.json yet: skipped
+    (run / "state").mkdir()
+    (run / "state" / "big.pt").write_bytes(b"x" * 1000)  # training states are not banked
+    out = tmp_path / "bank"
+    assert bank.main([str(run), "--out", str(out)]) == 0
+    assert "2 cell(s) banked, 0 already banked" in capsys.readouterr().out
+    assert collect([out / run.name], "captures") == collect([run], "captures")
+    assert sorted(p.name for p in (out / run.name).rglob("*") if p.is_file()) == ["result.json", "result.json"]
+    assert bank.bank(run, out) == (0, 2)  # banking again changes nothing
+    cell = run / "cells" / "3dgs" / "captures" / "tum" / "1500" / "result.json"
+    cell.write_text(cell.read_text().replace("2001", "2002"))
+    with pytest.raises(StringsBenchError, match="banked with other content"):
+        bank.bank(run, out)
+    assert bank.bank(run, out, replace=True) == (1, 1)
+    assert '"gaussians": 2002' in (out / run.name / cell.relative_to(run)).read_text()
