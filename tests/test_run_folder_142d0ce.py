@@ -27,6 +27,56 @@ TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_seconds"
 ADDED_COLUMNS = {"rho", "peak_memory_scope"}
 
 
+# Two values depend on the machine's libraries, not on this code: the text NLL comes from the OCR recogniser's scores
+# (onnxruntime, whose kernels follow the host's instruction set with no way to pin them: 0.000369998 on an Intel Xeon
+# with AVX-512 against 0.000369354 on the AMD EPYC that wrote the folder), and the SSIMs from a float64 product of
+# MKL inside torch's convolution, whose AVX2 branch is Intel's alone (1e-15 apart; docs/reproducibility.md, "Across
+# machines: not yet"). Each is compared within its tolerance; every other value exactly.
+MACHINE_TOLERANCE = {"nll": 0.01, "ssim": 1e-12}
+
+
+def _tolerance(key: str) -> float | None:
+    return next((tol for part, tol in MACHINE_TOLERANCE.items() if part in key), None)
+
+
+def _split_machine(x, path=""):
+    """(`x` without its machine-dependent entries, {path: (value, relative tolerance)} of those entries)."""
+    found = {}
+    if isinstance(x, dict):
+        kept = {}
+        for k, v in x.items():
+            tol = _tolerance(k)
+            if tol is not None and not isinstance(v, (dict, list)):
+                found[f"{path}/{k}"] = (v, tol)
+            else:
+                kept[k], sub = _split_machine(v, f"{path}/{k}")
+                found.update(sub)
+        return kept, found
+    if isinstance(x, list):
+        kept = []
+        for i, v in enumerate(x):
+            k, sub = _split_machine(v, f"{path}/{i}")
+            kept.append(k)
+            found.update(sub)
+        return kept, found
+    return x, found
+
+
+def _assert_same_up_to_the_machine(new, old):
+    new, new_found = _split_machine(new)
+    old, old_found = _split_machine(old)
+    assert new == old
+    assert set(new_found) == set(old_found)
+    for k, (v, tol) in old_found.items():
+        w = new_found[k][0]
+        try:
+            a, b = float(w), float(v)  # results.csv holds them as text, result.json as numbers
+        except (TypeError, ValueError):  # "" or None: no value on either side
+            assert w == v, k
+            continue
+        assert a == pytest.approx(b, rel=tol, abs=0), k
+
+
 def _rows(run: Path) -> list[dict]:
     with open(run / "results.csv", newline="") as f:
         return list(csv.DictReader(f))
@@ -90,14 +140,14 @@ def test_todays_run_writes_the_142d0ce_cells_in_every_non_timing_column(tmp_path
     bench.run(["fake-a", "fake-b"], [str(scene)], **_kw(new))
     old_rows, new_rows = _rows(OLD), _rows(new)
     assert list(old_rows[0]) == [c for c in new_rows[0] if c not in ADDED_COLUMNS]
-    assert [{k: v for k, v in r.items() if k not in TIMING | ADDED_COLUMNS} for r in new_rows] == \
-        [{k: v for k, v in r.items() if k not in TIMING} for r in old_rows]
+    _assert_same_up_to_the_machine([{k: v for k, v in r.items() if k not in TIMING | ADDED_COLUMNS} for r in new_rows],
+                           [{k: v for k, v in r.items() if k not in TIMING} for r in old_rows])
     old_cells = [_comparable(r) for r in iter_cells(OLD)]
     new_cells = [_comparable(r) for r in iter_cells(new)]
     rhos = {c["config"]["scene"].pop("rho") for c in new_cells}
     [rho] = rhos  # measured on the toy scene's known words, the same in every cell and its results.csv row
     assert rho > 0 and {r["rho"] for r in new_rows} == {str(rho)}
-    assert new_cells == old_cells
+    _assert_same_up_to_the_machine(new_cells, old_cells)
     old_m, new_m = read_manifest(OLD), read_manifest(new)
     for key in ("versions", "datasets", "resolved_device"):
         old_m.pop(key), new_m.pop(key)

@@ -1,0 +1,120 @@
+"""Where two machines' runs part: a hash of every stage of the default run's first steps, to compare across machines.
+
+    python benchmarks/fingerprint.py [--steps 150] [--every 10] [--json FILE]
+
+A CPU training should give the same bits on every x86-64 CPU with AVX2 (docs/reproducibility.md). When two machines'
+figures differ, this finds the first stage that differs: run it on both and compare the JSON files line by line
+(`diff`). The training is 3DGS on the default run's room (`synthetic360-cpu/storeroom`) at the `cpu` schedule's
+scale, seed 0, its steps driven directly (not through the trainer, so its trajectory is not the run's; the same
+kernels run). It prints, in data-path order:
+
+- the machine: CPU model, the libraries' versions, the instruction-set record of the CPU kernels;
+- library probes on fixed inputs: torch's float32 sqrt (MKL's vsSqrt, Adam's square root), a batch of 3x3 float32
+  matrix products (torch.bmm, densification's split samples), torch.randn, numpy's float64 exp and sin;
+- the scene as the run reads it: its training images, text masks and SfM points (decoded arrays, not file bytes);
+- the initial model, then the first step apart (step 1): the render, the loss, every gradient, the parameters after Adam;
+- the parameters and the Gaussian count every --every steps up to --steps (one call of train_step and refine each,
+  as the trainer runs them).
+
+Each entry is a short SHA-256 of the arrays' bytes. Not a timing: it takes about a minute for 150 steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import platform
+import sys
+from pathlib import Path
+
+SCENE = "synthetic360-cpu/storeroom"
+
+
+def digest(*arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        import numpy as np
+
+        if hasattr(a, "detach"):
+            a = a.detach().contiguous().cpu().numpy()
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def params_digest(model) -> str:
+    return digest(*(v for _, v in sorted(model.params.items())))
+
+
+def machine() -> dict:
+    import importlib.metadata as md
+
+    from strings_bench.core.cpus import isa_record
+
+    versions = {}
+    for name in ("numpy", "numba", "llvmlite", "torch", "scipy", "pillow", "opencv-python-headless", "rapidocr"):
+        try:
+            versions[name] = md.version(name)
+        except md.PackageNotFoundError:
+            versions[name] = None
+    return {"python": platform.python_version(), "glibc": "-".join(platform.libc_ver()), **versions,
+            "cpu_kernels": isa_record()}
+
+
+def probes() -> dict:
+    import numpy as np
+    import torch
+
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(1 << 16, generator=g) * 10
+    a = torch.rand(4096, 3, 3, generator=g) - 0.5
+    b = torch.rand(4096, 3, 3, generator=g) - 0.5
+    v = np.linspace(-20.0, 20.0, 1 << 16)
+    return {"torch.sqrt f32": digest(torch.sqrt(x)), "torch.bmm 3x3 f32": digest(torch.bmm(a, b)),
+            "torch.randn": digest(torch.randn(1 << 16, generator=torch.Generator().manual_seed(1))),
+            "numpy exp f64": digest(np.exp(v)), "numpy sin f64": digest(np.sin(v))}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=150, help="steps to follow (default 150)")
+    ap.add_argument("--every", type=int, default=10, help="a parameter hash every this many steps")
+    ap.add_argument("--json", type=Path, default=None, help="also write the fingerprint here")
+    args = ap.parse_args(argv)
+
+    import strings_bench  # noqa: F401 - pins the CPU kernels before torch runs any
+    from engine_profile import build_method, load_scene
+    from strings_bench.engine.trainer import cpu_threads, seed_everything
+
+    out: dict = {"machine": machine(), "probes": probes()}
+    scene = load_scene(SCENE)
+    method = build_method("cpu")
+    seed_everything(method.config.seed)
+    method.setup(scene, device="cpu")  # decodes the training images (the targets) and builds the initial model
+    out["scene"] = {"folder": Path(scene.root).name, "training views": len(scene.train_idx),
+                    "training images": digest(*(method.target(i) for i in scene.train_idx)),
+                    "SfM points": digest(scene.model.xyz, scene.model.rgb)}
+    out["initial model"] = params_digest(method.model)
+    steps = {}
+    with cpu_threads():
+        for step in range(1, args.steps + 1):  # the trainer's step numbers
+            method.train_step(step)
+            if step == 1:
+                grads = {k: digest(p.grad) for k, p in sorted(method.model.params.items()) if p.grad is not None}
+                out["step 1 gradients"] = grads
+                out["step 1 parameters after Adam"] = params_digest(method.model)
+            method.refine(step)
+            if step % args.every == 0 or step == args.steps:
+                steps[step] = {"gaussians": method.num_gaussians(), "parameters": params_digest(method.model)}
+    out["after step"] = steps
+    text = json.dumps(out, indent=1)
+    print(text)
+    if args.json:
+        args.json.write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
