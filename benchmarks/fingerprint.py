@@ -9,7 +9,7 @@ scale, seed 0, its steps driven directly (not through the trainer, so its trajec
 kernels run). It prints, in data-path order:
 
 - the machine: CPU model, the libraries' versions, the instruction-set record of the CPU kernels;
-- library probes on fixed inputs: torch's float32 sqrt (MKL's vsSqrt, Adam's square root), a batch of 3x3 float32
+- library probes on fixed inputs: torch's float32 sqrt (MKL's vsSqrt, rounded by MKL's code branch), a batch of 3x3 float32
   matrix products (torch.bmm, densification's split samples), torch.randn, numpy's float64 exp and sin;
 - the scene as the run reads it: its training images, text masks and SfM points (decoded arrays, not file bytes);
 - the initial model, then the first step apart (step 1): the render, the loss, every gradient, the parameters after Adam;

@@ -5,7 +5,9 @@ process sets NUMBA_CPU_NAME / NUMBA_CPU_FEATURES (here SSE4.2: 4-lane float vect
 against the host's 8 or 16 lanes), and torch, MKL and oneDNN take their kernel set from environment
 variables, which strings_bench pins to AVX2 (strings_bench/core/cpus.py). Short trainings of 3DGS and
 STRinGS (densification on, SH degree 3, SSIM) run in fresh processes under each target and thread count,
-and every bit of every parameter and loss is compared. A kernel that leaves an addition's order to the
+and every bit of every parameter and loss is compared. MKL cannot be made to run another vendor's code here: it is
+pinned to the one code branch it has on every vendor's CPU (COMPATIBLE), and Adam, the one MKL function a training
+step called, no longer calls it (tested under MKL's other branches). A kernel that leaves an addition's order to the
 compiler (fastmath `reassoc`: a vector sum with one partial sum per lane) gives other bits at another
 vector width, and this test fails.
 """
@@ -119,7 +121,35 @@ def test_portable_mode_pins_torch_mkl_and_onednn_to_avx2(tmp_path):
     assert portable["cap"] == "AVX2"
     assert native["env"] == {k: None for k in PORTABLE_ISA}
     # a variable the user set wins
-    assert run({"MKL_CBWR": "COMPATIBLE"})["env"]["MKL_CBWR"] == "COMPATIBLE"
+    assert run({"MKL_CBWR": "AVX2"})["env"]["MKL_CBWR"] == "AVX2"
+
+
+ADAM = textwrap.dedent("""
+    import hashlib, strings_bench, torch
+    from strings_bench.engine.optim import GaussianAdam
+    g = torch.Generator().manual_seed(0)
+    p = torch.nn.Parameter(torch.randn(20000, 3, generator=g))
+    opt = GaussianAdam({"means": p}, {"means": 1e-2})
+    for it in range(5):
+        p.grad = torch.randn(20000, 3, generator=g) * 10.0 ** (-it)
+        opt.step()
+    print("RESULT " + hashlib.sha256(p.detach().numpy().tobytes()).hexdigest())
+""")
+
+
+def test_adam_does_not_depend_on_mkls_code_branch(tmp_path):
+    """Adam's square root is the correctly rounded one, not torch's CPU sqrt (MKL's vsSqrt, whose rounding follows
+    MKL's code branch: on an Intel Xeon the AVX2 branch rounds correctly and COMPATIBLE does not, and an AMD CPU has
+    a branch of its own): the same steps under three of MKL's branches give the same parameters."""
+    base = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA}
+    base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
+    got = set()
+    for branch in ("COMPATIBLE", "AVX2", "AUTO"):
+        proc = subprocess.run([sys.executable, "-c", ADAM], env={**base, "MKL_CBWR": branch}, capture_output=True,
+                              text=True, timeout=300, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        got.add(next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")))
+    assert len(got) == 1, got
 
 
 def test_no_cpu_kernel_leaves_the_order_of_additions_to_the_compiler():

@@ -17,13 +17,16 @@ def usable_cores() -> int:
 # torch, MKL and oneDNN each choose their CPU kernels by the host's instruction set (torch: DEFAULT, AVX2 or
 # AVX512), and kernels of different vector widths add in different orders: the same training gave other
 # bits on an AVX-512 CPU than on an AVX2 one, and densification's thresholds turned those bits into
-# other models. Pinning all three to AVX2 runs the same kernels on every x86-64 CPU that has AVX2 (Intel
-# since 2013, AMD since 2015), so a run's figures are the same on each of them. Each library reads its
-# variable at its first kernel call, so setting them at the package's import is early enough even
+# other models. torch and oneDNN are pinned to their AVX2 kernels, which run on every x86-64 CPU that has AVX2
+# (Intel since 2013, AMD since 2015). MKL (torch's CPU exp, log and sqrt, and its BLAS) is pinned to its COMPATIBLE
+# code branch: MKL's other branches exist on Intel CPUs only, and elsewhere MKL picks its own (oneMKL developer
+# guide, "Specifying Code Branches": settings other than AUTO or COMPATIBLE are available only for Intel
+# processors), so an AVX2 pin gave an Intel and an AMD CPU different square roots (docs/reproducibility.md). Each
+# library reads its variable at its first kernel call, so setting them at the package's import is early enough even
 # after `import torch`. The numba kernels need no pin: none of them leaves an operation's order to the
 # compiler (no fastmath reassociation or contraction; vector sums kept in fixed lanes), so they give the
 # same bits at any vector width (tests/test_reproducible.py runs a training under lower targets).
-PORTABLE_ISA = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"}
+PORTABLE_ISA = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "ONEDNN_MAX_CPU_ISA": "AVX2"}
 # Set to 1 to let torch, MKL and oneDNN use the host's widest kernels (e.g. AVX-512): faster there, but a
 # run's figures then differ in the last digits from those of other machines.
 NATIVE_ISA_ENV = "STRINGS_BENCH_NATIVE_ISA"

@@ -80,6 +80,16 @@ def rows_then(old: torch.Tensor, index: torch.Tensor, add: torch.Tensor | None =
     return out
 
 
+def exact_sqrt(t: torch.Tensor) -> torch.Tensor:
+    """The correctly rounded square root of each element, the same bits on every machine. On the CPU torch's own is
+    MKL's vector square root, whose rounding follows the code branch MKL picks by the CPU's vendor and instruction
+    set (engine/optim_kernels.py); numpy's is the processor's square-root instruction, correctly rounded (IEEE 754).
+    Elsewhere (CUDA) torch's sqrt is already the correctly rounded one."""
+    if t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64):
+        return torch.from_numpy(np.sqrt(t.detach().numpy()))
+    return t.sqrt()
+
+
 class GaussianAdam:
     """Adam over a dict of parameters (shared with the model: ops replace entries in place).
 
@@ -99,7 +109,6 @@ class GaussianAdam:
         # fused: one numba pass per group on contiguous float32 CPU tensors (bit-identical to the torch
         # path, engine/optim_kernels.py); None = wherever it applies, False = always the torch path.
         self.fused = fused
-        self._sqrt_buf: dict[str, torch.Tensor] = {}  # sqrt(v) per group, kept between steps (no page faults)
         self.state: dict[str, dict] = {}
         for k, p in params.items():
             self.reset_state(k)
@@ -138,7 +147,7 @@ class GaussianAdam:
                 continue
             bc1 = 1 - b1 ** st["step"]
             bc2 = 1 - b2 ** st["step"]
-            denom = (v.sqrt() / math.sqrt(bc2)).add_(self.eps)
+            denom = (exact_sqrt(v) / math.sqrt(bc2)).add_(self.eps)
             update = m / denom
             scale = row_scale.get(name)
             if scale is not None:
@@ -156,7 +165,7 @@ class GaussianAdam:
         tensors = (p, g, m, v)
         if not all(t.dtype == torch.float32 and t.device.type == "cpu" and t.is_contiguous() for t in tensors):
             return False
-        from strings_bench.engine.optim_kernels import adam_fused, adam_moments, adam_param, f32, vs_sqrt_available
+        from strings_bench.engine.optim_kernels import adam_moments, adam_step, f32
 
         b1, b2 = self.betas
         lr = self.lrs[name]
@@ -176,19 +185,11 @@ class GaussianAdam:
             scale_arr = np.empty(0, np.float32)
         row_len = max(n // max(rows, 1), 1)
         g_flat, m_flat, v_flat = g.view(-1), m.view(-1), v.view(-1)
-        if lr != 0.0 and vs_sqrt_available():  # one pass, torch's square root inside (optim_kernels.py)
-            adam_fused(p.detach().view(-1).numpy(), g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), scale_arr, row_len,
-                       f32(b1), f32(1 - b1), f32(b2), f32(1 - b2), f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
+        if lr == 0.0:  # the moments move, the parameters do not
+            adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2))
             return True
-        adam_moments(g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), f32(b1), f32(1 - b1), f32(b2), f32(1 - b2))
-        if lr == 0.0:
-            return True
-        sq = self._sqrt_buf.get(name)
-        if sq is None or sq.numel() != n:
-            sq = self._sqrt_buf[name] = torch.empty(n, dtype=torch.float32, device=p.device)
-        torch.sqrt(v_flat, out=sq)
-        adam_param(p.detach().view(-1).numpy(), m_flat.numpy(), sq.numpy(), scale_arr, row_len,
-                   f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
+        adam_step(p.detach().view(-1).numpy(), g_flat.numpy(), m_flat.numpy(), v_flat.numpy(), scale_arr, row_len,
+                  f32(b1), f32(1 - b1), f32(b2), f32(1 - b2), f32(math.sqrt(bc2)), f32(self.eps), f32(-lr / bc1))
         return True
 
     # ---- state resizing (used by strategies.ops) -------------------------------------------
