@@ -16,6 +16,7 @@ result.json yet) are skipped: bank again when they finish. Prints one line per r
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from strings_bench.core.errors import StringsBenchError
@@ -55,7 +56,11 @@ def main(argv=None) -> int:
     ap.add_argument("--replace", action="store_true", help="overwrite banked cells whose content differs")
     args = ap.parse_args(argv)
     for d in args.run_dirs:
-        written, same = bank(d, args.out, args.replace)
+        try:
+            written, same = bank(d, args.out, args.replace)
+        except StringsBenchError as exc:  # a clear message, not a traceback; the folders before it stay banked
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         print(f"{d}: {written} cell(s) banked, {same} already banked -> {args.out / d.name}")
     return 0
 
