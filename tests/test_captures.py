@@ -426,3 +426,7 @@ def test_banked_cells_compare_as_their_run_folder_and_a_conflict_is_an_error(tmp
         bank.bank(run, out)
     assert bank.bank(run, out, replace=True) == (1, 1)
     assert '"gaussians": 2002' in (out / run.name / cell.relative_to(run)).read_text()
+    log = tmp_path / "runs" / "cap-tum-seed1-3dgs.log"  # what a shell glob over runs/cap-* also matches
+    log.write_text("")
+    assert bank.main([str(log), "--out", str(out)]) == 2
+    assert "has no cells/ folder" in capsys.readouterr().err
