@@ -12,7 +12,7 @@ kernels run). It prints, in data-path order:
 - library probes on fixed inputs: torch's float32 sqrt (MKL's vsSqrt, rounded by MKL's code branch), a batch of 3x3 float32
   matrix products (torch.bmm, densification's split samples), torch.randn, numpy's float64 exp and sin;
 - the scene as the run reads it: its training images, text masks and SfM points (decoded arrays, not file bytes);
-- the initial model, then the first step apart (step 1): the render, the loss, every gradient, the parameters after Adam;
+- the initial model, then the first step apart (step 1): every gradient, the parameters after Adam;
 - the parameters and the Gaussian count every --every steps up to --steps (one call of train_step and refine each,
   as the trainer runs them).
 
@@ -32,10 +32,11 @@ SCENE = "synthetic360-cpu/storeroom"
 
 
 def digest(*arrays) -> str:
+    """A short SHA-256 of the arrays' dtypes, shapes and bytes (torch tensors or numpy arrays)."""
+    import numpy as np
+
     h = hashlib.sha256()
     for a in arrays:
-        import numpy as np
-
         if hasattr(a, "detach"):
             a = a.detach().contiguous().cpu().numpy()
         a = np.ascontiguousarray(a)
@@ -112,7 +113,9 @@ def main(argv=None) -> int:
     text = json.dumps(out, indent=1)
     print(text)
     if args.json:
-        args.json.write_text(text + "\n")
+        from strings_bench.core.io import atomic_write_text
+
+        atomic_write_text(args.json, text + "\n")
     return 0
 
 
