@@ -46,3 +46,37 @@ def test_a_malformed_record_is_refused_before_anything_is_written(tmp_path):
     with pytest.raises(StringsBenchError, match="metrics.psnr"):
         write_cell(cell, bad, {"v.png": np.zeros((2, 2, 3), np.float32)})
     assert not cell.exists()
+
+
+def test_versions_name_the_git_commit_of_the_code_and_whether_it_was_modified(tmp_path):
+    """A cell's versions trace it to the commit that made it: git's HEAD of the checkout holding the package, and
+    whether the package's files differ from it; nothing outside a git checkout."""
+    import shutil
+    import subprocess
+
+    from strings_bench.bench.records import source_revision
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    pkg = tmp_path / "repo" / "pkg"
+    pkg.mkdir(parents=True)
+    (pkg / "mod.py").write_text("x = 1\n")
+    (tmp_path / "repo" / "other.txt").write_text("a\n")
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path / "repo"), "-c", "user.name=t", "-c", "user.email=t@t",
+                               *args], check=True, capture_output=True, text=True).stdout.strip()
+
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-q", "-m", "one")
+    head = git("rev-parse", "HEAD")
+    assert source_revision.__wrapped__(str(pkg)) == {"source_commit": head, "source_modified": False}
+    (tmp_path / "repo" / "other.txt").write_text("b\n")  # outside the package: not the code that ran
+    (pkg / "new.py").write_text("")  # untracked: not imported by anything committed
+    assert source_revision.__wrapped__(str(pkg))["source_modified"] is False
+    (pkg / "mod.py").write_text("x = 2\n")
+    assert source_revision.__wrapped__(str(pkg)) == {"source_commit": head, "source_modified": True}
+    outside = tmp_path / "plain"
+    outside.mkdir()
+    assert source_revision.__wrapped__(str(outside)) == {}

@@ -4,7 +4,9 @@ the runner and `strings-bench evaluate`."""
 
 from __future__ import annotations
 
+import functools
 import platform
+import subprocess
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,11 +30,33 @@ def write_gt_pngs(run_dir: Path, dataset: str, scene_name: str, evaluator: Evalu
             write_png(path, evaluator.gt(name))
 
 
+@functools.lru_cache(maxsize=None)
+def source_revision(package_dir: str) -> dict:
+    """{"source_commit": the git commit of the checkout holding package_dir, "source_modified": whether files
+    under package_dir differ from that commit}, or {} when package_dir is not in a git checkout (an installed
+    wheel) or git is missing. A figure can then be traced to the code that made it, which the version number alone
+    does not tell apart between commits."""
+    def git(*args):
+        return subprocess.run(["git", "-C", package_dir, *args], capture_output=True, text=True, timeout=30)
+
+    try:
+        head = git("rev-parse", "HEAD")
+        if head.returncode != 0:
+            return {}
+        status = git("status", "--porcelain", "--untracked-files=no", "--", ".")
+    except (OSError, subprocess.SubprocessError):
+        return {}
+    return {"source_commit": head.stdout.strip(), "source_modified": bool(status.stdout.strip())}
+
+
 def versions() -> dict:
     import torch
 
-    out = {"strings_bench": __version__, "python": platform.python_version(), "numpy": np.__version__,
-           "torch": torch.__version__, "platform": platform.platform(), "cpu_kernels": isa_record()}
+    import strings_bench
+
+    out = {"strings_bench": __version__, **source_revision(str(Path(strings_bench.__file__).parent)),
+           "python": platform.python_version(), "numpy": np.__version__, "torch": torch.__version__,
+           "platform": platform.platform(), "cpu_kernels": isa_record()}
     try:
         from importlib.metadata import version
 
