@@ -430,3 +430,76 @@ def test_banked_cells_compare_as_their_run_folder_and_a_conflict_is_an_error(tmp
     log.write_text("")
     assert bank.main([str(log), "--out", str(out)]) == 2
     assert "has no cells/ folder" in capsys.readouterr().err
+
+
+_FAKE_STRINGS_BENCH = r'''
+import json, sys
+from pathlib import Path
+args = sys.argv[1:]
+with open(LOG, "a") as fh:
+    fh.write(" ".join(args) + "\n")
+if args[0] == "datasets":
+    sys.exit(0)
+opt = {args[i]: args[i + 1] for i in range(1, len(args) - 1) if args[i].startswith("--")}
+method, seed = opt["--methods"], int(opt["--set"].split("=")[1])
+scene = opt["--datasets"].split("/")[1]
+if method == "strings-pos-lr":
+    sys.exit(3)  # a run that fails
+for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
+    rec = {"method": method, "dataset": "captures", "scene": scene, "iteration": it, "label": label,
+           "metrics": {"psnr": 17.0}, "timings": {"train_seconds": 1.0}, "evaluation": "full", "cer": {"cer": 1.0},
+           "config": {"method": {"name": method, "settings": {"seed": seed}}}, "gaussians": 10, "extra": {}}
+    folder = Path(opt["--out"]) / "cells" / method / "captures" / scene / str(it)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "result.json").write_text(json.dumps(rec))
+'''
+
+
+def test_captures_cells_runs_what_is_not_banked_a_few_at_a_time_and_banks_each(tmp_path, capsys, monkeypatch):
+    """benchmarks/captures_cells.py against a stand-in for strings-bench: a banked cell is skipped, a finished run
+    folder is banked without a run, the capture is built once before its runs, a failed run is reported (rc 1)
+    while the other cells still run and are banked; each run gets the regime's command and one thread."""
+    import stat
+    import sys
+
+    from _scripts import load_benchmark
+
+    cells = load_benchmark("captures_cells")
+    calls = tmp_path / "calls.txt"
+    fake = tmp_path / "fake-strings-bench"
+    fake.write_text(f"#!{sys.executable}\nLOG = {str(calls)!r}\n" + _FAKE_STRINGS_BENCH)
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    runs, bank = tmp_path / "runs", tmp_path / "bank"
+    for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
+        _capture_cell(bank / "cap-bundler_et-seed0-3dgs", "3dgs", "bundler_et", label, it)  # banked before
+        _capture_cell(runs / "cap-bundler_et-seed1-3dgs", "3dgs", "bundler_et", label, it, seed=1)  # run before
+    _capture_cell(runs / "cap-bundler_et-seed0-strings", "strings", "bundler_et", "3K", 150)  # interrupted
+    monkeypatch.setattr(cells, "is_built", lambda name: False)
+    monkeypatch.setattr(cells.time, "sleep", lambda s: None)
+    argv = ["--captures", "bundler_et", "--methods", "3dgs,strings,strings-pos-lr", "--seeds", "0-1", "--lanes", "2",
+            "--runs", str(runs), "--bank", str(bank), "--strings-bench", str(fake)]
+    assert cells.main(argv + ["--dry-run"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "cap-bundler_et-seed0-3dgs: banked", "cap-bundler_et-seed0-strings: to run",
+        "cap-bundler_et-seed0-strings-pos-lr: to run", "cap-bundler_et-seed1-3dgs: finished",
+        "cap-bundler_et-seed1-strings: to run", "cap-bundler_et-seed1-strings-pos-lr: to run"]
+    assert cells.main(argv) == 1  # the strings-pos-lr runs fail
+    out = capsys.readouterr().out
+    assert "cap-bundler_et-seed0-strings-pos-lr: FAILED (rc 3)" in out and "seed1-strings-pos-lr: FAILED" in out
+    lines = calls.read_text().splitlines()
+    assert lines[0] == "datasets prepare captures/bundler_et" and sum(ln.startswith("datasets") for ln in lines) == 1
+    runs_made = sorted(ln for ln in lines if ln.startswith("run "))
+    assert len(runs_made) == 4 and all(ln.startswith("run --schedule cpu --downscale 1 --methods ") for ln in runs_made)
+    assert f"--set seed=0 --datasets captures/bundler_et --ocr rapidocr --out {runs / 'cap-bundler_et-seed0-strings'}" \
+           " --no-progress" in "\n".join(runs_made)
+    for name in ("cap-bundler_et-seed0-3dgs", "cap-bundler_et-seed0-strings", "cap-bundler_et-seed1-3dgs",
+                 "cap-bundler_et-seed1-strings"):
+        assert len(list((bank / name).rglob("result.json"))) == 3, name
+    assert not (bank / "cap-bundler_et-seed0-strings-pos-lr").exists()
+    assert cells.main(argv + ["--dry-run"]) == 0  # a second look: everything but the failed cells banked
+    assert capsys.readouterr().out.count(": banked") == 4
+    assert cells.seeds_arg("0,2-3") == [0, 2, 3]
+    with pytest.raises(Exception, match="seeds are numbers"):
+        cells.seeds_arg("a-b")
+    assert cells.main(["--captures", "nowhere", "--dry-run"]) == 2
+    assert "unknown capture(s): nowhere" in capsys.readouterr().err

@@ -1,0 +1,190 @@
+"""Run the captures' comparison cell by cell: one (capture, method, seed) per run folder, a few at a time, each
+banked as soon as it finishes.
+
+    python benchmarks/captures_cells.py --captures tum_freiburg3_office,bundler_et [--methods 3dgs,strings,...]
+        [--seeds 0-2] [--lanes 2] [--runs runs] [--bank docs/results/data/captures/cells] [--dry-run]
+
+Each cell is the captures' regime (docs/results/captures.md) for one method and seed:
+
+    strings-bench run --schedule cpu --downscale 1 --methods M --set seed=S --datasets captures/C \\
+        --ocr ENGINE --out RUNS/cap-C-seedS-M --no-progress            # output in RUNS/cap-C-seedS-M.log
+
+with ENGINE the capture's own OCR engine (its GT engine, `strings-bench datasets show captures/C`) and one thread
+per run (NUMBA_NUM_THREADS, OMP_NUM_THREADS and MKL_NUM_THREADS set to 1), so that `--lanes` runs share as many
+cores. A run folder per cell keeps each cell's training time and peak memory its own, and lets cells of one
+comparison come from several sessions or machines.
+
+- A cell all of whose checkpoints are banked (`--bank`, benchmarks/bank_cells.py) is skipped; one whose run
+  folder holds every checkpoint is banked and skipped; any other is run, and `strings-bench run` resumes what an
+  interrupted run left in its folder.
+- Cells run in the order of the captures, then the seeds, then the methods given, so a seed's methods finish
+  together; a finished run's folder is banked before its lane starts the next cell.
+- A capture not built yet is built before its first cell starts (`strings-bench datasets prepare`), while the
+  running cells go on: two runs would otherwise build it at once.
+- `--dry-run` prints the plan (each cell: banked, finished, or to run) and runs nothing.
+
+Prints a line per cell started and finished; rc 0 when every cell finished and was banked, 1 when some run
+failed (its log names why; the other cells still run), 2 on bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.results import RESULT_FILE
+from strings_bench.core.schedules import get_schedule
+from strings_bench.datasets.captures import CAPTURES, is_built
+
+SCHEDULE = "cpu"
+DOWNSCALE = "1"
+METHODS = ("3dgs", "strings", "strings-pos-lr", "edc-absgs", "improved-gs")
+ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+BANK_CELLS = Path(__file__).with_name("bank_cells.py")
+
+
+def bank(run_dir: Path, bank_dir: Path) -> str:
+    """benchmarks/bank_cells.py RUN_DIR --out BANK_DIR; returns its line (raises StringsBenchError when it fails)."""
+    proc = subprocess.run([sys.executable, str(BANK_CELLS), str(run_dir), "--out", str(bank_dir)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise StringsBenchError(f"banking {run_dir} failed: {proc.stderr.strip() or proc.stdout.strip()}")
+    return proc.stdout.strip()
+
+
+@dataclass(frozen=True)
+class Cell:
+    capture: str
+    method: str
+    seed: int
+
+    @property
+    def folder_name(self) -> str:
+        return f"cap-{self.capture}-seed{self.seed}-{self.method}"
+
+    def checkpoints(self, root: Path) -> int:
+        """How many of the cell's checkpoints have a result under root/<folder name> (a run folder or a banked one)."""
+        cells = root / self.folder_name / "cells" / self.method / "captures" / self.capture
+        return len(list(cells.glob(f"*/{RESULT_FILE}"))) if cells.is_dir() else 0
+
+    def command(self, runs: Path, strings_bench: str) -> list[str]:
+        return [strings_bench, "run", "--schedule", SCHEDULE, "--downscale", DOWNSCALE, "--methods", self.method,
+                "--set", f"seed={self.seed}", "--datasets", f"captures/{self.capture}",
+                "--ocr", CAPTURES[self.capture].gt_ocr, "--out", str(runs / self.folder_name), "--no-progress"]
+
+
+def seeds_arg(text: str) -> list[int]:
+    """"0-2" or "0,2,5" -> the seeds."""
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.strip().partition("-")
+        if not lo.isdigit() or (hi and not hi.isdigit()):
+            raise argparse.ArgumentTypeError(f"seeds are numbers or ranges (0-2, 0,2), got {text!r}")
+        out.extend(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def plan(captures: list[str], methods: list[str], seeds: list[int]) -> list[Cell]:
+    unknown = [c for c in captures if c not in CAPTURES]
+    if unknown:
+        raise StringsBenchError(f"unknown capture(s): {', '.join(unknown)}", hint=f"captures: {', '.join(CAPTURES)}")
+    return [Cell(c, m, s) for c in captures for s in seeds for m in methods]
+
+
+def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int) -> str:
+    """"banked", "finished" (every checkpoint in its run folder, not all banked) or "to run"."""
+    if cell.checkpoints(bank_dir) >= n_checkpoints:
+        return "banked"
+    if cell.checkpoints(runs) >= n_checkpoints:
+        return "finished"
+    return "to run"
+
+
+def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings_bench: str,
+              poll_seconds: float = 5.0) -> int:
+    """Run the cells not banked, `lanes` at a time; bank each finished folder. Returns the number of failed runs."""
+    n_checkpoints = len(get_schedule(SCHEDULE).paper_checkpoints)
+    todo = []
+    for cell in cells:
+        st = state(cell, runs, bank_dir, n_checkpoints)
+        if st == "finished":
+            print(f"{cell.folder_name}: finished before; {bank(runs / cell.folder_name, bank_dir)}", flush=True)
+        elif st == "to run":
+            todo.append(cell)
+    env = {**os.environ, **ONE_THREAD}
+    running: dict[Cell, tuple[subprocess.Popen, float]] = {}
+    failed = 0
+    prepared: set[str] = set()
+    runs.mkdir(parents=True, exist_ok=True)
+    while todo or running:
+        for cell, (proc, t0) in list(running.items()):
+            if proc.poll() is None:
+                continue
+            del running[cell]
+            minutes = (time.monotonic() - t0) / 60
+            if proc.returncode == 0:
+                print(f"{cell.folder_name}: done in {minutes:.1f} min; {bank(runs / cell.folder_name, bank_dir)}",
+                      flush=True)
+            else:
+                failed += 1
+                print(f"{cell.folder_name}: FAILED (rc {proc.returncode}) after {minutes:.1f} min; see "
+                      f"{runs / cell.folder_name}.log", flush=True)
+        while todo and len(running) < lanes:
+            cell = todo.pop(0)
+            if cell.capture not in prepared:
+                if not is_built(cell.capture):  # built once, before its cells run side by side
+                    print(f"building captures/{cell.capture} ...", flush=True)
+                    proc = subprocess.run([strings_bench, "datasets", "prepare", f"captures/{cell.capture}"], env=env,
+                                          capture_output=True, text=True)
+                    if proc.returncode != 0:
+                        raise StringsBenchError(f"building captures/{cell.capture} failed:\n{proc.stderr[-2000:]}")
+                prepared.add(cell.capture)
+            log = open(runs / f"{cell.folder_name}.log", "a", encoding="utf-8")
+            proc = subprocess.Popen(cell.command(runs, strings_bench), env=env, stdout=log, stderr=subprocess.STDOUT)
+            log.close()  # the child holds its own descriptor
+            running[cell] = (proc, time.monotonic())
+            print(f"{cell.folder_name}: started", flush=True)
+        if running:
+            time.sleep(poll_seconds)
+    return failed
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--captures", required=True, help="comma-separated capture names (strings-bench datasets list)")
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated (default: %(default)s)")
+    ap.add_argument("--seeds", type=seeds_arg, default=[0, 1, 2], help="e.g. 0-2 or 0,2 (default: 0-2)")
+    ap.add_argument("--lanes", type=int, default=2, help="runs at a time, one thread each (default: %(default)s)")
+    ap.add_argument("--runs", type=Path, default=Path("runs"), help="where the run folders go (default: runs)")
+    ap.add_argument("--bank", type=Path, default=Path("docs/results/data/captures/cells"),
+                    help="the bank of finished cells (default: %(default)s)")
+    ap.add_argument("--strings-bench", default="strings-bench", help=argparse.SUPPRESS)  # tests: a stand-in
+    ap.add_argument("--dry-run", action="store_true", help="print the plan and run nothing")
+    args = ap.parse_args(argv)
+    if args.lanes < 1:
+        ap.error("--lanes must be at least 1")
+    try:
+        cells = plan([c.strip() for c in args.captures.split(",") if c.strip()],
+                     [m.strip() for m in args.methods.split(",") if m.strip()], args.seeds)
+        if args.dry_run:
+            n = len(get_schedule(SCHEDULE).paper_checkpoints)
+            for cell in cells:
+                print(f"{cell.folder_name}: {state(cell, args.runs, args.bank, n)}")
+            return 0
+        failed = run_cells(cells, args.runs, args.bank, args.lanes, args.strings_bench)
+    except StringsBenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
