@@ -12,7 +12,7 @@ Each cell is the captures' regime (docs/results/captures.md) for one method and 
 with ENGINE the capture's own OCR engine (its GT engine, `strings-bench datasets show captures/C`) and one thread
 per run (NUMBA_NUM_THREADS, OMP_NUM_THREADS and MKL_NUM_THREADS set to 1), so that `--lanes` runs share as many
 cores. A run folder per cell keeps each cell's training time and peak memory its own, and lets cells of one
-comparison come from several sessions or machines.
+comparison come from several days or machines.
 
 - A cell all of whose checkpoints are banked (`--bank`, benchmarks/bank_cells.py) is skipped; one whose run
   folder holds every checkpoint is banked and skipped; any other is run, and `strings-bench run` resumes what an
