@@ -80,3 +80,7 @@ def test_versions_name_the_git_commit_of_the_code_and_whether_it_was_modified(tm
     outside = tmp_path / "plain"
     outside.mkdir()
     assert source_revision.__wrapped__(str(outside)) == {}
+    installed = tmp_path / "repo" / "venv" / "site-packages" / "pkg"  # a wheel installed inside some repository
+    installed.mkdir(parents=True)
+    (installed / "mod.py").write_text("x = 1\n")
+    assert source_revision.__wrapped__(str(installed)) == {}

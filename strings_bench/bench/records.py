@@ -33,15 +33,15 @@ def write_gt_pngs(run_dir: Path, dataset: str, scene_name: str, evaluator: Evalu
 @functools.lru_cache(maxsize=None)
 def source_revision(package_dir: str) -> dict:
     """{"source_commit": the git commit of the checkout holding package_dir, "source_modified": whether files
-    under package_dir differ from that commit}, or {} when package_dir is not in a git checkout (an installed
-    wheel) or git is missing. A figure can then be traced to the code that made it, which the version number alone
-    does not tell apart between commits."""
+    under package_dir differ from that commit}, or {} when package_dir's files are not tracked by a git checkout
+    (an installed wheel, also in a virtual environment inside some repository) or git is missing. A figure can then
+    be traced to the code that made it, which the version number alone does not tell apart between commits."""
     def git(*args):
         return subprocess.run(["git", "-C", package_dir, *args], capture_output=True, text=True, timeout=30)
 
     try:
         head = git("rev-parse", "HEAD")
-        if head.returncode != 0:
+        if head.returncode != 0 or not git("ls-files", "--", ".").stdout.strip():
             return {}
         status = git("status", "--porcelain", "--untracked-files=no", "--", ".")
     except (OSError, subprocess.SubprocessError):
