@@ -45,6 +45,7 @@ from strings_bench.datasets.captures import CAPTURES, is_built
 SCHEDULE = "cpu"
 DOWNSCALE = "1"
 METHODS = ("3dgs", "strings", "strings-pos-lr", "edc-absgs", "improved-gs")
+N_CHECKPOINTS = len(get_schedule(SCHEDULE).paper_checkpoints)
 ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -99,7 +100,7 @@ def plan(captures: list[str], methods: list[str], seeds: list[int]) -> list[Cell
     return [Cell(c, m, s) for c in captures for s in seeds for m in methods]
 
 
-def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int) -> str:
+def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int = N_CHECKPOINTS) -> str:
     """"banked", "finished" (every checkpoint in its run folder, not all banked) or "to run"."""
     if cell.checkpoints(bank_dir) >= n_checkpoints:
         return "banked"
@@ -111,10 +112,9 @@ def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int) -> str:
 def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings_bench: str,
               poll_seconds: float = 5.0) -> int:
     """Run the cells not banked, `lanes` at a time; bank each finished folder. Returns the number of failed runs."""
-    n_checkpoints = len(get_schedule(SCHEDULE).paper_checkpoints)
     todo = []
     for cell in cells:
-        st = state(cell, runs, bank_dir, n_checkpoints)
+        st = state(cell, runs, bank_dir)
         if st == "finished":
             print(f"{cell.folder_name}: finished before; {bank(runs / cell.folder_name, bank_dir)}", flush=True)
         elif st == "to run":
@@ -175,9 +175,8 @@ def main(argv=None) -> int:
         cells = plan([c.strip() for c in args.captures.split(",") if c.strip()],
                      [m.strip() for m in args.methods.split(",") if m.strip()], args.seeds)
         if args.dry_run:
-            n = len(get_schedule(SCHEDULE).paper_checkpoints)
             for cell in cells:
-                print(f"{cell.folder_name}: {state(cell, args.runs, args.bank, n)}")
+                print(f"{cell.folder_name}: {state(cell, args.runs, args.bank)}")
             return 0
         failed = run_cells(cells, args.runs, args.bank, args.lanes, args.strings_bench)
     except StringsBenchError as exc:

@@ -52,9 +52,7 @@ def source_revision(package_dir: str) -> dict:
 def versions() -> dict:
     import torch
 
-    import strings_bench
-
-    out = {"strings_bench": __version__, **source_revision(str(Path(strings_bench.__file__).parent)),
+    out = {"strings_bench": __version__, **source_revision(str(Path(__file__).resolve().parents[1])),
            "python": platform.python_version(), "numpy": np.__version__, "torch": torch.__version__,
            "platform": platform.platform(), "cpu_kernels": isa_record()}
     try:
