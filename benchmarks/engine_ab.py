@@ -35,6 +35,10 @@ from contextlib import nullcontext
 from pathlib import Path
 
 HERE = Path(__file__).resolve()
+# numba's target as the user set it (if at all), before this process imports strings_bench: the import sets
+# NUMBA_CPU_FEATURES on a CPU with AVX-512 (512-bit vectors), and an old commit's arm must not inherit that
+# from here, only what its own code sets.
+NUMBA_TARGET_ENV = {k: os.environ[k] for k in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES") if k in os.environ}
 
 
 def worker(state: str, first: int, steps: int) -> int:
@@ -87,7 +91,8 @@ def worker(state: str, first: int, steps: int) -> int:
 
 
 def run_arm(tree: Path, state: str, first: int, steps: int, backend: str | None = None) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU_")}
+    env.update(NUMBA_TARGET_ENV, PYTHONPATH=str(tree))
     if backend:
         env["ENGINE_AB_BACKEND"] = backend
     out = subprocess.run([sys.executable, str(HERE), "--worker", state, str(first), str(steps)], env=env,

@@ -162,3 +162,62 @@ def test_no_cpu_kernel_leaves_the_order_of_additions_to_the_compiler():
         flags = fn.targetoptions.get("fastmath")
         flags = set(flags) if isinstance(flags, (set, frozenset, dict, list, tuple)) else ({"fast"} if flags else set())
         assert not ({"reassoc", "contract", "fast"} & flags), (fn.__name__, flags)
+
+
+def test_wide_vectors_only_on_avx512_and_never_over_a_users_target():
+    """widen_numba_vectors: on a CPU with AVX-512 the host's features plus `-prefer-256-bit`; nothing on a CPU
+    without it, and nothing where NUMBA_CPU_NAME or NUMBA_CPU_FEATURES is set (a user's target, or a test
+    emulating another CPU, wins)."""
+    from strings_bench.core.cpus import WIDE_VECTORS, widen_numba_vectors
+
+    env = {}
+    assert widen_numba_vectors(env, "+avx2,+avx512f,-amx-tile") == "+avx2,+avx512f,-amx-tile," + WIDE_VECTORS
+    assert env == {"NUMBA_CPU_FEATURES": "+avx2,+avx512f,-amx-tile,-prefer-256-bit"}
+    for features in ("+avx2,+fma,-avx512f", "+avx2,+avx512fp16", ""):
+        env = {}
+        assert widen_numba_vectors(env, features) is None and env == {}
+    for key in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES"):
+        env = {key: "haswell"}
+        assert widen_numba_vectors(env, "+avx2,+avx512f") is None and env == {key: "haswell"}
+
+
+WIDE_PROBE = textwrap.dedent("""
+    import strings_bench  # first, as the command line does: it turns LLVM's 256-bit preference off
+    import numpy as np
+    from numba import njit
+    from strings_bench.core.cpus import isa_record
+
+    @njit
+    def axpy(a, x, y):
+        for i in range(x.shape[0]):
+            y[i] = a * x[i] + y[i]
+
+    x = np.ones(4096, np.float32)
+    axpy(np.float32(2.0), x, x.copy())
+    asm = "".join(axpy.inspect_asm().values())
+    print("RESULT", "zmm" in asm, isa_record()["numba_vector_bits"])
+""")
+
+
+def test_numba_kernels_use_512_bit_vectors_on_an_avx512_cpu(tmp_path):
+    """In a fresh process that imports strings_bench first, a vectorised float32 loop is compiled for the 16-lane
+    (zmm) registers on a CPU with AVX-512, where LLVM's tuning would keep it on 8-lane ones; a run records the
+    width (`numba_vector_bits`). The bits are the same at any width: the training test above compares this
+    target with SSE4.2."""
+    from strings_bench.core.cpus import host_cpu_features
+
+    if "+avx512f" not in host_cpu_features().split(","):
+        pytest.skip("this CPU has no AVX-512")
+    base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")}
+    base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
+
+    def probe(extra):
+        proc = subprocess.run([sys.executable, "-c", WIDE_PROBE], env={**base, **extra}, capture_output=True,
+                              text=True, timeout=300, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")).split()[1:]
+
+    assert probe({}) == ["True", "512"]
+    # with the host's own features set by hand, LLVM's preference is back: 8-lane vectors
+    host = ",".join(f for f in host_cpu_features().split(",") if f != "-prefer-256-bit")
+    assert probe({"NUMBA_CPU_FEATURES": host}) == ["False", "256"]

@@ -78,6 +78,60 @@ def pin_portable_isa(environ=None) -> dict:
     return done
 
 
+# --- The vector width of the numba kernels ----------------------------------------------------------------
+# LLVM tunes code for Intel's AVX-512 CPUs (skylake-avx512 and later) to prefer 256-bit vectors (its subtarget
+# feature `prefer-256-bit`), so numba's float32 kernels ran 8 lanes per instruction on 16-lane hardware: the
+# blends' pixel loops, whose blocks are 16 lanes, took two passes of every instruction. Without that preference
+# they run in one, with the same bits (no kernel leaves an operation's order to the compiler, see above): on a
+# 2-core Intel Xeon (Sapphire Rapids) the forward blend at 336k Gaussians took 37 instead of 67 ms and the
+# backward 68 instead of 110 (docs/results/engine-speed.md, "512-bit vectors on AVX-512 CPUs").
+WIDE_VECTORS = "-prefer-256-bit"
+
+
+def host_cpu_features() -> str:
+    """LLVM's feature string of this CPU ('+avx2,+avx512f,...'), or '' when LLVM cannot tell."""
+    try:
+        from llvmlite import binding as llvm
+
+        return llvm.get_host_cpu_features().flatten()
+    except Exception:  # noqa: BLE001 - no features: leave numba to its own choice
+        return ""
+
+
+def widen_numba_vectors(environ=None, host_features: str | None = None) -> str | None:
+    """On a CPU with AVX-512, compile numba's kernels for 512-bit vectors: NUMBA_CPU_FEATURES becomes the host's
+    features plus WIDE_VECTORS. Nothing is set when the CPU has no AVX-512 or when the user (or a test emulating
+    another CPU) has set NUMBA_CPU_NAME or NUMBA_CPU_FEATURES. Returns the features set, else None. Numba reads
+    the variable when it builds its CPU target (at the first kernel it compiles or loads), so a process that has
+    imported numba but compiled nothing yet gets the setting too."""
+    environ = os.environ if environ is None else environ
+    if "NUMBA_CPU_NAME" in environ or "NUMBA_CPU_FEATURES" in environ:
+        return None
+    features = host_cpu_features() if host_features is None else host_features
+    if "+avx512f" not in features.split(","):
+        return None
+    value = features + "," + WIDE_VECTORS
+    environ["NUMBA_CPU_FEATURES"] = value
+    if environ is os.environ:
+        import sys
+
+        config = sys.modules.get("numba.core.config")
+        if config is not None and getattr(config, "CPU_FEATURES", None) is None:
+            config.CPU_FEATURES = value
+    return value
+
+
+def numba_vector_width() -> int:
+    """Bits per vector the numba kernels are compiled for: 512 where WIDE_VECTORS is in effect, else that of the
+    host's widest vector unit up to 256 (LLVM's preference on AVX-512 CPUs without it)."""
+    from numba.core import config
+
+    features = (config.CPU_FEATURES or host_cpu_features()).split(",")
+    if "+avx512f" in features and WIDE_VECTORS in features:
+        return 512
+    return 256 if "+avx" in features else 128
+
+
 def isa_record() -> dict:
     """What a run records of the CPU kernels: the mode, torch's kernel set in use, the variables of
     PORTABLE_ISA as the process has them, and the CPU's model name."""
@@ -94,6 +148,7 @@ def isa_record() -> dict:
     except OSError:
         pass
     out["cpu_model"] = model
+    out["numba_vector_bits"] = numba_vector_width()
     return out
 
 
