@@ -123,10 +123,11 @@ def widen_numba_vectors(environ=None, host_features: str | None = None) -> str |
 
 def numba_vector_width() -> int:
     """Bits per vector the numba kernels are compiled for: 512 where WIDE_VECTORS is in effect, else that of the
-    host's widest vector unit up to 256 (LLVM's preference on AVX-512 CPUs without it)."""
-    from numba.core import config
+    host's widest vector unit up to 256 (LLVM's preference on AVX-512 CPUs without it). Read from numba's CPU code
+    generator itself (the features it compiles with), so a setting that came too late is not reported."""
+    from numba.core.registry import cpu_target
 
-    features = (config.CPU_FEATURES or host_cpu_features()).split(",")
+    features = cpu_target.target_context.codegen().magic_tuple()[2].split(",")
     if "+avx512f" in features and WIDE_VECTORS in features:
         return 512
     return 256 if "+avx" in features else 128
