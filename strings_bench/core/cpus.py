@@ -83,7 +83,7 @@ def pin_portable_isa(environ=None) -> dict:
 # feature `prefer-256-bit`), so numba's float32 kernels ran 8 lanes per instruction on 16-lane hardware: the
 # blends' pixel loops, whose blocks are 16 lanes, took two passes of every instruction. Without that preference
 # they run in one, with the same bits (no kernel leaves an operation's order to the compiler, see above): on a
-# 2-core Intel Xeon (Sapphire Rapids) the forward blend at 336k Gaussians took 37 instead of 67 ms and the
+# 2-core Intel Xeon with AVX-512 the forward blend at 336k Gaussians took 37 instead of 67 ms and the
 # backward 68 instead of 110 (docs/results/engine-speed.md, "512-bit vectors on AVX-512 CPUs").
 WIDE_VECTORS = "-prefer-256-bit"
 
@@ -135,7 +135,7 @@ def numba_vector_width() -> int:
 
 def isa_record() -> dict:
     """What a run records of the CPU kernels: the mode, torch's kernel set in use, the variables of
-    PORTABLE_ISA as the process has them, and the CPU's model name."""
+    PORTABLE_ISA as the process has them, the CPU's model name and the numba kernels' vector width."""
     import platform
 
     import torch

@@ -107,7 +107,9 @@ SUM_CHUNK = 1 << 16
 def _total_f32(x):
     """Sum of a float32 vector in float64: chunks of SUM_CHUNK in parallel (vectorised inside), then the
     chunk sums in order. The chunking is by index, not by thread: the result is the same at any
-    thread count. Each chunk is a slice read from index 0: with `x[c * SUM_CHUNK + i]` numba cannot
+    thread count (not at any vector width: `reassoc` lets LLVM sum a chunk in one partial sum per lane, which
+    is harmless here, since only whether the sum is finite and in float32's range is used). Each chunk is a
+    slice read from index 0: with `x[c * SUM_CHUNK + i]` numba cannot
     prove the index non-negative, every read carries the negative-index wraparound and the loop
     stays scalar (10x slower)."""
     n = x.shape[0]
