@@ -46,13 +46,8 @@ def host_has_avx2() -> bool:
                     return {"avx2", "fma"} <= flags
     except OSError:
         pass
-    try:
-        from llvmlite import binding as llvm
-
-        features = llvm.get_host_cpu_features()
-        return bool(features.get("avx2")) and bool(features.get("fma"))
-    except Exception:  # noqa: BLE001 - no way to tell: leave the libraries to choose
-        return False
+    features = host_cpu_features().split(",")  # '' when LLVM cannot tell: leave the libraries to choose
+    return "+avx2" in features and "+fma" in features
 
 
 def isa_mode(environ=None) -> str:
