@@ -491,7 +491,7 @@ def main(argv=None) -> int:
     if args.table:
         print(stage_table(args.table[0].split(","), args.table[1].split(",")), end="")
         return 0
-    import strings_bench.raster  # noqa: F401  (selects numba's workqueue threads before any kernel runs)
+    import strings_bench.raster  # noqa: F401  (selects numba's threading layer before any kernel runs)
     from strings_bench.core.io import cache_root
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory
 

@@ -54,6 +54,8 @@ TRAIN = textwrap.dedent("""
         digest["losses"] = hashlib.sha256(np.asarray(losses, np.float64).tobytes()).hexdigest()
         digest["gaussians"] = method.num_gaussians()
         out[name] = digest
+    import numba
+    out["threading_layer"] = numba.threading_layer()
     print("RESULT " + json.dumps(out))
 """)
 # 240 steps: densification from step 10, every 50 steps (the schedule's floor); STRinGS' phase 1 is 60 steps
@@ -76,7 +78,8 @@ def scene_root(tmp_path_factory) -> Path:
 
 
 def _train(scene_root: Path, env: dict, tmp_path: Path) -> dict:
-    full = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA and not k.startswith("NUMBA_CPU")}
+    full = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA and not k.startswith("NUMBA_CPU")
+            and k != "NUMBA_THREADING_LAYER"}
     full.update(env)
     full["STRINGS_BENCH_CACHE"] = str(tmp_path / "cache")
     full["PYTHONPATH"] = os.pathsep.join([str(REPO), full.get("PYTHONPATH", "")])
@@ -89,9 +92,11 @@ def _train(scene_root: Path, env: dict, tmp_path: Path) -> dict:
 
 @pytest.mark.skipif(not host_has_avx2(), reason="the portable kernels are those of x86-64 CPUs with AVX2")
 def test_training_is_bit_identical_under_another_instruction_set_and_thread_count(scene_root, tmp_path):
+    """...and under numba's other threading layer: the work is split by index, never by thread."""
     host = _train(scene_root, {"NUMBA_NUM_THREADS": "2"}, tmp_path)
-    lower = _train(scene_root, {**SSE42, "NUMBA_NUM_THREADS": "1"}, tmp_path)
+    lower = _train(scene_root, {**SSE42, "NUMBA_NUM_THREADS": "1", "NUMBA_THREADING_LAYER": "workqueue"}, tmp_path)
     assert host["torch_cpu_capability"] == lower["torch_cpu_capability"] == "AVX2"
+    assert lower["threading_layer"] == "workqueue"
     for name in SETTINGS:
         assert host[name]["gaussians"] > 400, "densification did not run: the check would be weak"
         differ = [k for k in host[name] if host[name][k] != lower[name][k]]
@@ -221,3 +226,27 @@ def test_numba_kernels_use_512_bit_vectors_on_an_avx512_cpu(tmp_path):
     # with the host's own features set by hand, LLVM's preference is back: 8-lane vectors
     host = ",".join(f for f in host_cpu_features().split(",") if f != "-prefer-256-bit")
     assert probe({"NUMBA_CPU_FEATURES": host}) == ["False", "256"]
+
+
+def test_numba_runs_on_its_openmp_threads_unless_the_user_chooses():
+    """strings_bench.raster selects numba's OpenMP layer where its pool loads (the workqueue layer launched a
+    kernel 30-100x slower on a 2-core Xeon); a user's NUMBA_THREADING_LAYER wins."""
+    code = ("import strings_bench.raster, numba, numpy as np\n"
+            "from strings_bench.engine.optim_kernels import _total_f32\n"
+            "_total_f32(np.ones(10, np.float32))\n"
+            "print(numba.threading_layer())")
+    base = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+    base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
+
+    def layer(extra):
+        proc = subprocess.run([sys.executable, "-c", code], env={**base, **extra}, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout.split()[-1]
+
+    try:
+        import numba.np.ufunc.omppool  # noqa: F401
+    except (ImportError, OSError):
+        pytest.skip("numba's OpenMP pool cannot load here (no libgomp)")
+    assert layer({}) == "omp"
+    assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "workqueue"

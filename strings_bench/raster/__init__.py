@@ -38,22 +38,27 @@ def _ensure_numba_cache_dir() -> None:
         pass
 
 
-def _prefer_workqueue_threads() -> None:
-    """numba's OpenMP layer brings a second libgomp next to torch's; both spin-wait after each
-    parallel region and starve each other on few cores. The workqueue layer sleeps instead.
-    NUMBA_THREADING_LAYER, when set, wins."""
+def _prefer_openmp_threads() -> None:
+    """numba's OpenMP threading layer (its own default where no TBB is installed), not the workqueue layer: on a
+    2-core Xeon a workqueue launch took 140-170 us against a few us for OpenMP's, a float64 sum over 62k rows
+    1.1 ms against 0.1 ms, and a 3DGS training step at 62k Gaussians 72-75 ms against 46-48 ms, with the same
+    bits (docs/results/engine-speed.md, "numba's threads"). The reason workqueue was once chosen, torch's own
+    OpenMP threads spin-waiting against numba's, is gone where it mattered: training runs torch on one thread
+    (CPU_TORCH_THREADS), and a torch convolution at 2 threads right after a numba kernel took as long as alone.
+    Where numba's OpenMP pool cannot load (no libgomp), numba picks its layer itself. NUMBA_THREADING_LAYER,
+    when set, wins."""
     if os.environ.get("NUMBA_THREADING_LAYER"):
         return
     try:
         import numba.core.config as nconfig
-
-        nconfig.THREADING_LAYER = "workqueue"
-    except ImportError:
-        pass
+        import numba.np.ufunc.omppool  # noqa: F401  (raises where libgomp is missing)
+    except (ImportError, OSError):
+        return
+    nconfig.THREADING_LAYER = "omp"
 
 
 _ensure_numba_cache_dir()
-_prefer_workqueue_threads()
+_prefer_openmp_threads()
 
 
 def _check_inputs(means, quats, log_scales, opacity_logits, sh, background, sh_degree, sh_rest=None):
