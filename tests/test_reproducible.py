@@ -230,23 +230,26 @@ def test_numba_kernels_use_512_bit_vectors_on_an_avx512_cpu(tmp_path):
 
 def test_numba_runs_on_its_openmp_threads_unless_the_user_chooses():
     """strings_bench.raster selects numba's OpenMP layer where its pool loads (the workqueue layer launched a
-    kernel 30-100x slower on a 2-core Xeon); a user's NUMBA_THREADING_LAYER wins."""
+    kernel 30-100x slower on a 2-core Xeon), its threads passive (spinning ones made a step 2.8x slower beside
+    another training); a user's NUMBA_THREADING_LAYER, OMP_WAIT_POLICY or GOMP_SPINCOUNT wins."""
     code = ("import strings_bench.raster, numba, numpy as np\n"
             "from strings_bench.engine.optim_kernels import _total_f32\n"
             "_total_f32(np.ones(10, np.float32))\n"
-            "print(numba.threading_layer())")
-    base = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+            "import os\n"
+            "print(os.environ.get('OMP_WAIT_POLICY'), numba.threading_layer())")
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
     base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
 
     def layer(extra):
         proc = subprocess.run([sys.executable, "-c", code], env={**base, **extra}, capture_output=True, text=True,
                               timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]
-        return proc.stdout.split()[-1]
+        return " ".join(proc.stdout.split()[-2:])
 
     try:
         import numba.np.ufunc.omppool  # noqa: F401
     except (ImportError, OSError):
         pytest.skip("numba's OpenMP pool cannot load here (no libgomp)")
-    assert layer({}) == "omp"
-    assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "workqueue"
+    assert layer({}) == "passive omp"
+    assert layer({"GOMP_SPINCOUNT": "300000"}) == "None omp"  # the user's libgomp setting: nothing added
+    assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "None workqueue"

@@ -39,16 +39,20 @@ def _ensure_numba_cache_dir() -> None:
 
 
 def _prefer_openmp_threads() -> None:
-    """numba's OpenMP threading layer (its own default where no TBB is installed), not the workqueue layer: on a
-    2-core Xeon a workqueue launch took 140-170 us against a few us for OpenMP's, a float64 sum over 62k rows
-    1.1 ms against 0.1 ms, and a 3DGS training step at 62k Gaussians 72-75 ms against 46-48 ms, with the same
-    bits (docs/results/engine-speed.md, "numba's threads"). The reason workqueue was once chosen, torch's own
-    OpenMP threads spin-waiting against numba's, is gone where it mattered: training runs torch on one thread
-    (CPU_TORCH_THREADS), and a torch convolution at 2 threads right after a numba kernel took as long as alone.
-    Where numba's OpenMP pool cannot load (no libgomp), numba picks its layer itself. NUMBA_THREADING_LAYER,
-    when set, wins."""
+    """numba's OpenMP threading layer (its own default where no TBB is installed), with its threads sleeping as
+    soon as a kernel ends (OMP_WAIT_POLICY=passive), rather than the workqueue layer. Measured on a 2-core Xeon
+    (benchmarks/threading_layer.py; docs/results/engine-speed.md, "numba's threads"), 3DGS training steps at 63k
+    and 336k Gaussians: idle, workqueue 116 and 368 ms, OpenMP 63 and 281 ms; beside two other trainings,
+    workqueue 172 and 655 ms, OpenMP 106 and 428 ms, the same bits in every arm. libgomp's default spin-wait is
+    as fast when the cores are free but 2.8x slower than workqueue when they are not (its threads spin for
+    cores another process needs): hence passive. A user's OMP_WAIT_POLICY or GOMP_SPINCOUNT wins, and so does
+    NUMBA_THREADING_LAYER. Where numba's OpenMP pool cannot load (no libgomp), numba picks its layer itself.
+    The variable is set before numba's libgomp loads; torch's own libgomp has read its settings already, and
+    training runs torch on one thread (CPU_TORCH_THREADS), so its pool stays idle."""
     if os.environ.get("NUMBA_THREADING_LAYER"):
         return
+    if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+        os.environ["OMP_WAIT_POLICY"] = "passive"
     try:
         import numba.core.config as nconfig
         import numba.np.ufunc.omppool  # noqa: F401  (raises where libgomp is missing)
