@@ -12,8 +12,8 @@ other setting as the Trainer has it on the CPU (torch on CPU_TORCH_THREADS threa
 an idle machine and again beside other work (e.g. another training): spinning threads compete for the cores.
 Measured:
 - the launch of a parallel kernel: a prange over 2 items that does nothing (median of 300 calls);
-- two small kernels of every step: the finite check's sum (`optim_kernels._total_f32`) of 62 674 floats and the
-  motion log's sums (`motion._step_sums`) over 62 674 positions (median of 300 calls each);
+- two small kernels of every step: the finite check (`optim_kernels.sums_finite`) of 62 674 floats and the
+  motion log (`motion.note_motion`) over 62 674 positions (median of 300 calls each);
 - training steps (`train_step` + `refine`) from the 3DGS states of benchmarks/engine_profile.py (schedule `early`,
   synthetic/extinguisher, 320x240, after 450 and 1 050 steps; about 63k and 336k Gaussians), one untimed step
   first, then the median ms per step, and a hash of the parameters at the end (it must be the same under both
@@ -62,8 +62,10 @@ def worker(at: list[int], steps: list[int]) -> None:
     import engine_profile as E
     import strings_bench.raster  # noqa: F401  (the package's threading-layer choice, here overridden by the env)
     from strings_bench.core.io import cache_root
-    from strings_bench.engine.motion import _step_sums
-    from strings_bench.engine.optim_kernels import _total_f32
+    import torch
+
+    from strings_bench.engine.motion import new_motion_log, note_motion
+    from strings_bench.engine.optim_kernels import sums_finite
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory, seed_everything
 
     keep_freed_memory()
@@ -74,10 +76,9 @@ def worker(at: list[int], steps: list[int]) -> None:
             x[i] += 1.0
 
     out = {"launch_us": _median_us(nothing, (np.zeros(2),)),
-           "finite_sum_62k_us": _median_us(_total_f32, (np.ones(62674, np.float32),)),
-           "motion_sums_62k_us": _median_us(_step_sums, (np.ones((62674, 3), np.float32),
-                                                          np.zeros((62674, 3), np.float32), np.zeros(1, np.bool_),
-                                                          False))}
+           "finite_sum_62k_us": _median_us(sums_finite, ([torch.ones(62674)],)),
+           "motion_sums_62k_us": _median_us(note_motion, (new_motion_log(), torch.ones(62674, 3),
+                                                          torch.zeros(62674, 3), 1.0))}
     scene = E.load_scene("synthetic/extinguisher")
     paths = E.trained_states(scene, "early", at, cache_root() / "engine_profile")
     for s, n in zip(at, steps):
