@@ -281,6 +281,38 @@ def test_default_strategy_clone_split_prune():
     assert state["grad2d"] is None
 
 
+@pytest.mark.parametrize("scale", [1e-20, 1e-8, 1e-4, 1.0, 1e18])
+def test_fused_densification_statistics_match_torch_bit_for_bit(scale, monkeypatch):
+    """The one-pass numba statistics (int32 radii on the CPU) against the strategy's torch ops (taken for other
+    radii dtypes): torch's norm, where, add and maximum, over three steps, tiny and huge gradients (squares that
+    underflow or overflow), invisible Gaussians with NaN gradients, negative zeros."""
+    import strings_bench.engine.strategies.stats_kernels as SK
+
+    calls = []
+    real = SK.accumulate_screen_stats
+    monkeypatch.setattr(SK, "accumulate_screen_stats", lambda *a: calls.append(1) or real(*a))
+    n = 50_000
+    gen = torch.Generator().manual_seed(3)
+    m = _random_model(n, seed=4)
+    strat = DefaultStrategy()
+    fused, ref = strat.initialize_state(1.0), strat.initialize_state(1.0)
+    for step in range(3):
+        grad = torch.randn(n, 2, generator=gen) * scale
+        grad[::7, 0] = 0.0
+        grad[::11, 1] = -0.0
+        radii = torch.randint(0, 40, (n,), generator=gen, dtype=torch.int32)
+        grad[radii == 0] = float("nan")  # culled: the gradient must not reach the statistics
+        means2d = torch.zeros(n, 2, requires_grad=True)
+        means2d.grad = grad
+        info = {"means2d": means2d, "radii": radii, "width": 320, "height": 240, "n_cameras": 1}
+        strat._update_state(m, fused, info)
+        strat._update_state(m, ref, {**info, "radii": radii.long()})
+    assert len(calls) == 3, "the fused path was not taken"
+    for key in ("grad2d", "count", "max_radii"):
+        assert torch.equal(fused[key].view(torch.int32), ref[key].view(torch.int32)), key
+    assert torch.isfinite(ref["grad2d"]).all() == (scale < 1e18)  # the overflow case really overflowed
+
+
 def test_default_strategy_schedule_scales_with_steps():
     strat = DefaultStrategy()
     state = strat.initialize_state(1.0, steps_scale=0.1)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from strings_bench.core.errors import TrainingError
@@ -168,6 +169,8 @@ class DefaultStrategy(Strategy):
         if grad is None:
             return
         radii = torch.as_tensor(info["radii"], device=model.device)
+        if _fused_stats(grad, radii, info, state):
+            return
         visible = radii > 0
         # Whole-array updates: adding 0 (or taking the maximum with 0) leaves an entry's bits as they are, since
         # every entry is >= +0, and they skip the gathers and scatters of boolean indexing.
@@ -253,6 +256,24 @@ class DefaultStrategy(Strategy):
 
     def _reset_opacity(self, model: GaussianModel, optimizer: GaussianAdam, state: dict) -> None:
         ops.reset_opacity(model, optimizer, self.reset_value)
+
+
+def _fused_stats(grad: torch.Tensor, radii: torch.Tensor, info: dict, state: dict) -> bool:
+    """`_update_state`'s torch ops in one numba pass (stats_kernels.py, the same bits) where every array is a
+    contiguous CPU tensor of the kernel's dtype (float32; int32 radii); False (nothing done) elsewhere."""
+    arrays = (grad, state["grad2d"], state["count"], state["max_radii"])
+    if not (all(t.device.type == "cpu" and t.dtype == torch.float32 and t.is_contiguous() for t in arrays)
+            and radii.device.type == "cpu" and radii.dtype == torch.int32 and radii.is_contiguous()
+            and grad.ndim == 2 and grad.shape[1] == 2 and radii.ndim == 1
+            and len({grad.shape[0], radii.shape[0], *(t.shape[0] for t in arrays[1:])}) == 1):
+        return False
+    from strings_bench.engine.strategies.stats_kernels import accumulate_screen_stats
+
+    n_cameras = info.get("n_cameras", 1)
+    accumulate_screen_stats(grad.detach().numpy(), radii.numpy(),
+                            np.float32(info["width"] / 2.0 * n_cameras), np.float32(info["height"] / 2.0 * n_cameras),
+                            state["grad2d"].numpy(), state["count"].numpy(), state["max_radii"].numpy())
+    return True
 
 
 def ndc_norm(grad_px: torch.Tensor, width: int, height: int, n_cameras: int = 1) -> torch.Tensor:
