@@ -42,9 +42,9 @@ def _prefer_openmp_threads() -> None:
     """numba's OpenMP threading layer (its own default where no TBB is installed), with its threads sleeping as
     soon as a kernel ends (OMP_WAIT_POLICY=passive), rather than the workqueue layer. Measured on a 2-core Xeon
     (benchmarks/threading_layer.py; docs/results/engine-speed.md, "numba's threads"), 3DGS training steps at 63k
-    and 336k Gaussians: idle, workqueue 116 and 368 ms, OpenMP 63 and 281 ms; beside two other trainings,
-    workqueue 172 and 655 ms, OpenMP 106 and 428 ms, the same bits in every arm. libgomp's default spin-wait is
-    as fast when the cores are free but 2.8x slower than workqueue when they are not (its threads spin for
+    and 336k Gaussians: idle, workqueue 91 and 287 ms, OpenMP 55 and 232 ms; beside two other trainings,
+    workqueue 190 and 619 ms, OpenMP 105 and 473 ms, the same bits in every arm. libgomp's default spin-wait is
+    as fast when the cores are free but up to 2.8x slower than workqueue when they are not (its threads spin for
     cores another process needs): hence passive. A user's OMP_WAIT_POLICY or GOMP_SPINCOUNT wins, and so does
     NUMBA_THREADING_LAYER. Where numba's OpenMP pool cannot load (no libgomp), numba picks its layer itself.
     The variable is set before numba's libgomp loads; torch's own libgomp has read its settings already, and
