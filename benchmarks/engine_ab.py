@@ -10,7 +10,8 @@ thread setting) in fresh processes: the old commit from a `git worktree` of it, 
 from its own tree. Arms alternate within every repetition (old first in even repetitions).
 
 Each arm seeds the random generators alike after restoring its state, so densification rounds draw the same
-splits. Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
+splits. Each arm runs on the numba threading layer its own code selects (older commits: workqueue; this one:
+OpenMP, passive); set NUMBA_THREADING_LAYER (and OMP_WAIT_POLICY) to give both arms the same threads. Printed per size: ms per step of each arm (median over repetitions), the ratio old / new (wall time,
 and process CPU time of all threads, which a loaded machine disturbs less), and whether both arms
 ended with bit-identical parameters (not expected across the float32 blend change: the float32 blends follow another
 trajectory; `--new-backend cpu-f64` runs the new arm on the float64 kernels, whose parameters should
