@@ -25,7 +25,6 @@ the cached run).
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import statistics
@@ -83,11 +82,8 @@ def worker(state: str, first: int, steps: int) -> int:
             method.train_step(step)
             method.refine(step)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    h = hashlib.sha256()
-    for k, v in sorted(method.model.params.items()):
-        h.update(k.encode())
-        h.update(v.detach().contiguous().numpy().tobytes())
-    print(json.dumps({"ms": dt / steps * 1e3, "cpu_ms": dc / steps * 1e3, "gaussians": n0, "hash": h.hexdigest()}))
+    print(json.dumps({"ms": dt / steps * 1e3, "cpu_ms": dc / steps * 1e3, "gaussians": n0,
+                      "hash": E.params_hash(method)}))
     return 0
 
 

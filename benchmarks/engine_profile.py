@@ -123,6 +123,17 @@ def restore(scene, schedule: str, path: Path, downscale: float = 1.0):
     return method
 
 
+def params_hash(method) -> str:
+    """sha256 over the model's parameters (names and bytes, in name order): equal hashes, identical parameters."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for k, v in sorted(method.model.params.items()):
+        h.update(k.encode())
+        h.update(v.detach().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
 # ---- timing hooks -------------------------------------------------------------------------------------
 class Clock:
     def __init__(self):

@@ -25,7 +25,6 @@ the first arm's.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import statistics
@@ -57,13 +56,12 @@ def _median_us(fn, args, calls: int = 300) -> float:
 def worker(at: list[int], steps: list[int]) -> None:
     import numba
     import numpy as np
+    import torch
     from numba import njit, prange
 
     import engine_profile as E
     import strings_bench.raster  # noqa: F401  (the package's threading-layer choice, here overridden by the env)
     from strings_bench.core.io import cache_root
-    import torch
-
     from strings_bench.engine.motion import new_motion_log, note_motion
     from strings_bench.engine.optim_kernels import sums_finite
     from strings_bench.engine.trainer import CPU_TORCH_THREADS, cpu_threads, keep_freed_memory, seed_everything
@@ -93,13 +91,9 @@ def worker(at: list[int], steps: list[int]) -> None:
                 method.train_step(step)
                 method.refine(step)
                 ts.append(time.perf_counter() - t0)
-        h = hashlib.sha256()
-        for k, v in sorted(method.model.params.items()):
-            h.update(k.encode())
-            h.update(v.detach().contiguous().numpy().tobytes())
         out[f"step_ms_{s}"] = statistics.median(ts) * 1e3
         out[f"gaussians_{s}"] = method.num_gaussians()
-        out[f"hash_{s}"] = h.hexdigest()[:16]
+        out[f"hash_{s}"] = E.params_hash(method)[:16]
     out["layer"] = numba.threading_layer()
     print(json.dumps(out))
 
