@@ -21,7 +21,10 @@ comparison come from several days or machines.
   together; a finished run's folder is banked before its lane starts the next cell.
 - A capture not built yet is built before its first cell starts (`strings-bench datasets prepare`), while the
   running cells go on: two runs would otherwise build it at once.
-- `--dry-run` prints the plan (each cell: banked, finished, or to run) and runs nothing.
+- A cell whose run folder another process is running (its lock held: `strings-bench run` holds it while it
+  runs) counts as one of the `--lanes` runs until that process ends; it is then banked if it finished, and run
+  (resumed) here if not. So a second copy of this script, or a cell started by hand, is never run twice at once.
+- `--dry-run` prints the plan (each cell: banked, running elsewhere, finished, or to run) and runs nothing.
 
 Prints a line per cell started and finished; rc 0 when every cell finished and was banked, 1 when some run
 failed (its log names why; the other cells still run), 2 on bad arguments.
@@ -41,6 +44,7 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import RESULT_FILE
 from strings_bench.core.schedules import get_schedule
 from strings_bench.datasets.captures import CAPTURES, is_built
+from strings_bench.store import run_folder_busy
 
 SCHEDULE = "cpu"
 DOWNSCALE = "1"
@@ -100,10 +104,16 @@ def plan(captures: list[str], methods: list[str], seeds: list[int]) -> list[Cell
     return [Cell(c, m, s) for c in captures for s in seeds for m in methods]
 
 
+RUNNING_ELSEWHERE = "running elsewhere"
+
+
 def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int = N_CHECKPOINTS) -> str:
-    """"banked", "finished" (every checkpoint in its run folder, not all banked) or "to run"."""
+    """"banked", "running elsewhere" (another process holds its run folder's lock), "finished" (every checkpoint
+    in its run folder, not all banked) or "to run"."""
     if cell.checkpoints(bank_dir) >= n_checkpoints:
         return "banked"
+    if run_folder_busy(runs / cell.folder_name):
+        return RUNNING_ELSEWHERE
     if cell.checkpoints(runs) >= n_checkpoints:
         return "finished"
     return "to run"
@@ -112,11 +122,14 @@ def state(cell: Cell, runs: Path, bank_dir: Path, n_checkpoints: int = N_CHECKPO
 def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings_bench: str,
               poll_seconds: float = 5.0) -> int:
     """Run the cells not banked, `lanes` at a time; bank each finished folder. Returns the number of failed runs."""
-    todo = []
+    todo, elsewhere = [], []
     for cell in cells:
         st = state(cell, runs, bank_dir)
         if st == "finished":
             print(f"{cell.folder_name}: finished before; {bank(runs / cell.folder_name, bank_dir)}", flush=True)
+        elif st == RUNNING_ELSEWHERE:  # takes a lane until it ends
+            elsewhere.append(cell)
+            print(f"{cell.folder_name}: running in another process; banked here when it ends", flush=True)
         elif st == "to run":
             todo.append(cell)
     env = {**os.environ, **ONE_THREAD}
@@ -124,7 +137,17 @@ def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings
     failed = 0
     prepared: set[str] = set()
     runs.mkdir(parents=True, exist_ok=True)
-    while todo or running:
+    while todo or running or elsewhere:
+        for cell in list(elsewhere):
+            if run_folder_busy(runs / cell.folder_name):
+                continue
+            elsewhere.remove(cell)
+            if state(cell, runs, bank_dir) == "finished":
+                print(f"{cell.folder_name}: ended in the other process; {bank(runs / cell.folder_name, bank_dir)}",
+                      flush=True)
+            else:  # stopped before its last checkpoint: resumed here, first
+                todo.insert(0, cell)
+                print(f"{cell.folder_name}: stopped in the other process before finishing; resumed here", flush=True)
         for cell, (proc, t0) in list(running.items()):
             if proc.poll() is None:
                 continue
@@ -137,7 +160,7 @@ def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings
                 failed += 1
                 print(f"{cell.folder_name}: FAILED (rc {proc.returncode}) after {minutes:.1f} min; see "
                       f"{runs / cell.folder_name}.log", flush=True)
-        while todo and len(running) < lanes:
+        while todo and len(running) + len(elsewhere) < lanes:
             cell = todo.pop(0)
             if cell.capture not in prepared:
                 if not is_built(cell.capture):  # built once, before its cells run side by side
@@ -152,7 +175,7 @@ def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings
             log.close()  # the child holds its own descriptor
             running[cell] = (proc, time.monotonic())
             print(f"{cell.folder_name}: started", flush=True)
-        if running:
+        if running or elsewhere:
             time.sleep(poll_seconds)
     return failed
 

@@ -320,6 +320,22 @@ def test_a_cer_claim_between_two_methods_that_read_nothing_is_not_decided():
     assert cc.claim(_Numbers(counts), "gaussians", "30K", ("3dgs",))[0] == "holding"
 
 
+def test_training_time_is_held_in_cpu_seconds_where_every_cell_it_needs_has_them():
+    """Wall seconds include the time a cell waited for a core or was stopped; CPU seconds do not, so the claim is
+    held in CPU seconds when every cell of STRinGS and 3DGS recorded them, and in wall seconds otherwise."""
+    cc = _captures_compare()
+    wall = {("strings", "30K", "train_seconds"): [900.0, 1000.0], ("3dgs", "30K", "train_seconds"): [950.0, 1300.0],
+            ("strings", "30K", "gaussians"): [1, 1], ("3dgs", "30K", "gaussians"): [1, 1]}
+    verdict, figures = cc.time_claim(_Numbers(wall))
+    assert verdict == "not decided" and figures == "wall seconds: STRinGS 950 (2 seeds) against 3dgs 1125"
+    cpu = {**wall, ("strings", "30K", "train_cpu_seconds"): [700.0, 720.0],
+           ("3dgs", "30K", "train_cpu_seconds"): [800.0, 820.0]}
+    assert cc.time_claim(_Numbers(cpu)) == ("holding", "CPU seconds: STRinGS 710 (2 seeds) against 3dgs 810")
+    part = {**cpu, ("3dgs", "30K", "train_cpu_seconds"): [800.0]}  # one 3DGS cell without them: wall seconds
+    assert cc.time_claim(_Numbers(part))[1].startswith("wall seconds: STRinGS 950")
+    assert cc.time_claim(_Numbers({}))[0] == "not measured"
+
+
 def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_run(tmp_path):
     cc = _captures_compare()
     table = tmp_path / "verdicts.csv"
@@ -503,3 +519,54 @@ def test_captures_cells_runs_what_is_not_banked_a_few_at_a_time_and_banks_each(t
         cells.seeds_arg("a-b")
     assert cells.main(["--captures", "nowhere", "--dry-run"]) == 2
     assert "unknown capture(s): nowhere" in capsys.readouterr().err
+
+
+def test_captures_cells_leaves_a_cell_run_by_another_process_to_it_and_counts_its_lane(tmp_path, capsys, monkeypatch):
+    """A cell whose run folder another run holds (its lock) is not started again: it takes a lane until that run
+    ends, then is banked if it finished, or resumed here first if it stopped before its last checkpoint."""
+    import contextlib
+    import stat
+    import sys
+
+    from _scripts import load_benchmark
+    from strings_bench.store import run_folder_lock
+
+    cells = load_benchmark("captures_cells")
+    calls = tmp_path / "calls.txt"
+    fake = tmp_path / "fake-strings-bench"
+    fake.write_text(f"#!{sys.executable}\nLOG = {str(calls)!r}\n" + _FAKE_STRINGS_BENCH)
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    runs, bank = tmp_path / "runs", tmp_path / "bank"
+    for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
+        _capture_cell(runs / "cap-bundler_et-seed0-3dgs", "3dgs", "bundler_et", label, it)  # finishing elsewhere
+    _capture_cell(runs / "cap-bundler_et-seed0-strings", "strings", "bundler_et", "3K", 150)  # will stop elsewhere
+    others = contextlib.ExitStack()
+    for name in ("cap-bundler_et-seed0-3dgs", "cap-bundler_et-seed0-strings"):
+        others.enter_context(run_folder_lock(runs / name))
+    monkeypatch.setattr(cells, "is_built", lambda name: True)
+    polls = []
+
+    def sleep(seconds):  # the other runs end at the first poll
+        polls.append(seconds)
+        others.close()
+
+    monkeypatch.setattr(cells.time, "sleep", sleep)
+    argv = ["--captures", "bundler_et", "--methods", "3dgs,strings", "--seeds", "0-1", "--lanes", "2",
+            "--runs", str(runs), "--bank", str(bank), "--strings-bench", str(fake)]
+    try:
+        assert cells.main(argv + ["--dry-run"]) == 0
+        assert capsys.readouterr().out.splitlines()[:2] == ["cap-bundler_et-seed0-3dgs: running elsewhere",
+                                                            "cap-bundler_et-seed0-strings: running elsewhere"]
+        assert cells.main(argv) == 0
+    finally:
+        others.close()
+    out = capsys.readouterr().out.splitlines()
+    first_start = next(i for i, ln in enumerate(out) if ln.endswith(": started"))
+    assert out[first_start - 2].startswith("cap-bundler_et-seed0-3dgs: ended in the other process; ")
+    assert out[first_start - 1] == "cap-bundler_et-seed0-strings: stopped in the other process before finishing; " \
+                                   "resumed here"
+    assert out[first_start] == "cap-bundler_et-seed0-strings: started"  # resumed first, once both lanes were free
+    runs_made = [ln for ln in calls.read_text().splitlines() if ln.startswith("run ")]
+    assert len(runs_made) == 3 and not any("seed0-3dgs" in ln for ln in runs_made)
+    for name in ("seed0-3dgs", "seed0-strings", "seed1-3dgs", "seed1-strings"):
+        assert len(list((bank / f"cap-bundler_et-{name}").rglob("result.json"))) == 3, name

@@ -20,11 +20,12 @@ import strings_bench.bench.runner as runner
 from strings_bench.store import cell_row, iter_cells, read_manifest, write_results_csv
 
 OLD = Path(__file__).resolve().parent / "data" / "run_142d0ce"
-TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_seconds"}
+TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "train_cpu_seconds", "eval_seconds"}
 # Recorded since 142d0ce, checked apart: the scene's rho (a results.csv column and the cell's config.scene entry),
 # the scope of the peak memory (a results.csv column and the cell's extra entry; every earlier cell measured the
-# process's peak) and the run's miniature (run.json's schedule; "shrink" is what every earlier run did).
-ADDED_COLUMNS = {"rho", "peak_memory_scope"}
+# process's peak), the training's CPU seconds (a results.csv column and a timing) and the run's miniature (run.json's
+# schedule; "shrink" is what every earlier run did).
+ADDED_COLUMNS = {"rho", "peak_memory_scope", "train_cpu_seconds"}
 
 
 # Two values depend on the machine's libraries, not on this code: the text NLL comes from the OCR recogniser's scores

@@ -188,7 +188,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
                                   scene={"settings": source.settings, "test_views": evaluator.names},
                                   versions=versions(), metrics=metrics_describe()),
                 timings={"train_seconds": train, "preprocess_seconds": None if train is None else 0.0,
-                         "total_seconds": train, "eval_seconds": time.perf_counter() - t0},
+                         "total_seconds": train, "train_cpu_seconds": None, "eval_seconds": time.perf_counter() - t0},
                 extra={"layout": preds.layout}, scores=result)
             write_gt_pngs(out, source.dataset, source.scene, evaluator)
             _write_manifest(out, manifest)

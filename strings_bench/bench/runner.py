@@ -50,8 +50,8 @@ from strings_bench.core.method import Method
 from strings_bench.core.results import CellKey, is_finished, safe_name
 from strings_bench.eval.metrics import describe as metrics_describe
 from strings_bench.eval.protocol import Evaluator
-from strings_bench.store import (CellConfig, CellRecord, check_manifest, iteration_label, write_cell, write_manifest,
-                                 write_results_csv)
+from strings_bench.store import (CellConfig, CellRecord, check_manifest, iteration_label, run_folder_lock, write_cell,
+                                 write_manifest, write_results_csv)
 
 log = logging.getLogger(__name__)
 LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
@@ -202,7 +202,9 @@ class Runner:
             device=result.extra.get("device", ""),
             gpu=device_info(result.extra["device"])["gpu"] if result.extra.get("device") else None,
             timings={"train_seconds": result.train_seconds, "preprocess_seconds": preprocess,
-                     "total_seconds": result.train_seconds + preprocess, "eval_seconds": time.perf_counter() - t0},
+                     "total_seconds": result.train_seconds + preprocess,
+                     "train_cpu_seconds": getattr(result, "train_cpu_seconds", None),
+                     "eval_seconds": time.perf_counter() - t0},
             gaussians=int(result.gaussians), peak_memory_mb=result.peak_memory_mb, extra=result.extra,
             evaluation="words" if dense else "full", scores=ev)
         # the job's folder: absolute when it runs on a Ray worker
@@ -228,10 +230,17 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     `executor` is a name in EXECUTORS (built with `executor_options`) or an executor object. A job
     that fails does not stop the others; once all have ended, one StringsBenchError lists every cell
     that was not written and why. Ctrl-C cancels the running jobs, removes their incomplete cells
-    and re-raises KeyboardInterrupt.
+    and re-raises KeyboardInterrupt. A second run in the same folder at once stops with an error naming the
+    first (store/lock.py).
     """
+    plan.run_dir.mkdir(parents=True, exist_ok=True)
+    with run_folder_lock(plan.run_dir):
+        return _execute(plan, ocr, executor, with_lpips, progress, write_report, lpips_at, executor_options)
+
+
+def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, write_report: bool, lpips_at: str,
+             executor_options: dict | None) -> Path:
     run_dir = plan.run_dir
-    run_dir.mkdir(parents=True, exist_ok=True)
     from strings_bench.core.io import cache_root, sweep_stale_temps
     from strings_bench.engine.trainer import resolve_device
 

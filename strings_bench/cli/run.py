@@ -53,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "word-crop readability and PSNR/SSIM; no OCR of the renders, no LPIPS; GT reads are made once "
                         "per scene) or full (OCR-CER and every metric, as the other checkpoints)")
     p.add_argument("--out", default=str(DEFAULT_RUN_DIR),
-                   help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes)")
+                   help=f"run folder (default {DEFAULT_RUN_DIR}; the same folder resumes; one run at a time)")
     p.add_argument("--ocr", default="rapidocr",
                    help="OCR engine for OCR-CER (rapidocr, tesseract, gcv), or a comma-separated list, e.g. "
                         "rapidocr,tesseract: the first is the primary (cer, cer_known), each further engine adds "

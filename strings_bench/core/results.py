@@ -27,6 +27,8 @@ class CheckpointResult:
     # Eq. 1); 0 when there is none. The runner reports total_seconds = preprocess + train.
     preprocess_seconds: float = 0.0
     resumed_from_step: int = 0  # the saved training state this run continued from (0: trained from the start)
+    # The process's CPU time (all threads) over the same steps as train_seconds; None where not measured.
+    train_cpu_seconds: float | None = None
 
 
 def safe_name(name: str) -> str:

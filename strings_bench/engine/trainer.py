@@ -9,7 +9,10 @@ and the resumable training state; the method (`strings_bench.core.method.Method`
 Timing: `preprocess_seconds` is `method.setup` (masks, Algorithm 1, the initial model);
 `train_seconds` counts the optimisation steps (train_step and refine) and nothing else: not the
 checkpoint renders, not state saving. On CUDA the device is synchronised before each clock read,
-so asynchronous kernels are counted in the step that launched them.
+so asynchronous kernels are counted in the step that launched them. `train_cpu_seconds` is the
+process's CPU time (every thread's, `time.process_time`) over the same steps: on a CPU the work done,
+which the wall clock overstates when the process waits for a core it shares or is stopped (on CUDA
+it counts the host's side only).
 
 Resuming: the state (the method's `state_dict()`, the global random generators, the step and the
 clocks) is written atomically at every checkpoint and every `save_every`; a Trainer given an
@@ -281,17 +284,24 @@ class Trainer:
         self._sync()
         return time.perf_counter()
 
+    def _clocks(self) -> tuple[float, float]:
+        """(wall clock, process CPU time), the device synchronised first."""
+        self._sync()
+        return time.perf_counter(), time.process_time()
+
     def _fingerprint(self) -> dict:
         return {"version": STATE_VERSION, "method": self.method.name, "checkpoints": self.checkpoints,
                 "downscale": self.downscale, "scene": self.scene.name, **self.fingerprint}
 
     # ---- state -------------------------------------------------------------------------------------
-    def save_state(self, step: int, train_seconds: float, preprocess_seconds: float) -> None:
+    def save_state(self, step: int, train_seconds: float, preprocess_seconds: float,
+                   train_cpu_seconds: float | None = None) -> None:
         """Write the resumable state after `step` atomically to `state_path` (torch.save of the method's
         state_dict, the global generators, the clocks and the fingerprint)."""
         from strings_bench.core.io import atomic_write
 
         state = {"fingerprint": self._fingerprint(), "step": step, "train_seconds": train_seconds,
+                 "train_cpu_seconds": train_cpu_seconds,
                  "preprocess_seconds": preprocess_seconds, "method": self.method.state_dict(),
                  "rng": _global_rng_state()}
         atomic_write(self.state_path, lambda tmp: torch.save(state, tmp))
@@ -333,6 +343,7 @@ class Trainer:
         self.method.setup(self.scene, downscale=self.downscale, device=self.device, seed=self.seed)
         preprocess_seconds = self._clock() - t0
         train_seconds = 0.0
+        train_cpu: float | None = 0.0
         start = 0
         state = self.load_state()
         if state is not None:
@@ -340,6 +351,8 @@ class Trainer:
             _set_global_rng_state(state["rng"])
             start = self.resumed_from_step = int(state["step"])
             train_seconds = float(state["train_seconds"])
+            # a state saved before CPU time was kept: this training's CPU time is unknown
+            train_cpu = None if state.get("train_cpu_seconds") is None else float(state["train_cpu_seconds"])
             preprocess_seconds = float(state["preprocess_seconds"])
             log.info("%s on %s: resuming from the training state at step %d", self.method.name, self.scene.name, start)
         total = self.checkpoints[-1]
@@ -349,31 +362,36 @@ class Trainer:
                    leave=False, dynamic_ncols=True)
         try:
             for step in range(start + 1, total + 1):
-                t0 = self._clock()
+                t0, c0 = self._clocks()
                 with self._step_threads():
                     loss = self.method.train_step(step)
-                train_seconds += self._clock() - t0
+                t1, c1 = self._clocks()
+                train_seconds += t1 - t0
+                train_cpu = None if train_cpu is None else train_cpu + (c1 - c0)
                 if step in at_steps:
                     # Evaluated after the step's update, before its densification / opacity reset, as
                     # the reference code saves before it densifies (a reset on a checkpoint step, e.g.
                     # 3K in 3DGS, would otherwise be evaluated at opacity 0.01).
-                    yield self.checkpoint(step, train_seconds, preprocess_seconds)
-                t0 = self._clock()
+                    yield self.checkpoint(step, train_seconds, preprocess_seconds, train_cpu)
+                t0, c0 = self._clocks()
                 with self._step_threads():
                     self.method.refine(step)
-                train_seconds += self._clock() - t0
+                t1, c1 = self._clocks()
+                train_seconds += t1 - t0
+                train_cpu = None if train_cpu is None else train_cpu + (c1 - c0)
                 bar.update(1)
                 if step % 10 == 0 or step == total:
                     bar.set_postfix(loss=f"{loss:.4f}", gaussians=self.method.num_gaussians())
                 if self.state_path is not None and (step in at_steps
                                                     or self.save_every.due(step, time.perf_counter() - last_save)):
-                    self.save_state(step, train_seconds, preprocess_seconds)
+                    self.save_state(step, train_seconds, preprocess_seconds, train_cpu)
                     last_save = time.perf_counter()
         finally:
             bar.close()
 
     @torch.no_grad()
-    def checkpoint(self, step: int, train_seconds: float, preprocess_seconds: float) -> CheckpointResult:
+    def checkpoint(self, step: int, train_seconds: float, preprocess_seconds: float,
+                   train_cpu_seconds: float | None = None) -> CheckpointResult:
         """Evaluate the model after `step`: test-view renders, stats, peak memory, and the PLY if asked."""
         renders = {}
         if self.render_test:
@@ -387,4 +405,4 @@ class Trainer:
         return CheckpointResult(iteration=step, renders=renders, train_seconds=train_seconds,
                                 gaussians=self.method.num_gaussians(), peak_memory_mb=peak_memory_mb(self.device),
                                 extra=extra, preprocess_seconds=preprocess_seconds,
-                                resumed_from_step=self.resumed_from_step)
+                                resumed_from_step=self.resumed_from_step, train_cpu_seconds=train_cpu_seconds)

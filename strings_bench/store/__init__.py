@@ -8,6 +8,7 @@
           words.csv            its per-word records (words.py)
           renders/<view stem>.png
       gt/<dataset>/<scene>/<view stem>.png
+      .run.lock                held by the run writing here (lock.py: run_folder_lock, run_folder_busy)
 
 The schema (file names, columns) and the former field names under which older folders are read as today's are
 schema.py. This layer sits below `bench/` (which writes through it) and `reports/` (which only reads it), and
@@ -22,6 +23,7 @@ from strings_bench.core.results import CellKey, is_finished, safe_name
 from strings_bench.core.schedules import iteration_label
 from strings_bench.store.cells import (CellConfig, CellRecord, check_cell, ensure_words_csv, iter_cells, read_cell,
                                        read_json, render_file_name, write_cell, write_png)
+from strings_bench.store.lock import LOCK_FILE, run_folder_busy, run_folder_lock
 from strings_bench.store.manifest import check_manifest, read_manifest, write_manifest
 from strings_bench.store.schema import (CSV_COLUMNS, ENGINE_COLUMNS, FORMER_NAMES, NA, READABILITY_COLUMNS,
                                         RESULT_FILE, RESULTS_CSV, RUN_FILE, WORDS_COLUMNS, WORDS_FILE, upgrade_names)
@@ -30,11 +32,11 @@ from strings_bench.store.table import (budget_column, cell_row, engine_columns, 
 from strings_bench.store.words import read_words_csv, word_rows, words_csv_text, words_summary, write_words_csv
 
 __all__ = [
-    "CellConfig", "CellKey", "CellRecord", "CSV_COLUMNS", "ENGINE_COLUMNS", "FORMER_NAMES", "NA", "READABILITY_COLUMNS",
+    "CellConfig", "CellKey", "CellRecord", "CSV_COLUMNS", "ENGINE_COLUMNS", "FORMER_NAMES", "LOCK_FILE", "NA", "READABILITY_COLUMNS",
     "RESULT_FILE", "RESULTS_CSV", "RUN_FILE", "WORDS_COLUMNS", "WORDS_FILE", "budget_column", "cell_row",
     "check_cell", "check_manifest", "engine_columns", "ensure_words_csv", "is_finished", "iter_cells",
     "iteration_label", "read_cell", "read_json", "read_manifest", "read_words_csv", "readability_columns", "refresh",
-    "render_file_name", "safe_name", "script_columns", "timing_columns", "upgrade_names", "word_rows",
+    "render_file_name", "run_folder_busy", "run_folder_lock", "safe_name", "script_columns", "timing_columns", "upgrade_names", "word_rows",
     "words_csv_text", "words_summary", "write_cell", "write_manifest", "write_png", "write_results_csv",
     "write_words_csv",
 ]

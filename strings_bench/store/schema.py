@@ -13,7 +13,7 @@ READABILITY_COLUMNS = ["word_cer", "word_acc", "text_nll", "text_psnr", "text_ss
 CSV_COLUMNS = [
     "method", "dataset", "scene", "iteration", "label", "cer", "cer_known", "psnr", "ssim", "lpips",
     *READABILITY_COLUMNS,
-    "train_seconds", "preprocess_seconds", "total_seconds", "gaussians", "budget", "peak_gaussians", "budget_reached_at",
+    "train_seconds", "preprocess_seconds", "total_seconds", "train_cpu_seconds", "gaussians", "budget", "peak_gaussians", "budget_reached_at",
     "peak_memory_mb", "peak_memory_scope", "cer_errors", "cer_chars", "cer_views", "ocr_failed",
     "gt_empty_ignored", "known_views", "eval_seconds", "schedule", "downscale", "ocr_backend",
 ]

@@ -14,7 +14,7 @@ from strings_bench.store.schema import CSV_COLUMNS, ENGINE_COLUMNS, RESULTS_CSV,
 
 
 def timing_columns(rec: dict) -> dict:
-    """train/preprocess/total seconds of a cell. Cells written before preprocess time was recorded
+    """train/preprocess/total seconds and training CPU seconds of a cell. Cells written before preprocess time was recorded
     (no `timings.preprocess_seconds`) take STRinGS' extra["preprocess_seconds"] (masks and Algorithm
     1, all it measured then; its Eq. 1 time was not measured) or else 0 (other methods had none)."""
     t = rec.get("timings") or {}
@@ -25,8 +25,9 @@ def timing_columns(rec: dict) -> dict:
     total = t.get("total_seconds")
     if total is None and train is not None:
         total = train + pre
+    cpu = t.get("train_cpu_seconds")  # cells written before it was measured have none
     return {"train_seconds": "" if train is None else train, "preprocess_seconds": "" if pre is None else pre,
-            "total_seconds": "" if total is None else total}
+            "total_seconds": "" if total is None else total, "train_cpu_seconds": "" if cpu is None else cpu}
 
 
 def readability_columns(rec: dict) -> dict:

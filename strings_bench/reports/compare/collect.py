@@ -9,7 +9,8 @@ from pathlib import Path
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.store import cell_row, iter_cells
 
-VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds")
+VALUES = ("cer", "cer_known", "word_cer", "psnr", "ssim", "lpips", "gaussians", "train_seconds", "train_cpu_seconds")
+TIMES = ("train_seconds", "train_cpu_seconds")  # differ between two trainings of one cell
 
 
 def cell_seed(rec: dict) -> int:
@@ -47,7 +48,7 @@ def collect(run_dirs: list[Path], dataset: str | None = None, methods: list[str]
                 # deterministic, so it must have the same figures; it then counts once
                 first_dir, first = seen[key]
                 same = all(first[k] == vals[k] or (math.isnan(first[k]) and math.isnan(vals[k]))
-                           for k in VALUES if k != "train_seconds")
+                           for k in VALUES if k not in TIMES)
                 if not same:
                     raise StringsBenchError(f"{key} is in both {first_dir} and {run_dir}, with different figures",
                                             hint="give each seed's folder once (or --dataset to pick one dataset)")
