@@ -23,9 +23,12 @@ Writes into --out:
   OCR-CER of at least READS_NOTHING on every seed, where the figures differ only by the spurious characters OCR
   adds), `not measured` when a method the claim needs was not run; with the figures behind each verdict (training
   time: in CPU seconds where every cell it needs recorded them, else wall seconds; `time_claim`);
-- `compare-NAME.md`: `strings-bench compare`'s tables of each capture.
+- `compare-NAME.md`: `strings-bench compare`'s tables of each capture;
+- `cells.csv`: every cell compared, one row each (capture, method, seed, checkpoint): the commit of the code that
+  made it (`source_commit`; empty for cells written before runs recorded it), the step its training resumed from,
+  its training wall and CPU seconds, evaluation seconds, Gaussians and peak memory: where each figure came from.
 A capture that none of the RUN_DIRs holds keeps its rows of the comparison.csv and verdicts.csv already in --out
-(each capture's rows come from the folders given for it). Prints both CSVs.
+(each capture's rows come from the folders given for it). Prints comparison.csv and verdicts.csv.
 """
 
 from __future__ import annotations
@@ -171,6 +174,34 @@ def _peak(entry: tuple[float, str] | None) -> dict:
     return {"peak memory MB": mb, "peak memory scope": scope}
 
 
+CELL_FIELDS = ("capture", "method", "seed", "checkpoint", "source commit", "resumed from step", "training s",
+               "training CPU s", "evaluation s", "Gaussians", "peak memory MB")
+
+
+def cell_rows(run_dirs) -> list[dict]:
+    """One row per fully evaluated captures cell of the folders (CELL_FIELDS), in the order of capture, method, seed
+    and checkpoint."""
+    from strings_bench.reports.compare.collect import cell_seed
+
+    rows = []
+    for d in run_dirs:
+        for rec in iter_cells(d):
+            r = cell_row(rec)
+            if r["dataset"] != "captures" or r["evaluation"] != "full":
+                continue
+            versions = (rec.get("config") or {}).get("versions") or {}
+            num = lambda x, digits=0: "" if x in ("", None) else f"{float(x):.{digits}f}"  # noqa: E731
+            rows.append({"capture": r["scene"], "method": r["method"], "seed": cell_seed(rec), "checkpoint": r["label"],
+                         "source commit": (versions.get("source_commit") or "")[:7]
+                         + ("+modified" if versions.get("source_modified") else ""),
+                         "resumed from step": rec.get("resumed_from_step", 0), "training s": num(r["train_seconds"]),
+                         "training CPU s": num(r["train_cpu_seconds"]), "evaluation s": num(r["eval_seconds"]),
+                         "Gaussians": r["gaussians"], "peak memory MB": num(r["peak_memory_mb"]),
+                         "_iteration": int(r["iteration"])})
+    rows.sort(key=lambda r: (r["capture"], r["method"], r["seed"], r["_iteration"]))
+    return [{k: v for k, v in r.items() if k != "_iteration"} for r in rows]
+
+
 def captures_of(run_dirs) -> list[str]:
     from strings_bench.reports.compare import collect
 
@@ -215,12 +246,14 @@ def main(argv=None) -> int:
             args.out.mkdir(parents=True, exist_ok=True)
             atomic_write_text(args.out / f"compare-{scene}.md", comparison_markdown(c))
     compared = {r["capture"] for r in rows}
+    cells = [r for r in cell_rows(args.run_dirs) if r["capture"] in compared]
     if args.out:  # the captures not compared this time keep their banked rows
         rows = kept_rows(args.out / "comparison.csv", compared) + rows
         verdicts = kept_rows(args.out / "verdicts.csv", compared) + verdicts
+        cells = kept_rows(args.out / "cells.csv", compared) + cells
     if args.verdict_table:
         set_column(args.verdict_table, verdicts)
-    for name, table in (("comparison.csv", rows), ("verdicts.csv", verdicts)):
+    for name, table in (("comparison.csv", rows), ("verdicts.csv", verdicts), ("cells.csv", cells)):
         buf = io.StringIO()
         if table:
             # the columns of this version first (the new rows are last), then any a kept row has besides
@@ -228,7 +261,8 @@ def main(argv=None) -> int:
             w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
             w.writeheader()
             w.writerows(table)
-        print(f"# {name}\n{buf.getvalue()}")
+        if name != "cells.csv":  # written, not printed: a row per cell
+            print(f"# {name}\n{buf.getvalue()}")
         if args.out:
             atomic_write_text(args.out / name, buf.getvalue())
     return 0

@@ -415,6 +415,11 @@ def test_a_capture_below_the_floor_is_held_to_the_count_claims_and_other_capture
     col = {r[0]: r[2] for r in csv.reader(table.open())}
     assert col["fewer Gaussians"].startswith("bundler_et: not holding (X); tum: holding (STRinGS 1000 (2 seeds)")
     assert col["lower CER at 30K"] == "not measured"  # no scored capture in this bank
+    cells = list(csv.DictReader((out / "cells.csv").open()))  # where each figure came from, a row per cell
+    assert [(c["method"], c["seed"], c["checkpoint"]) for c in cells][:4] == [
+        ("3dgs", "0", "3K"), ("3dgs", "0", "7K"), ("3dgs", "0", "30K"), ("3dgs", "1", "3K")]
+    assert len(cells) == 12 and {c["training s"] for c in cells if c["method"] == "strings"} == {"100", "150"}
+    assert all(c["source commit"] == "" and c["training CPU s"] == "" for c in cells)  # not recorded by these cells
 
 
 def test_banked_cells_compare_as_their_run_folder_and_a_conflict_is_an_error(tmp_path, capsys):
