@@ -136,3 +136,19 @@ def test_results_csv_and_result_json_hold_the_cpu_seconds(tmp_path, scene_dir):
     assert recs and all("train_cpu_seconds" in r["timings"] for r in recs)
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert "train_cpu_seconds" in header
+
+
+def test_a_file_system_without_flock_runs_unlocked_with_a_warning(tmp_path, monkeypatch, caplog):
+    import errno
+
+    import strings_bench.store.lock as lock
+
+    def refuse(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(lock.fcntl, "flock", refuse)
+    with caplog.at_level("WARNING", logger="strings_bench.store.lock"):
+        with run_folder_lock(tmp_path):
+            with run_folder_lock(tmp_path):  # nothing can stop the second one there
+                assert not run_folder_busy(tmp_path)
+    assert "cannot be locked (" in caplog.text and "No locks available" in caplog.text

@@ -8,12 +8,13 @@ first; `run_folder_busy` tells another process (e.g. benchmarks/captures_cells.p
 The lock is the operating system's (flock): it ends with the process that holds it, however that process ends
 (kill -9 included), so a killed run never leaves a folder locked. The file itself stays (removing it would race
 with a run opening it); it records which process last held the lock, for the error message. Where flock is not
-available (Windows) runs are not locked.
+available (Windows, or a file system that refuses it, with a warning) runs are not locked.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import socket
 import time
@@ -29,6 +30,7 @@ except ImportError:  # Windows: no flock; runs are not locked there
     fcntl = None
 
 LOCK_FILE = ".run.lock"
+log = logging.getLogger(__name__)
 
 
 def _holder(path: Path) -> str:
@@ -57,6 +59,11 @@ def run_folder_lock(run_dir: str | os.PathLike) -> Iterator[Path]:
                 f"run folder {run_dir} is in use by another run{_holder(path)}",
                 hint="wait until that run ends (then run again: it resumes where the folder stands), or give "
                      "another --out") from None
+        except OSError as exc:  # a file system without flock (some cluster mounts): run, unlocked
+            log.warning("run folder %s cannot be locked (%s): nothing stops a second run in it at the same time",
+                        run_dir, exc)
+            yield path
+            return
         os.ftruncate(fd, 0)
         os.write(fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
                                  "since": time.strftime("%Y-%m-%dT%H:%M:%S")}).encode())
@@ -76,6 +83,8 @@ def run_folder_busy(run_dir: str | os.PathLike) -> bool:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
             return True
+        except OSError:  # a file system without flock: runs there are not locked
+            return False
         fcntl.flock(fd, fcntl.LOCK_UN)
         return False
     finally:
