@@ -476,20 +476,26 @@ for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
 '''
 
 
-def test_captures_cells_runs_what_is_not_banked_a_few_at_a_time_and_banks_each(tmp_path, capsys, monkeypatch):
-    """benchmarks/captures_cells.py against a stand-in for strings-bench: a banked cell is skipped, a finished run
-    folder is banked without a run, the capture is built once before its runs, a failed run is reported (rc 1)
-    while the other cells still run and are banked; each run gets the regime's command and one thread."""
+def _fake_strings_bench(tmp_path):
+    """An executable stand-in for strings-bench (_FAKE_STRINGS_BENCH) and the file it logs its calls to."""
     import stat
     import sys
 
-    from _scripts import load_benchmark
-
-    cells = load_benchmark("captures_cells")
     calls = tmp_path / "calls.txt"
     fake = tmp_path / "fake-strings-bench"
     fake.write_text(f"#!{sys.executable}\nLOG = {str(calls)!r}\n" + _FAKE_STRINGS_BENCH)
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    return fake, calls
+
+
+def test_captures_cells_runs_what_is_not_banked_a_few_at_a_time_and_banks_each(tmp_path, capsys, monkeypatch):
+    """benchmarks/captures_cells.py against a stand-in for strings-bench: a banked cell is skipped, a finished run
+    folder is banked without a run, the capture is built once before its runs, a failed run is reported (rc 1)
+    while the other cells still run and are banked; each run gets the regime's command and one thread."""
+    from _scripts import load_benchmark
+
+    cells = load_benchmark("captures_cells")
+    fake, calls = _fake_strings_bench(tmp_path)
     runs, bank = tmp_path / "runs", tmp_path / "bank"
     for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
         _capture_cell(bank / "cap-bundler_et-seed0-3dgs", "3dgs", "bundler_et", label, it)  # banked before
@@ -530,17 +536,12 @@ def test_captures_cells_leaves_a_cell_run_by_another_process_to_it_and_counts_it
     """A cell whose run folder another run holds (its lock) is not started again: it takes a lane until that run
     ends, then is banked if it finished, or resumed here first if it stopped before its last checkpoint."""
     import contextlib
-    import stat
-    import sys
 
     from _scripts import load_benchmark
     from strings_bench.store import run_folder_lock
 
     cells = load_benchmark("captures_cells")
-    calls = tmp_path / "calls.txt"
-    fake = tmp_path / "fake-strings-bench"
-    fake.write_text(f"#!{sys.executable}\nLOG = {str(calls)!r}\n" + _FAKE_STRINGS_BENCH)
-    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    fake, calls = _fake_strings_bench(tmp_path)
     runs, bank = tmp_path / "runs", tmp_path / "bank"
     for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
         _capture_cell(runs / "cap-bundler_et-seed0-3dgs", "3dgs", "bundler_et", label, it)  # finishing elsewhere
