@@ -178,6 +178,11 @@ CELL_FIELDS = ("capture", "method", "seed", "checkpoint", "source commit", "resu
                "training CPU s", "evaluation s", "Gaussians", "peak memory MB")
 
 
+def _whole(x) -> str:
+    """A results.csv figure rounded to a whole number ("" where the cell has none)."""
+    return "" if x in ("", None) else f"{float(x):.0f}"
+
+
 def cell_rows(run_dirs) -> list[dict]:
     """One row per fully evaluated captures cell of the folders (CELL_FIELDS), in the order of capture, method, seed
     and checkpoint."""
@@ -190,13 +195,12 @@ def cell_rows(run_dirs) -> list[dict]:
             if r["dataset"] != "captures" or r["evaluation"] != "full":
                 continue
             versions = (rec.get("config") or {}).get("versions") or {}
-            num = lambda x, digits=0: "" if x in ("", None) else f"{float(x):.{digits}f}"  # noqa: E731
             rows.append({"capture": r["scene"], "method": r["method"], "seed": cell_seed(rec), "checkpoint": r["label"],
                          "source commit": (versions.get("source_commit") or "")[:7]
                          + ("+modified" if versions.get("source_modified") else ""),
-                         "resumed from step": rec.get("resumed_from_step", 0), "training s": num(r["train_seconds"]),
-                         "training CPU s": num(r["train_cpu_seconds"]), "evaluation s": num(r["eval_seconds"]),
-                         "Gaussians": r["gaussians"], "peak memory MB": num(r["peak_memory_mb"]),
+                         "resumed from step": rec.get("resumed_from_step", 0), "training s": _whole(r["train_seconds"]),
+                         "training CPU s": _whole(r["train_cpu_seconds"]), "evaluation s": _whole(r["eval_seconds"]),
+                         "Gaussians": r["gaussians"], "peak memory MB": _whole(r["peak_memory_mb"]),
                          "_iteration": int(r["iteration"])})
     rows.sort(key=lambda r: (r["capture"], r["method"], r["seed"], r["_iteration"]))
     return [{k: v for k, v in r.items() if k != "_iteration"} for r in rows]

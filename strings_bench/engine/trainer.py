@@ -280,10 +280,6 @@ class Trainer:
         if self.device.startswith("cuda"):
             torch.cuda.synchronize(self.device)
 
-    def _clock(self) -> float:
-        self._sync()
-        return time.perf_counter()
-
     def _clocks(self) -> tuple[float, float]:
         """(wall clock, process CPU time), the device synchronised first."""
         self._sync()
@@ -339,9 +335,9 @@ class Trainer:
         self.method.progress = self.progress
         # this training's own peak (set-up included), not the peak of what the process did before
         self.peak_memory_scope = reset_peak_memory(self.device)
-        t0 = self._clock()
+        t0, _ = self._clocks()
         self.method.setup(self.scene, downscale=self.downscale, device=self.device, seed=self.seed)
-        preprocess_seconds = self._clock() - t0
+        preprocess_seconds = self._clocks()[0] - t0
         train_seconds = 0.0
         train_cpu: float | None = 0.0
         start = 0
@@ -355,6 +351,14 @@ class Trainer:
             train_cpu = None if state.get("train_cpu_seconds") is None else float(state["train_cpu_seconds"])
             preprocess_seconds = float(state["preprocess_seconds"])
             log.info("%s on %s: resuming from the training state at step %d", self.method.name, self.scene.name, start)
+
+        def count_since(since: tuple[float, float]) -> None:
+            """Add the wall and CPU seconds from `since` (a _clocks() reading) to the training's."""
+            nonlocal train_seconds, train_cpu
+            now = self._clocks()
+            train_seconds += now[0] - since[0]
+            train_cpu = None if train_cpu is None else train_cpu + (now[1] - since[1])
+
         total = self.checkpoints[-1]
         at_steps = set(self.checkpoints)
         last_save = time.perf_counter()
@@ -362,23 +366,19 @@ class Trainer:
                    leave=False, dynamic_ncols=True)
         try:
             for step in range(start + 1, total + 1):
-                t0, c0 = self._clocks()
+                since = self._clocks()
                 with self._step_threads():
                     loss = self.method.train_step(step)
-                t1, c1 = self._clocks()
-                train_seconds += t1 - t0
-                train_cpu = None if train_cpu is None else train_cpu + (c1 - c0)
+                count_since(since)
                 if step in at_steps:
                     # Evaluated after the step's update, before its densification / opacity reset, as
                     # the reference code saves before it densifies (a reset on a checkpoint step, e.g.
                     # 3K in 3DGS, would otherwise be evaluated at opacity 0.01).
                     yield self.checkpoint(step, train_seconds, preprocess_seconds, train_cpu)
-                t0, c0 = self._clocks()
+                since = self._clocks()
                 with self._step_threads():
                     self.method.refine(step)
-                t1, c1 = self._clocks()
-                train_seconds += t1 - t0
-                train_cpu = None if train_cpu is None else train_cpu + (c1 - c0)
+                count_since(since)
                 bar.update(1)
                 if step % 10 == 0 or step == total:
                     bar.set_postfix(loss=f"{loss:.4f}", gaussians=self.method.num_gaussians())
