@@ -21,7 +21,8 @@ Stages (in order of value; `list` prints them):
   x1-rooms-320   the same cells on the rooms as synthetic360-cpu registers them (320x240): the CPU
                  reference cells themselves, through the CUDA backend.
 
-Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/): one row
+Each stage writes `<date>_<stage>_<gpu>.csv` into OUT_DIR (meant for docs/results/data/gpu/; a later
+round of the same stage on the same day writes `<date>.2_...`, and so on, keeping the earlier files): one row
 per step with its status (ok, failed, partial = cut at the stage's time budget), seconds, and the
 versions and GPU name; a run's results.csv is copied beside it with the same columns added. A stage
 whose CSV in OUT_DIR has every step ok is banked and skipped (--force runs it again); in a stage cut
@@ -127,17 +128,29 @@ def banked_benchmark(out: Path, stage: str, name: str, want: set[tuple[str, str]
     return ", ".join(sorted({f for r, f in rows if (r.get("method"), r.get("device")) in want})) if want <= have else None
 
 
+def round_stem(where: Path, date: str, stage: str, gpu: str) -> str:
+    """The file-name prefix of a new round: its date, or `<date>.<n>` for the n-th round of that stage and GPU on
+    one day, so that a second round on a warm machine keeps the first one's files."""
+    stem, n = date, 1
+    while (where / f"{stem}_{stage}_{gpu}.csv").exists():
+        n += 1
+        stem = f"{date}.{n}"
+    return stem
+
+
 class Round:
     def __init__(self, out: Path, stage: str, dry_run: bool, budget_s: float, runs: Path | None = None,
-                 prepare: bool = False):
+                 prepare: bool = False, date: str | None = None):
         self.out, self.stage, self.dry_run, self.prepare = out, stage, dry_run, prepare
         self.runs = runs or out / "runs"
         self.done = banked_steps(out, stage, dry_run)
         self.t0, self.budget_s = time.monotonic(), budget_s
         self.v = versions(dry_run)
-        self.date = dt.date.today().isoformat()
+        self.date = date or dt.date.today().isoformat()
         # --prepare's rows (compilation, builds) must not bank anything: they go beside the logs
-        self.csv = (self.runs / "logs" if prepare else out) / f"{self.date}_{stage}_{slug(self.v['gpu'])}.csv"
+        where = self.runs / "logs" if prepare else out
+        self.stem = round_stem(where, self.date, stage, slug(self.v["gpu"]))
+        self.csv = where / f"{self.stem}_{stage}_{slug(self.v['gpu'])}.csv"
         self.rows: list[dict] = []
         self.py = sys.executable
         self.device = "cpu" if dry_run else "cuda"
@@ -189,7 +202,7 @@ class Round:
         self.write(self.csv, STEP_COLUMNS, self.rows)
 
     def results_csv(self, name: str) -> Path:
-        return self.out / f"{self.date}_{self.stage}_{name}_{slug(self.v['gpu'])}.csv"
+        return self.out / f"{self.stem}_{self.stage}_{name}_{slug(self.v['gpu'])}.csv"
 
     def bank_results(self, src: Path, name: str) -> None:
         """Copy a step's results CSV (a run's results.csv, the benchmark's rows) next to the steps CSV,
@@ -418,6 +431,13 @@ def banked(out: Path, stage: str, dry_run: bool) -> Path | None:
     return None
 
 
+def _iso_date(text: str) -> str:
+    try:
+        return dt.date.fromisoformat(text).isoformat()
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date of the form YYYY-MM-DD") from None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", metavar="OUT_DIR")
@@ -426,6 +446,8 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="run a banked stage again")
     ap.add_argument("--prepare", action="store_true",
                     help="only gsplat's compilation and the stages' scene builds (no OCR needed; nothing banked)")
+    ap.add_argument("--date", type=_iso_date, default=None,
+                    help="the round's date in its file names and rows, YYYY-MM-DD (default: today's)")
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for the whole stage (default 480)")
     ap.add_argument("--runs", type=Path, default=None,
                     help="where runs train and resume (default OUT_DIR/runs; outside the repo when OUT_DIR is "
@@ -458,7 +480,7 @@ def main(argv=None) -> int:
             print(f"{stage}: no time left in the budget; not started")
             failed = True
             continue
-        s = Round(out, stage, args.dry_run, left, args.runs, prepare=args.prepare)
+        s = Round(out, stage, args.dry_run, left, args.runs, prepare=args.prepare, date=args.date)
         STAGES[stage](s)
         bad = [r for r in s.rows if r["status"] != "ok"]
         failed |= bool(bad)

@@ -20,9 +20,14 @@ ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "scripts" / "gpu_campaign.sh"
 
 
+# The rounds' date, set by the tests rather than read from the clock (the fixtures carry dates of their own).
+ROUND_DATE = "2026-12-02"
+
+
 def campaign(*args, timeout=600):
     env = {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT)}
-    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, timeout=timeout,
+    dated = args if "--date" in args else ("--date", ROUND_DATE, *args)
+    return subprocess.run(["bash", str(SCRIPT), *map(str, dated)], capture_output=True, text=True, timeout=timeout,
                           env=env)
 
 
@@ -113,33 +118,54 @@ def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
 
 
 def test_a_later_round_skips_the_steps_already_banked(tmp_path):
+    """The later round runs on the earlier one's date (a warm machine, two rounds in a day; the date is the
+    test's, not the clock's): the earlier round's files stay as they were and the new round writes its own."""
     out = tmp_path / "gpu"
     out.mkdir()
     mod = _module()
-    earlier = [{"date": "2026-12-01", "stage": "verify", "step": step, "status": status, "seconds": "1",
+    day = "2026-12-01"
+    earlier = [{"date": day, "stage": "verify", "step": step, "status": status, "seconds": "1",
                 "detail": "", "dry_run": "true"} for step, status in
                (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark_320x240", "partial"),
                 ("paper_run", "partial"))]
-    mod.Round.write(out / "2026-12-01_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
+    mod.Round.write(out / f"{day}_verify_cpu-dry-run.csv", mod.STEP_COLUMNS, earlier)
     # the earlier round's steps were cut, but after the 320x240 benchmark's rows and STRinGS' 7K cell
-    (out / "2026-12-01_verify_benchmark_320x240_cpu-dry-run.csv").write_text(
+    (out / f"{day}_verify_benchmark_320x240_cpu-dry-run.csv").write_text(
         "method,size,device,steps_per_s,dry_run\n3dgs,64x48,cpu,9.0,true\n")
-    (out / "2026-12-01_verify_paper_run_cpu-dry-run.csv").write_text(
+    (out / f"{day}_verify_paper_run_cpu-dry-run.csv").write_text(
         "method,iteration,label,cer,dry_run\nstrings,35,7K,0.9,true\n3dgs,15,3K,0.9,true\n")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
     # A budget that leaves the compile step and the scene build room on a slow clean clone (a 4 s budget
     # cut the compile step itself there: cold imports) and may or may not cut 3DGS' run and the last
     # benchmark (a stage cut by its budget: test_a_stage_cut_by_its_budget_is_partial_and_not_banked).
-    done = campaign("--dry-run", "--budget", "45", out, "verify", timeout=180)
-    (today,) = [p for p in out.glob("*_verify_cpu-dry-run.csv") if not p.name.startswith("2026-12-01")]
+    done = campaign("--dry-run", "--budget", "45", "--date", day, out, "verify", timeout=180)
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name in before} == before  # nothing overwritten
+    today = out / f"{day}.2_verify_cpu-dry-run.csv"
     steps = {r["step"]: r for r in rows(today)}
+    assert {r["date"] for r in steps.values()} == {day}
     assert steps["compile"]["status"] == "ok", steps["compile"]
     assert steps["compile"]["detail"] != "" and "banked" not in steps["compile"]["detail"]  # a fresh machine compiles
     for name in ("pytest_gpu", "benchmark_320x240", "paper_run_strings"):
-        assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith("banked in 2026-12-01"), steps[name]
-    # 3DGS has only a 3K row banked: its run goes again (to the end, or cut: partial)
+        assert steps[name]["status"] == "ok" and steps[name]["detail"].startswith(f"banked in {day}_"), steps[name]
+    # 3DGS has only a 3K row banked: its run goes again (to the end, or cut: partial), into the new round's file
     ran = [steps[n]["status"] for n in ("paper_run_3dgs", "benchmark_1280x960") if n in steps]
     assert ran and set(ran) <= {"ok", "partial"} and "banked" not in steps["paper_run_3dgs"]["detail"]
+    assert (out / f"{day}.2_verify_paper_run_3dgs_cpu-dry-run.csv").exists() or steps["paper_run_3dgs"]["status"] == "partial"
     assert done.returncode == (0 if ran == ["ok", "ok"] else 1)
+
+
+def test_a_round_is_named_by_its_date_and_its_number_that_day(tmp_path):
+    mod = _module()
+    assert mod.round_stem(tmp_path, "2026-11-30", "verify", "nvidia-h200") == "2026-11-30"
+    (tmp_path / "2026-11-30_verify_nvidia-h200.csv").write_text("")
+    (tmp_path / "2026-11-30_x1-rooms_nvidia-h100.csv").write_text("")  # another stage or GPU: no matter
+    assert mod.round_stem(tmp_path, "2026-11-30", "verify", "nvidia-h200") == "2026-11-30.2"
+    assert mod.round_stem(tmp_path, "2026-12-01", "verify", "nvidia-h200") == "2026-12-01"
+    assert mod.round_stem(tmp_path, "2026-11-30", "x1-rooms", "nvidia-h200") == "2026-11-30"
+    (tmp_path / "2026-11-30.2_verify_nvidia-h200.csv").write_text("")
+    assert mod.round_stem(tmp_path, "2026-11-30", "verify", "nvidia-h200") == "2026-11-30.3"
+    bad = campaign("--dry-run", "--date", "1 December", tmp_path, "verify", timeout=60)
+    assert bad.returncode == 2 and "YYYY-MM-DD" in bad.stderr
 
 
 def test_the_next_real_round_skips_what_the_first_one_banked():

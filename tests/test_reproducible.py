@@ -193,26 +193,28 @@ WIDE_PROBE = textwrap.dedent("""
     from strings_bench.core.cpus import isa_record
 
     @njit
-    def axpy(a, x, y):
+    def scale_add(a, x, y):  # a loop of the test's own, not the one the record compiles
         for i in range(x.shape[0]):
-            y[i] = a * x[i] + y[i]
+            y[i] = y[i] * a + x[i]
 
     x = np.ones(4096, np.float32)
-    axpy(np.float32(2.0), x, x.copy())
-    asm = "".join(axpy.inspect_asm().values())
-    print("RESULT", "zmm" in asm, isa_record()["numba_vector_bits"])
+    scale_add(np.float32(2.0), x, x.copy())
+    asm = "".join(scale_add.inspect_asm().values())
+    widest = 512 if "zmm" in asm else 256 if "ymm" in asm else 128
+    print("RESULT", widest, isa_record()["numba_vector_bits"])
 """)
 
 
-def test_numba_kernels_use_512_bit_vectors_on_an_avx512_cpu(tmp_path):
-    """In a fresh process that imports strings_bench first, a vectorised float32 loop is compiled for the 16-lane
-    (zmm) registers on a CPU with AVX-512, where LLVM's tuning would keep it on 8-lane ones; a run records the
-    width (`numba_vector_bits`). The bits are the same at any width: the training test above compares this
-    target with SSE4.2."""
+def test_the_recorded_numba_vector_width_is_the_width_compiled(tmp_path):
+    """A run records the vector width its numba kernels were compiled to (`numba_vector_bits`), read from
+    what numba compiled in that process: it equals the widest register in a loop the test compiles itself,
+    whatever the CPU's tuning. On a CPU with AVX-512, importing strings_bench first compiles for 512-bit
+    (zmm) registers; a target without AVX-512 (NUMBA_CPU_NAME and NUMBA_CPU_FEATURES) compiles for 256 bits, SSE4.2
+    for 128. The bits are the same at any width: the training test above compares targets."""
     from strings_bench.core.cpus import host_cpu_features
 
-    if "+avx512f" not in host_cpu_features().split(","):
-        pytest.skip("this CPU has no AVX-512")
+    if "+avx2" not in host_cpu_features().split(","):
+        pytest.skip("not an x86-64 CPU with AVX2")
     base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")}
     base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
 
@@ -220,12 +222,17 @@ def test_numba_kernels_use_512_bit_vectors_on_an_avx512_cpu(tmp_path):
         proc = subprocess.run([sys.executable, "-c", WIDE_PROBE], env={**base, **extra}, capture_output=True,
                               text=True, timeout=300, cwd=tmp_path)
         assert proc.returncode == 0, proc.stderr[-2000:]
-        return next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")).split()[1:]
+        compiled, recorded = next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")).split()[1:]
+        return int(compiled), int(recorded)
 
-    assert probe({}) == ["True", "512"]
-    # with the host's own features set by hand, LLVM's preference is back: 8-lane vectors
+    avx512 = "+avx512f" in host_cpu_features().split(",")
+    assert probe({}) == ((512, 512) if avx512 else (256, 256))
+    # the host's own features set by hand: LLVM's tuning for this CPU decides, and the record follows it
     host = ",".join(f for f in host_cpu_features().split(",") if f != "-prefer-256-bit")
-    assert probe({"NUMBA_CPU_FEATURES": host}) == ["False", "256"]
+    compiled, recorded = probe({"NUMBA_CPU_FEATURES": host})
+    assert compiled == recorded and compiled in ((256, 512) if avx512 else (256,))
+    assert probe({"NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": "+avx2,+fma"}) == (256, 256)
+    assert probe(SSE42) == (128, 128)
 
 
 def test_numba_runs_on_its_openmp_threads_unless_the_user_chooses():

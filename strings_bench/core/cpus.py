@@ -116,16 +116,31 @@ def widen_numba_vectors(environ=None, host_features: str | None = None) -> str |
     return value
 
 
-def numba_vector_width() -> int:
-    """Bits per vector the numba kernels are compiled for: 512 where WIDE_VECTORS is in effect, else that of the
-    host's widest vector unit up to 256 (LLVM's preference on AVX-512 CPUs without it). Read from numba's CPU code
-    generator itself (the features it compiles with), so a setting that came too late is not reported."""
-    from numba.core.registry import cpu_target
+_VECTOR_REGISTERS = (("zmm", 512), ("ymm", 256))  # x86-64's 512- and 256-bit register names in assembly
 
-    features = cpu_target.target_context.codegen().magic_tuple()[2].split(",")
-    if "+avx512f" in features and WIDE_VECTORS in features:
-        return 512
-    return 256 if "+avx" in features else 128
+
+def numba_vector_width() -> int:
+    """Bits per vector of the numba kernels: the widest vector register in the machine code numba compiles for a
+    float32 loop in this process (zmm 512, ymm 256, else 128), so the record is what was compiled, whatever
+    the features, the CPU's tuning or a setting that came too late. Compiled once per process (~0.1 s)."""
+    global _vector_bits
+    if _vector_bits is None:
+        import numpy as np
+        from numba import njit
+
+        @njit(nogil=True)
+        def _axpy(a, x, y):  # the shape of the blends' pixel loops: a float32 multiply-add over an array
+            for i in range(x.shape[0]):
+                y[i] = a * x[i] + y[i]
+
+        x = np.ones(64, np.float32)
+        _axpy(np.float32(2.0), x, x.copy())
+        asm = "".join(_axpy.inspect_asm().values())
+        _vector_bits = next((bits for name, bits in _VECTOR_REGISTERS if name in asm), 128)
+    return _vector_bits
+
+
+_vector_bits: int | None = None
 
 
 def isa_record() -> dict:
