@@ -126,7 +126,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
         raise PredictionsError("give --scene or --gt, not both", hint="--scene: a scene of the suite; --gt: a folder of GT images")
     out = Path(opts.out) if opts.out else default_out(pred)
     engines = get_engines(opts.ocr)  # an unknown engine fails before anything is read
-    with open_predictions(pred) as root:
+    with open_predictions(pred, progress=opts.progress) as root:
         preds = detect_layout(root)
         say(f"layout: {preds.layout} ({len(preds.checkpoints)} checkpoint(s): "
             f"{', '.join(str(c.iteration) for c in preds.checkpoints)})")

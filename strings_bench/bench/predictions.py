@@ -11,15 +11,14 @@ from __future__ import annotations
 import contextlib
 import json
 import re
-import tarfile
 import tempfile
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Iterator
 
 import numpy as np
 
+from strings_bench.core.archives import safe_extract
 from strings_bench.core.errors import StringsBenchError
 
 LAYOUTS = ("inria", "nerfbaselines", "folder")
@@ -118,45 +117,20 @@ def detect_layout(root: Path) -> Predictions:
         f"(nerfbaselines)", hint="point evaluate at the folder of renders (see docs/guide/evaluate.md)")
 
 
-def _safe_members(names: list[str], archive: Path) -> None:
-    for name in names:
-        p = PurePosixPath(name.replace("\\", "/"))
-        if p.is_absolute() or ".." in p.parts or re.match(r"^[A-Za-z]:", name):
-            raise PredictionsError(f"archive {archive} holds {name!r}, a path outside the archive",
-                                   hint="refused: extracting it would write outside the folder; repack the predictions")
-
-
 @contextlib.contextmanager
-def open_predictions(path: Path) -> Iterator[Path]:
-    """`path` as a folder: itself, or a .zip / .tar.gz extracted into a temporary folder (removed after).
-    Members with absolute paths, `..`, or links are refused before anything is extracted."""
+def open_predictions(path: Path, progress: bool = False) -> Iterator[Path]:
+    """`path` as a folder: itself, or a .zip / .tar.gz extracted into a temporary folder (removed after) by the
+    suite's one archive reader (core/archives.py: no paths outside the archive, no links, a size limit)."""
     path = Path(path)
-    name = path.name.lower()
     if path.is_dir() or not path.exists():
         yield path
         return
+    if not path.name.lower().endswith((".zip", ".tar.gz", ".tgz", ".tar")):
+        raise PredictionsError(f"predictions {path} are a file, not a folder or a .zip / .tar.gz archive",
+                               hint="give the folder that holds the renders")
     with tempfile.TemporaryDirectory(prefix="strings-bench-pred-") as tmp:
-        try:
-            if name.endswith(".zip"):
-                with zipfile.ZipFile(path) as zf:
-                    _safe_members(zf.namelist(), path)
-                    zf.extractall(tmp)
-            elif name.endswith((".tar.gz", ".tgz", ".tar")):
-                with tarfile.open(path) as tf:
-                    members = tf.getmembers()
-                    _safe_members([m.name for m in members], path)
-                    links = [m.name for m in members if m.issym() or m.islnk() or not (m.isfile() or m.isdir())]
-                    if links:
-                        raise PredictionsError(f"archive {path} holds links or special files ({', '.join(links[:3])})",
-                                               hint="refused: predictions are plain image files; repack without links")
-                    tf.extractall(tmp)
-            else:
-                raise PredictionsError(f"predictions {path} are a file, not a folder or a .zip / .tar.gz archive",
-                                       hint="give the folder that holds the renders")
-        except (zipfile.BadZipFile, tarfile.TarError, OSError, EOFError) as exc:
-            raise PredictionsError(f"cannot read archive {path}: {exc}", hint="the archive is corrupt or truncated") from exc
-        root = Path(tmp)
-        entries = [p for p in root.iterdir()]
+        root = safe_extract(path, Path(tmp) / "predictions", progress=progress)
+        entries = list(root.iterdir())
         # an archive of one folder (predictions/...) is read as that folder
         yield entries[0] if len(entries) == 1 and entries[0].is_dir() and not (root / "color").is_dir() else root
 

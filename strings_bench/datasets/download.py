@@ -4,30 +4,26 @@
   request; a server that ignores Range restarts the transfer from zero), verified with sha256
   when the card knows the hash (otherwise the computed hash is printed and the file is reported
   as unverified), with a progress bar. The target appears only when complete and verified.
-- `safe_extract`: zip and tar. Every member is checked before anything is written: absolute
-  paths, `..` components, drive letters, links (symbolic and hard) and special files are refused.
-  Extraction goes into a temporary sibling folder that is renamed onto the target at the end.
+- `safe_extract` (core/archives.py, the suite's one archive reader): zip and tar, members with
+  absolute or `..` paths, links and special files refused, at most `extract_limit` bytes written,
+  into a temporary sibling folder renamed onto the target at the end.
 - `download_dataset`: for a card with a URL, download + extract + register; for data behind a
   browser or an account (Google Drive, the gated DL3DV set) print the exact steps instead.
 """
 
 from __future__ import annotations
 
-import lzma
 import os
-import shutil
-import stat
-import tarfile
 import urllib.error
 import urllib.request
-import zipfile
-import zlib
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Callable
 
 from tqdm import tqdm
 
+from strings_bench.core.archives import (EXTRACT_LIMIT_ENV, UnsafeArchiveError, extract_limit,  # noqa: F401
+                                         safe_extract)
 from strings_bench.core.errors import DatasetError, StringsBenchError
 from strings_bench.core.io import cache_root, sha256_file
 
@@ -37,10 +33,6 @@ USER_AGENT = "strings-bench-downloader"
 
 class DownloadError(StringsBenchError):
     """A transfer failed or its content does not match the expected hash."""
-
-
-class UnsafeArchiveError(DatasetError):
-    """An archive member would land outside the target folder, or is a link/special file."""
 
 
 @dataclass
@@ -117,143 +109,6 @@ def download_file(url: str, dest: str | Path, sha256: str | None = None, progres
         echo(f"sha256 of {dest.name}: {digest} (no published hash: the download could not be verified)")
     os.replace(part, dest)
     return DownloadResult(dest, digest, bool(sha256), resumed_from)
-
-
-# ---- safe extraction --------------------------------------------------------------------------
-def _checked_member_path(name: str, archive: Path) -> PurePosixPath:
-    norm = name.replace("\\", "/")
-    p = PurePosixPath(norm)
-    if norm.startswith("/") or p.is_absolute() or (len(norm) > 1 and norm[1] == ":"):
-        raise UnsafeArchiveError(f"{archive} holds a member with an absolute path: {name!r}",
-                                 hint="refusing to extract an archive that writes outside its folder; get it from the official source")
-    if ".." in p.parts:
-        raise UnsafeArchiveError(f"{archive} holds a member that escapes the target folder: {name!r}",
-                                 hint="refusing to extract an archive with '..' paths; get it from the official source")
-    return p
-
-
-def _zip_is_link_or_special(info: zipfile.ZipInfo) -> bool:
-    # Unix zips keep st_mode in the high 16 bits; many writers leave the file-type bits at 0.
-    file_type = stat.S_IFMT(info.external_attr >> 16)
-    return file_type not in (0, stat.S_IFREG, stat.S_IFDIR)
-
-
-EXTRACT_LIMIT_ENV = "STRINGS_BENCH_MAX_EXTRACT_BYTES"
-MIN_EXTRACT_LIMIT = 1 << 30  # 1 GiB
-EXTRACT_RATIO_LIMIT = 100  # photos and COLMAP models compress far less than 100:1; a zip bomb far more
-
-
-def extract_limit(archive: Path, max_bytes: int | None = None) -> int:
-    """Bytes an archive may expand to: `max_bytes` (a card's `download.max_bytes`), else the environment's
-    STRINGS_BENCH_MAX_EXTRACT_BYTES, else 100 x the archive's size (at least 1 GiB)."""
-    if max_bytes is not None:
-        return int(max_bytes)
-    env = os.environ.get(EXTRACT_LIMIT_ENV, "").strip()
-    if env:
-        try:
-            return int(float(env))
-        except ValueError:
-            raise DatasetError(f"{EXTRACT_LIMIT_ENV}={env!r} is not a number of bytes", hint="e.g. 200e9") from None
-    return max(MIN_EXTRACT_LIMIT, EXTRACT_RATIO_LIMIT * Path(archive).stat().st_size)
-
-
-class _Budget:
-    """Counts the bytes actually written (headers can lie about sizes) and stops at the limit."""
-
-    def __init__(self, archive: Path, limit: int):
-        self.archive, self.limit, self.used = archive, limit, 0
-
-    def refuse(self, amount: str) -> UnsafeArchiveError:
-        return UnsafeArchiveError(
-            f"{self.archive} expands to {amount}, over the extraction limit of {self.limit} bytes (a zip bomb, or a "
-            f"larger dataset than expected); extraction stopped and nothing was kept",
-            hint=f"if the archive is genuine, raise the limit with {EXTRACT_LIMIT_ENV}=BYTES")
-
-    def copy(self, src, dst) -> None:
-        while block := src.read(CHUNK):
-            self.used += len(block)
-            if self.used > self.limit:
-                raise self.refuse(f"more than {self.limit} bytes")
-            dst.write(block)
-
-
-@dataclass
-class _Member:
-    """An archive member as extraction sees it, zip or tar alike."""
-
-    name: str
-    is_dir: bool
-    size: int  # declared bytes (0 for a folder)
-    open: Callable  # () -> a readable file object of its bytes
-    refused: str = ""  # why it is not extracted (a link, a special file); "" when it is
-
-
-def _zip_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, archive: Path) -> _Member:
-    refused = f"{archive} holds a link or special file: {info.filename!r}" if _zip_is_link_or_special(info) else ""
-    return _Member(info.filename, info.is_dir(), 0 if info.is_dir() else info.file_size, lambda: zf.open(info), refused)
-
-
-def _tar_member(tf: tarfile.TarFile, m: tarfile.TarInfo, archive: Path) -> _Member:
-    refused = (f"{archive} holds a link: {m.name!r} -> {m.linkname!r}" if m.issym() or m.islnk() else
-               f"{archive} holds a special file (device/fifo): {m.name!r}" if not (m.isfile() or m.isdir()) else "")
-    return _Member(m.name, m.isdir(), m.size if m.isfile() else 0, lambda: tf.extractfile(m), refused)
-
-
-def _extract_members(members: list[_Member], declared_by: str, archive: Path, tmp: Path, budget: _Budget,
-                     progress: bool) -> None:
-    """Check every member (a path inside the folder, no link, no special file, the declared total within the
-    budget) before writing anything, then write them under `tmp`, counting the bytes actually written."""
-    for m in members:
-        _checked_member_path(m.name, archive)
-        if m.refused:
-            raise UnsafeArchiveError(m.refused, hint="refusing to extract links and special files; get the archive from "
-                                                     "the official source")
-    declared = sum(m.size for m in members)
-    if declared > budget.limit:
-        raise budget.refuse(f"{declared} bytes ({declared_by})")
-    for m in tqdm(members, desc=f"extract {archive.name}", unit="file", disable=not progress):
-        out = tmp.joinpath(*_checked_member_path(m.name, archive).parts)
-        if m.is_dir:
-            out.mkdir(parents=True, exist_ok=True)
-            continue
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with m.open() as src, open(out, "wb") as dst:
-            budget.copy(src, dst)
-
-
-def safe_extract(archive: str | Path, target: str | Path, progress: bool = True, max_bytes: int | None = None) -> Path:
-    """Extract a .zip or .tar(.gz/.bz2/.xz) into `target` (which must not exist yet), writing at most
-    `extract_limit(archive, max_bytes)` bytes."""
-    archive, target = Path(archive), Path(target)
-    if target.exists():
-        raise DatasetError(f"{target} already exists", hint="delete it or choose another folder")
-    budget = _Budget(archive, extract_limit(archive, max_bytes))
-    tmp = target.with_name(f".{target.name}.extract-tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
-        if zipfile.is_zipfile(archive):
-            with zipfile.ZipFile(archive) as zf:
-                _extract_members([_zip_member(zf, info, archive) for info in zf.infolist()], "as its directory says",
-                                 archive, tmp, budget, progress)
-        elif tarfile.is_tarfile(archive):
-            with tarfile.open(archive) as tf:
-                _extract_members([_tar_member(tf, m, archive) for m in tf.getmembers()], "as its headers say",
-                                 archive, tmp, budget, progress)
-        else:
-            raise DatasetError(f"{archive} is neither a zip nor a tar archive", hint="the download may be damaged; delete it and retry")
-        target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp, target)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, tarfile.TarError, EOFError, zlib.error, lzma.LZMAError,
-            NotImplementedError, RuntimeError, OSError) as exc:
-        # A damaged archive: a bad CRC, cut-off compressed data, an unsupported or encrypted member.
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise DatasetError(f"{archive} is damaged or unsupported and cannot be extracted: {type(exc).__name__}: {exc}",
-                           hint="delete it and download again; your other files were not touched") from exc
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return target
 
 
 # ---- datasets ---------------------------------------------------------------------------------
