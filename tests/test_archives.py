@@ -103,7 +103,8 @@ def test_tar_bomb_is_refused_from_its_headers_with_the_env_limit_named(tmp_path,
     monkeypatch.setenv(EXTRACT_LIMIT_ENV, str(1 * MIB))
     bomb = tar_bomb(tmp_path / "bomb.tar.gz", 16 * MIB)
     target = tmp_path / "work" / "data"
-    with pytest.raises(UnsafeArchiveError, match=r"expands to 16777216 bytes .*over the extraction limit of 1048576 bytes") as exc:
+    with pytest.raises(UnsafeArchiveError,
+                       match=r"expands to 16777216 bytes .*over the extraction limit of 1048576 bytes") as exc:
         safe_extract(bomb, target, progress=False)
     assert f"{EXTRACT_LIMIT_ENV}=BYTES" in exc.value.hint
     assert written == [0]
@@ -301,7 +302,8 @@ def test_evaluate_reads_a_good_archive_and_cleans_up(tmp_path, private_tmp, fmt)
     with open_predictions(arc) as root:
         preds = detect_layout(root)
         assert preds.layout == "nerfbaselines" and sorted(preds.checkpoints[0].renders) == ["view_a", "view_b"]
-        assert (root / "color" / "view_a.png").read_bytes() == (tmp_path / "stage/predictions/color/view_a.png").read_bytes()
+        staged = tmp_path / "stage" / "predictions" / "color" / "view_a.png"
+        assert (root / "color" / "view_a.png").read_bytes() == staged.read_bytes()
     assert everything_under(private_tmp) == []
     said = []
     out = evaluate(arc, EvaluateOptions(out=tmp_path / "out", ocr=rf.FakeOCR(), with_lpips=False, report=False,

@@ -22,8 +22,8 @@ from typing import Callable
 
 from tqdm import tqdm
 
-from strings_bench.core.archives import (EXTRACT_LIMIT_ENV, UnsafeArchiveError, extract_limit,  # noqa: F401
-                                         safe_extract)
+# UnsafeArchiveError: what callers of safe_extract catch, importable from here as before
+from strings_bench.core.archives import UnsafeArchiveError, safe_extract  # noqa: F401
 from strings_bench.core.errors import DatasetError, StringsBenchError
 from strings_bench.core.io import cache_root, sha256_file
 
