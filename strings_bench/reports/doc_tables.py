@@ -15,7 +15,10 @@ what its data gives (tests/test_docs.py runs the check).
 
 Kinds (`kind=`, default `csv`):
 
-- `csv`: the CSV as it is, header and rows (for tables whose cells are already text);
+- `csv`: the CSV as it is, header and rows (for tables whose cells are already text); `columns=A,B` keeps those
+  columns, in that order;
+- `text`: the `text` column of each row, as paragraphs (a paragraph a command writes, e.g. the README's on the
+  paper's claims, from `strings-bench verdicts`);
 - `results`: rows of a `results.csv` (the run folder's), the columns named by `columns=` with their usual
   headings and number formats; `bold=1` marks the best value of each readability column at each checkpoint
   (lowest CER, highest accuracy);
@@ -189,8 +192,17 @@ def format_value(text: str, fmt: str) -> str:
 def table_csv(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     if not rows:
         raise StringsBenchError(f"{path} has no rows")
-    header = list(rows[0])
+    header = ",".join(options["columns"]).split(",") if options.get("columns") else list(rows[0])
+    for h in header:
+        if h not in rows[0]:
+            raise StringsBenchError(f"{path} has no column {h!r}", hint=f"its columns: {', '.join(rows[0])}")
     return markdown(header, [[r[h] for h in header] for r in rows])
+
+
+def table_text(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    if not rows or "text" not in rows[0]:
+        raise StringsBenchError(f"{path}: kind=text needs a CSV with a 'text' column and a row")
+    return "\n".join(r["text"] for r in rows) + "\n"
 
 
 def table_results(rows: list[dict[str, str]], options: dict, path: Path) -> str:
@@ -260,7 +272,7 @@ def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     return markdown(header, out)
 
 
-KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare}
+KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare, "text": table_text}
 
 
 def render_block(spec: str, page: Path) -> str:
