@@ -22,3 +22,15 @@ MIN_READ_CHARS = 24
 def read_characters(chars: int | float, errors: int | float) -> float:
     """The GT characters a render reads (its GT characters less its errors; 0 when OCR added more than it read)."""
     return max(0.0, float(chars) - float(errors))
+
+
+def gt_floor(settings, views) -> int | None:
+    """The floor on GT characters for a scene's OCR-CER: its `min_gt_chars` setting when it has one (the captures
+    set it), else MIN_GT_CHARS for a scene without known text (a user's own photos: only the GT OCR tells what the
+    text is; the module docstring says why 50), else None (synthetic scenes: their known text is scored as well)."""
+    floor = settings.get("min_gt_chars") if isinstance(settings, dict) else None
+    if floor is not None:
+        return int(floor)
+    if all(v.known_words is None for v in views):
+        return MIN_GT_CHARS
+    return None
