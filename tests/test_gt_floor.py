@@ -24,7 +24,8 @@ def test_a_scene_without_known_text_gets_the_default_floor(tmp_path):
     from tests.runner_fakes import FakeOCR, make_scene
 
     photos = Scene.load(_scene_without_known_text(tmp_path))
-    assert Evaluator.for_scene(photos, FakeOCR(), 1, with_lpips=False, with_readability=False).min_gt_chars == MIN_GT_CHARS
+    ev = Evaluator.for_scene(photos, FakeOCR(), 1, with_lpips=False, with_readability=False)
+    assert ev.min_gt_chars == MIN_GT_CHARS
     known = Scene.load(make_scene(tmp_path / "known"))  # synthetic-like: known text, no floor
     assert Evaluator.for_scene(known, FakeOCR(), 1, with_lpips=False, with_readability=False).min_gt_chars is None
     own = Scene.load(_scene_without_known_text(tmp_path / "own"), settings={"min_gt_chars": 3})

@@ -19,14 +19,15 @@ TIME_CLAIM = next(c for c in V.CLAIMS if c.key == "time-30k")
 
 
 def cells(method: str, values_by_seed: dict, chars: int = 300, errors=None, label: str = "7K", metric: str = "cer",
-          scene: str = "room") -> list[dict]:
+          scene: str = "room", kernels: str = "cpu_model=A") -> list[dict]:
     """Planted banked records: one per seed, `metric` set to the value; GT characters and errors as given (errors
     default to CER x characters)."""
     out = []
     for seed, v in values_by_seed.items():
         e = round(v * chars) if errors is None else errors
         out.append({"method": method, "scene": scene, "draw": 0, "seed": seed, "checkpoint": label, metric: v,
-                    "cer_chars": chars if metric == "cer" else "", "cer_errors": e if metric == "cer" else ""})
+                    "cer_chars": chars if metric == "cer" else "", "cer_errors": e if metric == "cer" else "",
+                    "kernels": kernels})
     return out
 
 
@@ -90,6 +91,11 @@ def test_time_is_judged_only_on_interleaved_cells():
     assert verdict(rows, TIME_CLAIM, interleaved=True).verdict == "holding"
     v = verdict(rows, TIME_CLAIM, interleaved=False)
     assert v.verdict == "not judged" and "interleaved" in v.reason
+    # interleaved, but 3DGS' cells on another machine: CPU seconds of two CPUs are not one measure
+    rows = (cells("strings", {0: 500, 1: 510, 2: 505}, label="30K", metric="train_cpu_seconds")
+            + cells("3dgs", {0: 700, 1: 690, 2: 720}, label="30K", metric="train_cpu_seconds", kernels="cpu_model=B"))
+    v = verdict(rows, TIME_CLAIM, interleaved=True)
+    assert v.verdict == "not judged" and "2 machines" in v.reason
 
 
 def test_a_method_not_run_is_named_and_a_missing_reference_is_not_measured():

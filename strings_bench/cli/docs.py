@@ -175,7 +175,8 @@ def cmd_refresh(args: argparse.Namespace) -> int:
     if args.check:
         reads = transcribed_reads(root)
         for page, data in reads:
-            print(f"{page.relative_to(root) if page.is_relative_to(root) else page}: a table reads {data}, a transcribed "
+            name = page.relative_to(root) if page.is_relative_to(root) else page
+            print(f"{name}: a table reads {data}, a transcribed "
                   f"CSV (make it from banked records or a command's output, or mark the page a history page: "
                   f"{HISTORY_MARK} ... -->)")
         if changed:

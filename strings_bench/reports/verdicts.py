@@ -9,8 +9,8 @@ Three parts, read top to bottom:
 - `judge`: THE rule, the same for every claim and scale:
   1. a CER claim needs signal on both sides: every scene's GT reads at least MIN_GT_CHARS characters and the best
      method reads at least MIN_READ_CHARS of them (eval/floors.py); below either floor: "not scorable";
-  2. a time claim is judged on training CPU seconds, and only where the cells were run interleaved on one machine;
-     otherwise: "not judged";
+  2. a time claim is judged on training CPU seconds, and only where the cells were run interleaved on one machine
+     (the scale says so, and its cells' CPU kernel records agree); otherwise: "not judged";
   3. fewer than MIN_REPLICATES replicates (seeds x draws) on either side: "not judged" (with 2 a side the rule calls a
      difference that is not there 1 time in 3; benchmarks/verdict_false_calls.py measures it);
   4. "holding" when STRinGS' replicate range lies on the claimed side of every compared method's range, apart (no
@@ -20,6 +20,9 @@ Three parts, read top to bottom:
 `strings-bench verdicts` writes the records, verdicts.csv (claim x scale), figures.csv (claim x scale x method, the
 numbers), findings.csv (claim x scale pivot, the results landing page) and readme.csv (the README's paragraph), all
 under docs/results/data/verdicts/; `docs refresh` renders the pages' tables from them.
+
+Size (~470 lines): the claims, the scales' readers, the rule and the tables it writes stay in one module, so that
+what is judged, on what, and how can be read top to bottom in one place.
 """
 
 from __future__ import annotations
@@ -100,6 +103,7 @@ class Figure:
     scenes: int = 1
     gt_chars: list[float] | None = None  # per scene, the GT characters (None: not banked)
     reads: list[float] | None = None  # per scene, the characters this method reads (mean over seeds)
+    machines: frozenset = frozenset()  # the CPU kernel records of its cells (banked records only)
 
     @property
     def replicates(self) -> int:
@@ -176,7 +180,8 @@ def figures_compare(rows: list[dict], metric: str, label: str) -> dict[str, Figu
     return out
 
 
-def _replicate_figure(values: dict[tuple[int, int], list[float]], chars=None, reads=None, scenes: int = 1) -> Figure | None:
+def _replicate_figure(values: dict[tuple[int, int], list[float]], chars=None, reads=None,
+                      scenes: int = 1) -> Figure | None:
     """A Figure from {(seed, draw): [value per scene]} (the replicate value: the mean over its scenes)."""
     means = [sum(v) / len(v) for v in values.values() if v and all(x is not None for x in v)]
     if not means:
@@ -206,10 +211,12 @@ def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, l
                 chars.setdefault(r["scene"], []).append(c)
                 reads.setdefault(r["scene"], []).append(read_characters(c, e))
         scenes = len({r["scene"] for r in cells})
+        machines = frozenset(r["kernels"] for r in cells if r.get("kernels"))
         per_scene_chars = [min(v) for _, v in sorted(chars.items())] or None
         per_scene_reads = [sum(v) / len(v) for _, v in sorted(reads.items())] or None
         fig = _replicate_figure(values, per_scene_chars, per_scene_reads, scenes)
         if fig is not None:
+            fig.machines = machines
             out[method] = fig
         elif metric in CER_METRICS and per_scene_chars:  # a CER withheld by the GT floor: the characters say why
             out[method] = Figure(math.nan, math.nan, math.nan, len({k[0] for k in values}),
@@ -271,8 +278,12 @@ def judge(claim: Claim, ref: Figure | None, others: dict[str, Figure], interleav
         if best is not None and best < MIN_READ_CHARS:
             return Verdict("not scorable", f"the best method reads {best:.0f} GT characters, below the floor of "
                                            f"{MIN_READ_CHARS}")
-    if claim.metric in TIME_METRICS and not interleaved:
-        return Verdict("not judged", "its cells were not run interleaved on one machine")
+    if claim.metric in TIME_METRICS:
+        machines = frozenset().union(*(f.machines for f in [ref, *present.values()] if f is not None))
+        if not interleaved:
+            return Verdict("not judged", "its cells were not run interleaved on one machine")
+        if len(machines) > 1:
+            return Verdict("not judged", f"its cells ran on {len(machines)} machines (CPU kernel records)")
     if ref is None or math.isnan(ref.mean):
         return Verdict("not measured", f"STRinGS has no figure at {claim.checkpoint}")
     if not present:
@@ -316,8 +327,8 @@ def _n_text(f: Figure | None) -> str:
             f"{f.scenes} scene{'s' * (f.scenes != 1)}")
 
 
-VERDICT_FIELDS = ("claim_key", "scale_key", "claim", "scale", "verdict", "reason", "strings", "against", "n", "signal", "paper", "paper_source",
-                  "scope", "data", "data_kind")
+VERDICT_FIELDS = ("claim_key", "scale_key", "claim", "scale", "verdict", "reason", "strings", "against", "compared",
+                  "n", "signal", "paper", "paper_source", "scope", "data", "data_kind")
 FIGURE_FIELDS = ("claim", "scale", "method", "checkpoint", "metric", "mean", "min", "max", "seeds", "draws", "scenes",
                  "side", "data")
 
@@ -341,8 +352,10 @@ def evaluate(root: Path, cache: dict | None = None) -> tuple[list[dict], list[di
                 against += ("; " if against else "") + "not run: " + ", ".join(not_run)
             data = scale.file(claim.checkpoint) or ""
             verdicts.append({
-                "claim_key": claim.key, "scale_key": scale.key, "claim": claim.text, "scale": scale.title, "verdict": v.verdict, "reason": v.reason,
+                "claim_key": claim.key, "scale_key": scale.key, "claim": claim.text, "scale": scale.title,
+                "verdict": v.verdict, "reason": v.reason,
                 "strings": "" if ref is None else _figure_text("STRinGS", ref, claim.metric), "against": against,
+                "compared": " ".join(others),
                 "n": _n_text(ref), "signal": sig, "paper": claim.paper, "paper_source": claim.source,
                 "scope": f"{claim.metric} at {claim.checkpoint}; {claim.datasets}",
                 "data": data, "data_kind": scale.data_kind if data else ""})
@@ -394,7 +407,9 @@ def findings(verdicts: list[dict]) -> list[dict]:
             else:
                 cell += f" ({v['reason']})"
             row[scale.title] = cell
-        row["data"] = "[verdicts.csv](data/verdicts/verdicts.csv)"
+        files = dict.fromkeys(r["data"] for r in verdicts if r["claim"] == claim.text and r["data"])
+        row["data"] = ", ".join(f"[{Path(f).parent.name}/{Path(f).name}]({Path(f).relative_to('docs/results')})"
+                                for f in files) + "; all figures: [verdicts.csv](data/verdicts/verdicts.csv)"
         out.append(row)
     return out
 
@@ -406,12 +421,20 @@ def readme_paragraph(verdicts: list[dict]) -> str:
         count[v["verdict"]] = count.get(v["verdict"], 0) + 1
     held = sorted({(v["claim"], v["scale"]) for v in verdicts if v["verdict"] == "holding"})
     against = sorted({(v["claim"], v["scale"]) for v in verdicts if v["verdict"] == "not holding"})
-    judged = len(held) + len(against) + count.get("not decided", 0)
+    undecided = sorted({(v["claim"], v["scale"]) for v in verdicts if v["verdict"] == "not decided"})
+    judged = len(held) + len(against) + len(undecided)
+
+    full = {c.text: c.against for c in CLAIMS}
+    compared = {(v["claim"], v["scale"]): v["compared"].split() for v in verdicts}
+
+    def where(c, s):  # the scale, and the methods compared when the scale ran fewer than the claim names
+        ran = compared[(c, s)]
+        return s.split(" (")[0] + ("" if len(ran) == len(full[c]) else f" against {', '.join(ran)} only")
 
     def listing(pairs):
         by_claim: dict = {}
         for c, s in pairs:
-            by_claim.setdefault(c, []).append(s.split(" (")[0])
+            by_claim.setdefault(c, []).append(where(c, s))
         return "; ".join(f"{c} ({', '.join(ss)})" for c, ss in by_claim.items()) or "none"
 
     return (f"**What the studies say of the paper's claims**, judged by one rule at every scale (per-seed and "
@@ -419,7 +442,7 @@ def readme_paragraph(verdicts: list[dict]) -> str:
             f"[docs/results/README.md](docs/results/README.md)): of {len(verdicts)} claim-scale pairs, {judged} are "
             f"judged and {len(verdicts) - judged} are not (not judged: {count.get('not judged', 0)}, not scorable: "
             f"{count.get('not scorable', 0)}, not measured: {count.get('not measured', 0)}). Holding: "
-            f"{listing(held)}. Not holding: {listing(against)}. Not decided: {count.get('not decided', 0)}. "
+            f"{listing(held)}. Not holding: {listing(against)}. Not decided: {listing(undecided)}. "
             f"These are CPU stand-ins for the paper's GPU runs (synthetic rooms at x0.05 and x0.1 of its schedule, "
             f"four real captures, two rooms at its own schedule with one seed), not its datasets.")
 
