@@ -219,7 +219,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="write comparison.csv, verdicts.csv and compare-NAME.md here")
     ap.add_argument("--verdict-table", type=Path, default=None,
                     help="a verdict table's CSV (first column: the claims): set its column REAL_CAPTURES_COLUMN from "
-                         "the verdicts (e.g. docs/results/data/tables/cpu-long-16.csv)")
+                         "the verdicts (the docs' verdict tables are made by `strings-bench verdicts` instead)")
     args = ap.parse_args(argv)
 
     rows, verdicts = [], []

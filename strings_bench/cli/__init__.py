@@ -53,6 +53,8 @@ COMMANDS: dict[str, Command] = {
     "render": Command("strings_bench.cli.render", "render a 3DGS PLY at a scene's cameras (one PNG per view)"),
     "ocr": Command("strings_bench.cli.ocr", "OCR backends: check them, read images"),
     "cer": Command("strings_bench.cli.cer", "OCR-CER of predicted OCR results against GT OCR results"),
+    "verdicts": Command("strings_bench.cli.verdicts",
+                        "the paper's claims judged from the banked data by one rule, at every scale measured"),
     "docs": Command("strings_bench.cli.docs",
                     "rewrite the documentation's generated tables and command reference (in a source checkout)"),
 }

@@ -6,7 +6,10 @@ Two kinds of generated text, both in a source checkout:
   `<!-- end table -->`), from the CSV it names (strings_bench.reports.doc_tables);
 - the command-line reference, docs/guide/cli.md, from the argument parsers themselves (`cli_reference`).
 
-`--check` writes nothing and exits with status 1, naming the files, when one differs from its sources.
+`--check` writes nothing and exits with status 1, naming the files, when one differs from its sources, or when a
+page that is not a history page has a table read from a transcribed CSV (`docs/results/data/tables/`: tables first
+typed by hand, not derived from banked records or a command's output on them; `transcribed_reads`). A history page
+says so in its first lines with HISTORY_MARK, and its tables are what was measured then, transcribed.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from pathlib import Path
 from strings_bench.cli import COMMANDS, build_parser, command_help
 
 CLI_REFERENCE = Path("docs/guide/cli.md")
+TRANSCRIBED = Path("docs/results/data/tables")  # CSVs transcribed from hand-typed Markdown tables
+HISTORY_MARK = "<!-- history page (strings-bench docs refresh):"
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -123,6 +128,28 @@ def pages(root: Path) -> list[Path]:
     return out + sorted((root / "docs").rglob("*.md"))
 
 
+def is_history_page(text: str) -> bool:
+    """Whether a page declares itself a history page (HISTORY_MARK among its first 5 lines)."""
+    return any(line.startswith(HISTORY_MARK) for line in text.splitlines()[:5])
+
+
+def transcribed_reads(root: Path) -> list[tuple[Path, str]]:
+    """(page, data) for every table of a page that is not a history page and reads a transcribed CSV."""
+    from strings_bench.reports.doc_tables import blocks, parse_spec
+
+    transcribed = (root / TRANSCRIBED).resolve()
+    out = []
+    for page in pages(root):
+        text = page.read_text(encoding="utf-8")
+        if is_history_page(text):
+            continue
+        for b in blocks(text):
+            data, _ = parse_spec(b.spec)
+            if (page.parent / data).resolve().is_relative_to(transcribed):
+                out.append((page, data))
+    return out
+
+
 def refresh(root: Path, check: bool = False) -> list[Path]:
     """Rewrite (or, with `check`, compare) every generated part under `root`; the files that differ(ed)."""
     from strings_bench.core.errors import StringsBenchError
@@ -146,8 +173,15 @@ def cmd_refresh(args: argparse.Namespace) -> int:
     changed = refresh(root, check=args.check)
     rel = [str(p.relative_to(root)) if p.is_relative_to(root) else str(p) for p in changed]
     if args.check:
+        reads = transcribed_reads(root)
+        for page, data in reads:
+            name = page.relative_to(root) if page.is_relative_to(root) else page
+            print(f"{name}: a table reads {data}, a transcribed "
+                  f"CSV (make it from banked records or a command's output, or mark the page a history page: "
+                  f"{HISTORY_MARK} ... -->)")
         if changed:
             print("out of date (run `strings-bench docs refresh`): " + ", ".join(rel))
+        if changed or reads:
             return 1
         print("the generated tables and the command-line reference match their sources")
         return 0

@@ -32,6 +32,7 @@ from typing import Callable
 
 from strings_bench.core.errors import DatasetError
 from strings_bench.core.io import atomic_write_json, cache_root
+from strings_bench.eval.floors import MIN_GT_CHARS
 
 CAPTURES_ENV = "STRINGS_BENCH_CAPTURES"
 DATASET_ID = "captures"
@@ -40,11 +41,8 @@ DEFAULT_DATA_ROOT = Path(__file__).resolve().parents[3] / "shared" / "data"
 RECORD_FILE = "capture.json"
 RECORD_VERSION = 1  # bump when the build or the record changes: older builds are made again
 
-# OCR-CER of a scene whose held-out GT reads fewer characters than this is not scored (eval/protocol.py). With N
-# characters one character is 1/N of the CER and, characters counted as independent, its standard error is up to
-# 0.5/sqrt(N): 0.07 at 50, so two methods' difference has a standard error of about 0.1 - the paper's 7K gap
-# between STRinGS and 3DGS (63.6 % relative, section 5) stands out of it, a gap read on 6 characters does not.
-MIN_GT_CHARS = 50
+# OCR-CER of a scene whose held-out GT reads fewer characters than MIN_GT_CHARS is not scored (eval/floors.py says
+# why 50; eval/protocol.py applies it).
 GT_DOWNSCALES = (1, 2)  # the image sizes whose GT characters the record counts
 
 

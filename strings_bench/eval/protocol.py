@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
 import numpy as np
 
 from strings_bench.core.errors import OCRError, StringsBenchError
+from strings_bench.eval.floors import gt_floor
 
 if TYPE_CHECKING:
     from strings_bench.scene.scene import Scene
@@ -159,7 +160,7 @@ class Evaluator:
                  with_readability: bool = True, min_gt_chars: int | None = None):
         # OCR-CER is reported as not scored (cer None, with the reason) when the GT reads fewer characters than this
         # on the test views (a scene's `min_gt_chars` setting; the captures dataset sets it); None: no floor.
-        self.min_gt_chars = None if min_gt_chars is None else int(min_gt_chars)
+        self.min_gt_chars, self._floor_warned = (None if min_gt_chars is None else int(min_gt_chars)), False
         self.ocr_workers = ocr_workers  # reads at once per engine (None: the engine's default_workers)
         self.device = device  # where LPIPS runs
         self.cer_profile = cer_profile
@@ -208,9 +209,9 @@ class Evaluator:
         from strings_bench.eval.text_masks import eval_mask_settings
 
         settings = eval_mask_settings(scene)
-        floor = scene.settings.get("min_gt_chars") if isinstance(scene.settings, dict) else None
-        kwargs.setdefault("min_gt_chars", floor)
-        return cls(scene_views(scene, downscale, settings), ocr_backend, mask_settings=settings, **kwargs)
+        views = scene_views(scene, downscale, settings)
+        kwargs.setdefault("min_gt_chars", gt_floor(scene.settings, views))
+        return cls(views, ocr_backend, mask_settings=settings, **kwargs)
 
     def floored(self, scene_cer: dict) -> dict:
         """A scene CER's dict with the floor on GT characters applied: below it, `cer` is None and `not_scored`
@@ -218,8 +219,13 @@ class Evaluator:
         floor = self.min_gt_chars
         if floor is None or scene_cer.get("chars", 0) >= floor:
             return scene_cer
-        return {**scene_cer, "cer": None, "not_scored": f"the GT reads {scene_cer.get('chars', 0)} characters on the "
-                f"test views, below this scene's floor of {floor} (min_gt_chars): too few for a CER"}
+        why = (f"the GT reads {scene_cer.get('chars', 0)} characters on the test views, below this scene's floor of "
+               f"{floor} (min_gt_chars): too few for a CER")
+        if not self._floor_warned:  # once per scene's evaluator, not per checkpoint
+            self._floor_warned = True
+            log.warning("OCR-CER not scored: %s; the run goes on, its cer is left empty (docs/guide/datasets.md, "
+                        "'Too little text for a CER')", why)
+        return {**scene_cer, "cer": None, "not_scored": why}
 
     # ---- ground-truth side ---------------------------------------------------------------------
     def gt(self, name: str) -> np.ndarray:

@@ -71,7 +71,8 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
             scenes = floored.assign(chars=chars).groupby(["dataset", "scene"])["chars"].max()
             notes.append("OCR-CER is not scored on " + "; ".join(f"{d}/{s} (its GT reads {int(n)} characters on the "
                                                                     "test views)" for (d, s), n in scenes.items())
-                         + ": below the scene's floor on GT characters (docs/guide/datasets.md, 'Real captures'); the "
+                         + ": below the floor on GT characters of a scene without known text, 50 by default (docs/guide/datasets.md, "
+                         "'Too little text for a CER'); the "
                          "OCR-CER tables leave it out.")
     if not all_cells.empty and all_cells["lpips"].isna().all():
         from strings_bench.eval.lpips_net import INSTALL_HINT, available

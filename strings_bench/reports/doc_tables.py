@@ -15,12 +15,16 @@ what its data gives (tests/test_docs.py runs the check).
 
 Kinds (`kind=`, default `csv`):
 
-- `csv`: the CSV as it is, header and rows (for tables whose cells are already text);
+- `csv`: the CSV as it is, header and rows (for tables whose cells are already text); `columns=A,B` keeps those
+  columns, in that order;
+- `text`: the `text` column of each row, as paragraphs (a paragraph a command writes, e.g. the README's on the
+  paper's claims, from `strings-bench verdicts`);
 - `results`: rows of a `results.csv` (the run folder's), the columns named by `columns=` with their usual
   headings and number formats; `bold=1` marks the best value of each readability column at each checkpoint
   (lowest CER, highest accuracy);
-- `compare`: the long CSV `strings-bench compare` writes (method, label, value, mean, min, max, seeds, ...):
-  one row per method, one column per `values=` x `labels=` pair, each cell "mean (min-max)".
+- `compare`: the long CSV `strings-bench compare` writes (method, label, value, mean, min, max, seeds, draws, ...):
+  one row per method, one column per `values=` x `labels=` pair, each cell "mean (min-max)" (the range over the
+  seeds and scene draws; none with one seed of one draw).
 
 Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whose column is one of the values
 (repeatable, comma-free values).
@@ -189,8 +193,17 @@ def format_value(text: str, fmt: str) -> str:
 def table_csv(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     if not rows:
         raise StringsBenchError(f"{path} has no rows")
-    header = list(rows[0])
+    header = ",".join(options["columns"]).split(",") if options.get("columns") else list(rows[0])
+    for h in header:
+        if h not in rows[0]:
+            raise StringsBenchError(f"{path} has no column {h!r}", hint=f"its columns: {', '.join(rows[0])}")
     return markdown(header, [[r[h] for h in header] for r in rows])
+
+
+def table_text(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    if not rows or "text" not in rows[0]:
+        raise StringsBenchError(f"{path}: kind=text needs a CSV with a 'text' column and a row")
+    return "\n".join(r["text"] for r in rows) + "\n"
 
 
 def table_results(rows: list[dict[str, str]], options: dict, path: Path) -> str:
@@ -243,8 +256,9 @@ def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     header = ["method", "seeds"] + [f"{COMPARE_VALUES.get(v, v)} {l}" for v in values for l in labels]
     out = []
     for m in methods:
-        seeds = next((r["seeds"] for (mm, _, _), r in index.items() if mm == m), "")
-        line = [m, seeds]
+        first = next((r for (mm, _, _), r in index.items() if mm == m), {})
+        seeds, draws = first.get("seeds", ""), first.get("draws") or "1"
+        line = [m, seeds if draws == "1" else f"{seeds} x {draws} draws"]
         for v in values:
             for l in labels:
                 r = index.get((m, l, v))
@@ -253,14 +267,16 @@ def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
                     continue
                 mean, lo, hi = (_number(r[k]) for k in ("mean", "min", "max"))
                 cell = f"{mean:.{digits}f}"
-                if lo is not None and hi is not None and r.get("seeds", "1") not in ("", "1"):
+                # a range over the replicates: several seeds, or several scene draws of one seed
+                if lo is not None and hi is not None and (r.get("seeds", "1") not in ("", "1")
+                                                          or (r.get("draws") or "1") != "1"):
                     cell += f" ({lo:.{digits}f}-{hi:.{digits}f})"
                 line.append(cell)
         out.append(line)
     return markdown(header, out)
 
 
-KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare}
+KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare, "text": table_text}
 
 
 def render_block(spec: str, page: Path) -> str:
