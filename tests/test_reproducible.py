@@ -23,84 +23,114 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from _engine_helpers import make_tiny_scene  # noqa: E402
 from strings_bench.core.cpus import PORTABLE_ISA, host_has_avx2  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
-TRAIN = textwrap.dedent("""
+BUILD_AND_TRAIN = textwrap.dedent("""
     import hashlib, json, sys
     import numpy as np
     import strings_bench  # first, as the command line does: it pins torch's kernel set
     import torch
+    from strings_bench.datasets.synthetic import build_scene
+    from strings_bench.datasets.synthetic.generate import read_meta, settings_with
     from strings_bench.engine.trainer import Trainer
     from strings_bench.methods.registry import get_method
     from strings_bench.scene.scene import Scene
 
-    out = {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
-    for name, settings in json.loads(sys.argv[2]).items():
+    def sha(data):
+        return hashlib.sha256(data).hexdigest()
+
+    room, room_settings, methods = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3])
+    folder = build_scene(room, settings_with(**room_settings), progress=False)  # a fresh cache: built here
+    out = {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+           "scene files": {str(p.relative_to(folder)): sha(p.read_bytes()) for p in sorted(folder.rglob("*"))
+                           if p.is_file() and p.name != "scene_meta.json"}}
+    meta = read_meta(folder / "scene_meta.json")  # its timings and the machine's core count aside
+    meta["sfm_attempts"] = [{k: v for k, v in a.items() if not k.endswith("_s")} for a in meta["sfm_attempts"]]
+    out["scene record"] = {k: v for k, v in meta.items() if k not in ("timings_s", "cpu_count")}
+    scene = Scene.load(folder)
+    for name, settings in methods.items():
         method = get_method(name).build(None, **settings)
         losses = []
         real = method.train_step
         method.train_step = lambda step: losses.append(real(step)) or losses[-1]
-        for result in Trainer(method, Scene.load(sys.argv[1]), [240], device="cpu", progress=False).train():
+        for result in Trainer(method, scene, [240], device="cpu", progress=False).train():
             pass
-        digest = {k: hashlib.sha256(v.detach().numpy().tobytes()).hexdigest()
-                  for k, v in method.model.params.items()}
-        digest["losses"] = hashlib.sha256(np.asarray(losses, np.float64).tobytes()).hexdigest()
+        digest = {k: sha(v.detach().numpy().tobytes()) for k, v in method.model.params.items()}
+        digest["losses"] = sha(np.asarray(losses, np.float64).tobytes())
         digest["gaussians"] = method.num_gaussians()
         out[name] = digest
     import numba
     out["threading_layer"] = numba.threading_layer()
     print("RESULT " + json.dumps(out))
 """)
+# The room: the default run's storeroom, small (SfM still triangulates it: no fallback to depth samples).
+ROOM = ("storeroom", {"width": 96, "height": 72, "n_views": 16, "room_scale": 0.6})
 # 240 steps: densification from step 10, every 50 steps (the schedule's floor); STRinGS' phase 1 is 60 steps
 SETTINGS = {"3dgs": dict(steps_scale=0.02, sh_degree=3),
             "strings": dict(steps_scale=0.02, sh_degree=3, mask_dilation_fraction=0.0, n_max=3)}
 # The lower target: Nehalem's instruction set (SSE4.2), whatever the host has
 SSE42 = {"NUMBA_CPU_NAME": "nehalem", "NUMBA_CPU_FEATURES": "+sse4.2"}
+# numpy's own SIMD code paths for AVX-512 (numpy ignores those the CPU lacks)
+NUMPY_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"
 
 
-@pytest.fixture(scope="module")
-def scene_root(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("reproducible") / "scene"
-    scene = make_tiny_scene(root, n_views=6, width=96, height=72, n_points=400)
-    (root / "masks").mkdir()
-    for c in scene.model.cameras:
-        m = np.zeros((c.height, c.width), np.uint8)
-        m[20:44, 24:72] = 255
-        Image.fromarray(m).save(root / "masks" / c.name)
-    return root
+def openblas_core_types() -> tuple[str, str, str]:
+    """(the host's side, the other side, why) of the OpenBLAS core types the test compares: SkylakeX (AVX-512
+    kernels) against Haswell (AVX2) on a CPU with AVX-512, the pair whose kernels round otherwise; elsewhere
+    Haswell against Prescott (SSE3), as SkylakeX's kernels cannot run there."""
+    from strings_bench.core.cpus import host_cpu_features
+
+    if "+avx512f" in host_cpu_features().split(","):
+        return "SkylakeX", "Haswell", "OpenBLAS' AVX-512 against its AVX2 kernels"
+    return "Haswell", "Prescott", "no AVX-512 here: OpenBLAS' AVX2 against its SSE3 kernels, not SkylakeX against Haswell"
 
 
-def _train(scene_root: Path, env: dict, tmp_path: Path) -> dict:
-    full = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA and not k.startswith("NUMBA_CPU")
-            and k != "NUMBA_THREADING_LAYER"}
+def _build_and_train(env: dict, tmp_path: Path, label: str, cores: set[int] | None = None) -> dict:
+    dropped = ("NUMBA_THREADING_LAYER", "NPY_DISABLE_CPU_FEATURES", "MKL_ENABLE_INSTRUCTIONS")
+    full = {k: v for k, v in os.environ.items() if k not in PORTABLE_ISA and k not in dropped
+            and not k.startswith(("NUMBA_CPU", "OPENBLAS_"))}
     full.update(env)
-    full["STRINGS_BENCH_CACHE"] = str(tmp_path / "cache")
+    full["STRINGS_BENCH_CACHE"] = str(tmp_path / f"cache-{label}")  # fresh: the room is built in the process
     full["PYTHONPATH"] = os.pathsep.join([str(REPO), full.get("PYTHONPATH", "")])
-    proc = subprocess.run([sys.executable, "-c", TRAIN, str(scene_root), json.dumps(SETTINGS)], env=full,
-                          capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    proc = subprocess.run([sys.executable, "-c", BUILD_AND_TRAIN, ROOM[0], json.dumps(ROOM[1]), json.dumps(SETTINGS)],
+                          env=full, capture_output=True, text=True, timeout=1500, cwd=tmp_path,
+                          preexec_fn=(lambda: os.sched_setaffinity(0, cores)) if cores else None)
     assert proc.returncode == 0, proc.stderr[-3000:]
     line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT "))
     return json.loads(line[len("RESULT "):])
 
 
 @pytest.mark.skipif(not host_has_avx2(), reason="the portable kernels are those of x86-64 CPUs with AVX2")
-def test_training_is_bit_identical_under_another_instruction_set_and_thread_count(scene_root, tmp_path):
-    """...and under numba's other threading layer: the work is split by index, never by thread."""
-    host = _train(scene_root, {"NUMBA_NUM_THREADS": "2"}, tmp_path)
-    lower = _train(scene_root, {**SSE42, "NUMBA_NUM_THREADS": "1", "NUMBA_THREADING_LAYER": "workqueue"}, tmp_path)
-    assert host["torch_cpu_capability"] == lower["torch_cpu_capability"] == "AVX2"
-    assert lower["threading_layer"] == "workqueue"
+def test_scene_and_training_are_bit_identical_on_another_cpu(tmp_path):
+    """Two fresh processes, each with a fresh cache, build the same small room and train 3DGS and STRinGS on it
+    (densification on, SH degree 3, SSIM, STRinGS' two phases) as two CPUs would: numba's kernels for the host
+    at 2 threads on its OpenMP layer against SSE4.2 on one core on its workqueue layer; OpenBLAS' kernels for
+    AVX-512 against those for AVX2 (OPENBLAS_CORETYPE: nothing the scene build computes may reach BLAS); numpy
+    with and without its AVX-512 code paths; MKL allowed AVX-512 and not (its code branch pinned, COMPATIBLE);
+    torch on its pinned AVX2 kernels in both. Every byte of every scene file, the scene's record, and every bit
+    of every trained parameter and loss must agree."""
+    host_blas, other_blas, why = openblas_core_types()
+    host = _build_and_train({"NUMBA_NUM_THREADS": "2", "OPENBLAS_CORETYPE": host_blas}, tmp_path, "host")
+    other = _build_and_train({**SSE42, "NUMBA_NUM_THREADS": "1", "NUMBA_THREADING_LAYER": "workqueue",
+                              "OPENBLAS_CORETYPE": other_blas, "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512,
+                              "MKL_ENABLE_INSTRUCTIONS": "AVX2"}, tmp_path, "other",
+                             cores={min(os.sched_getaffinity(0))})
+    assert host["torch_cpu_capability"] == other["torch_cpu_capability"] == "AVX2"
+    assert other["threading_layer"] == "workqueue"
+    assert host["scene record"]["fallback"] is None, "SfM did not triangulate the room: the check would be weak"
+    differ = sorted(k for k in set(host["scene files"]) | set(other["scene files"])
+                    if host["scene files"].get(k) != other["scene files"].get(k))
+    assert not differ, f"{len(differ)} scene files differ ({why}): {differ[:8]}"
+    assert host["scene record"] == other["scene record"]
     for name in SETTINGS:
         assert host[name]["gaussians"] > 400, "densification did not run: the check would be weak"
-        differ = [k for k in host[name] if host[name][k] != lower[name][k]]
-        assert not differ, f"{name}: {differ} differ between the host's target and SSE4.2"
+        differ = [k for k in host[name] if host[name][k] != other[name][k]]
+        assert not differ, f"{name}: {differ} differ between the two CPUs ({why})"
 
 
 def test_portable_mode_pins_torch_mkl_and_onednn_to_avx2(tmp_path):
@@ -260,3 +290,30 @@ def test_numba_runs_on_its_openmp_threads_unless_the_user_chooses():
     assert layer({}) == "passive omp"
     assert layer({"GOMP_SPINCOUNT": "300000"}) == "None omp"  # the user's libgomp setting: nothing added
     assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "None workqueue"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not host_has_avx2(), reason="the portable kernels are those of x86-64 CPUs with AVX2")
+def test_prepare_gives_the_same_scene_under_another_openblas_core_type(tmp_path):
+    """`strings-bench prepare` on real photographs (bundler_et: 9 photos, SfM from scratch, OCR masks) at one thread,
+    in fresh processes under two OpenBLAS core types (pycolmap links its own OpenBLAS, which the variable steers
+    too): the same content hash, part by part. About a minute each on 2 idle cores."""
+    from strings_bench.datasets.captures import DEFAULT_DATA_ROOT
+    from strings_bench.scene.content_hash import scene_content_hash
+
+    photos = DEFAULT_DATA_ROOT / "bundler_et"
+    if not photos.is_dir():
+        pytest.skip(f"no photographs at {photos}")
+    host_blas, other_blas, why = openblas_core_types()
+    hashes = {}
+    for core_type in (host_blas, other_blas):
+        env = {k: v for k, v in os.environ.items() if not k.startswith("OPENBLAS_")}
+        env.update(OPENBLAS_CORETYPE=core_type, STRINGS_BENCH_CACHE=str(tmp_path / f"cache-{core_type}"),
+                   PYTHONPATH=os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]))
+        out = tmp_path / core_type / "scene"
+        proc = subprocess.run([sys.executable, "-m", "strings_bench", "prepare", str(photos), "--name", f"et-{core_type}",
+                               "--out", str(out), "--threads", "1"], env=env, capture_output=True, text=True,
+                              timeout=1800, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+        hashes[core_type] = scene_content_hash(out)
+    assert hashes[host_blas] == hashes[other_blas], f"{why}: {hashes}"

@@ -27,6 +27,7 @@ import numpy as np
 from PIL import Image, ImageOps
 from tqdm import tqdm
 
+from strings_bench.core import vec3
 from strings_bench.core.errors import DatasetError
 from strings_bench.core.io import atomic_write_json
 
@@ -127,8 +128,9 @@ def bundler_reconstruction(model: BundlerModel, names: list[str], sizes: list[tu
         f = float(model.focal[i])
         rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=cam_id, model="RADIAL", width=int(W), height=int(H),
                                                         params=[f, W / 2, H / 2, *map(float, model.k[i])]))
-        R = Q @ BUNDLER_TO_COLMAP @ model.R[i]
-        t = Q @ BUNDLER_TO_COLMAP @ model.t[i]
+        flip = vec3.matmul(Q, BUNDLER_TO_COLMAP)
+        R = vec3.matmul(flip, model.R[i])
+        t = vec3.matvec(flip, model.t[i])
         maps[i] = (to_upright, w, h, cam_id, image_id, R, t, name)
     kp: dict[int, list] = {i: [] for i in keep}
     point_obs = []

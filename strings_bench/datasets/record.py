@@ -1,6 +1,7 @@
 """A scene's record, as `strings-bench datasets show NAME[/SCENE]` prints it: where the scene is, its views and
 held-out views, what preparing it left out (photos SfM did not register), what OCR reads on its held-out GT
-(captures) and rho (scene/difficulty.py). A scene that is not built is reported as such unless `build` is
+(captures), rho (scene/difficulty.py) and the content hash of its images, masks, cameras, points and text
+(scene/content_hash.py). A scene that is not built is reported as such unless `build` is
 given; nothing is built behind the user's back.
 """
 
@@ -41,6 +42,7 @@ def _locate(card: DatasetCard, scene: SceneCard) -> Path:
 
 def scene_record(card: DatasetCard, scene: SceneCard, build: bool = False) -> dict:
     """The record of one scene of `card` (built first when `build`)."""
+    from strings_bench.scene.content_hash import scene_content_hash
     from strings_bench.scene.difficulty import recorded_difficulty
     from strings_bench.scene.scene import Scene
 
@@ -60,6 +62,7 @@ def scene_record(card: DatasetCard, scene: SceneCard, build: bool = False) -> di
         except (OSError, ValueError):
             pass
     rec["difficulty"] = recorded_difficulty(sc).as_dict()
+    rec["content_hash"] = scene_content_hash(path)
     return rec
 
 
@@ -96,6 +99,10 @@ def format_record(rec: dict) -> str:
         for ds, g in sorted(cap["gt_characters"].items()):
             lines.append(f"  GT characters read ({cap['gt_ocr']}, downscale {ds}): {g['chars']} "
                          f"({'scored' if g['chars'] >= floor else f'below the floor of {floor}: OCR-CER not scored'})")
+    content = rec.get("content_hash")
+    if content:
+        lines.append(f"  content hash {content['hash']} (" + ", ".join(f"{k} {v}" for k, v in content["parts"].items())
+                     + "): equal on two machines when the scene is")
     d = rec["difficulty"]
     if d["rho"] is None:
         lines.append(f"  rho n/a (no text strokes measured), extent {d['extent']:.3g}")

@@ -43,6 +43,7 @@ from rapidfuzz.distance import Levenshtein
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from strings_bench.core import vec3
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.eval.ocr.base import Word
 
@@ -453,10 +454,10 @@ def text_height_px(polygon: Any) -> float:
         return math.nan
     pts = np.asarray(polygon, dtype=np.float64)
     if pts.shape == (4, 2):
-        base = 0.5 * (np.linalg.norm(pts[1] - pts[0]) + np.linalg.norm(pts[2] - pts[3]))
+        base = 0.5 * (vec3.norm_2d(pts[1] - pts[0]) + vec3.norm_2d(pts[2] - pts[3]))
         return float(geom.area / base) if base > 0 else math.nan
     rect = np.asarray(shapely.minimum_rotated_rectangle(geom).exterior.coords)[:4]
-    sides = np.linalg.norm(np.diff(np.vstack([rect, rect[:1]]), axis=0), axis=1)
+    sides = vec3.norm_2d(np.diff(np.vstack([rect, rect[:1]]), axis=0))
     return float(sides.min())
 
 

@@ -36,6 +36,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from strings_bench.core import vec3
 from strings_bench.core.errors import StringsBenchError
 
 REC_HEIGHT = 48  # the recogniser's input height (rapid.REC_HEIGHT; kept here so tests need no model)
@@ -167,20 +168,20 @@ def reading_box(polygon: Any) -> np.ndarray | None:
         import cv2
 
         q = cv2.boxPoints(cv2.minAreaRect(pts.astype(np.float32))).astype(np.float64)
-        if np.linalg.norm(q[1] - q[0]) < np.linalg.norm(q[2] - q[1]):
+        if vec3.norm_2d(q[1] - q[0]) < vec3.norm_2d(q[2] - q[1]):
             q = np.roll(q, -1, axis=0)  # long side first
         if q[0, 0] + q[0, 1] > q[2, 0] + q[2, 1]:
             q = np.roll(q, 2, axis=0)  # start at the top-left
-    w = 0.5 * (np.linalg.norm(q[1] - q[0]) + np.linalg.norm(q[2] - q[3]))
-    h = 0.5 * (np.linalg.norm(q[3] - q[0]) + np.linalg.norm(q[2] - q[1]))
+    w = 0.5 * (vec3.norm_2d(q[1] - q[0]) + vec3.norm_2d(q[2] - q[3]))
+    h = 0.5 * (vec3.norm_2d(q[3] - q[0]) + vec3.norm_2d(q[2] - q[1]))
     return q if w > 0.5 and h > 0.5 else None
 
 
 def box_size(quad: np.ndarray) -> tuple[float, float]:
     """(width along the reading direction, height across it) of a reading-order quad: mean edge lengths."""
     q = np.asarray(quad, dtype=np.float64)
-    return (0.5 * (np.linalg.norm(q[1] - q[0]) + np.linalg.norm(q[2] - q[3])),
-            0.5 * (np.linalg.norm(q[3] - q[0]) + np.linalg.norm(q[2] - q[1])))
+    return (0.5 * (vec3.norm_2d(q[1] - q[0]) + vec3.norm_2d(q[2] - q[3])),
+            0.5 * (vec3.norm_2d(q[3] - q[0]) + vec3.norm_2d(q[2] - q[1])))
 
 
 def rectify(image: np.ndarray, quad: np.ndarray, height: int = REC_HEIGHT, margin: float = CROP_MARGIN,

@@ -11,6 +11,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from strings_bench.core import vec3
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -42,8 +44,8 @@ class Camera:
 
     @property
     def center(self) -> np.ndarray:
-        """Camera centre in world coordinates."""
-        return -self.R.T @ self.t
+        """Camera centre in world coordinates, -R^T t (core/vec3.py: the same bits on every CPU)."""
+        return -vec3.vecmat(self.t, self.R)
 
     def scaled(self, factor: float) -> "Camera":
         """The same camera for an image downscaled by `factor` (2 -> half resolution)."""
@@ -55,7 +57,8 @@ class Camera:
         return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=width, height=height)
 
     def world_to_camera(self, xyz: np.ndarray) -> np.ndarray:
-        return np.asarray(xyz, dtype=np.float64) @ self.R.T + self.t
+        """World points (N, 3) -> camera coordinates R X + t (N, 3)."""
+        return vec3.matvec(self.R, np.asarray(xyz, dtype=np.float64)) + self.t
 
     def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points (N, 3) to pixels (N, 2) and depths (N,).

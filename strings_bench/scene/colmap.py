@@ -54,6 +54,28 @@ class ColmapModel:
         return np.diff(self.track_ptr)
 
 
+def in_canonical_order(model: ColmapModel) -> ColmapModel:
+    """The same points and tracks in an order that does not depend on how SfM ran: COLMAP's multi-threaded
+    triangulation stores a track's observations, and numbers its points, in the order its threads finished.
+    Each track is sorted by (view, x, y) and the points by their sorted tracks (then by xyz); the points are
+    numbered 1..M in that order. The cameras are kept as they are (sorted by name)."""
+    n = model.num_points
+    ptr, views, xy = model.track_ptr, model.track_view.tolist(), model.track_xy.tolist()
+    tracks = [sorted(zip(views[ptr[i]:ptr[i + 1]], xy[ptr[i]:ptr[i + 1]])) for i in range(n)]
+    xyz = model.xyz.tolist()
+    order = sorted(range(n), key=lambda i: (tracks[i], xyz[i]))
+    lengths = [len(tracks[i]) for i in order]
+    return ColmapModel(
+        cameras=model.cameras,
+        xyz=model.xyz[order].reshape(n, 3),
+        rgb=model.rgb[order].reshape(n, 3),
+        track_ptr=np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).astype(np.int64),
+        track_view=np.array([v for i in order for v, _ in tracks[i]], np.int32),
+        track_xy=np.array([p for i in order for _, p in tracks[i]], np.float64).reshape(-1, 2),
+        point_ids=np.arange(1, n + 1, dtype=np.int64),
+    )
+
+
 def find_model_dir(path: str | Path) -> Path:
     """Accept a scene folder (with sparse/0 or sparse/) or the model folder itself."""
     path = Path(path)
@@ -204,7 +226,7 @@ def value_problems(rec, model_dir: Path) -> list[str]:
         pose = im.cam_from_world()
         values = np.concatenate([np.asarray(pose.rotation.quat, dtype=np.float64).ravel(),
                                  np.asarray(pose.translation, dtype=np.float64).ravel()])
-        if not np.all(np.isfinite(values)) or np.linalg.norm(values[:4]) == 0:
+        if not np.all(np.isfinite(values)) or not np.any(values[:4]):
             bad_poses.append(im.name)
     if bad_poses:
         problems.append(f"{model_file(model_dir, 'images')}: image(s) {_list_ids(bad_poses)} have a non-finite pose "

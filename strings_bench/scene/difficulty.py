@@ -142,7 +142,7 @@ def _sfm_depth(scene, view: int, polygon: np.ndarray, points=None) -> float | No
     if not inside.any():
         return None
     cam = scene.model.cameras[view]
-    z = (np.asarray(scene.model.xyz)[idx[inside]] @ np.asarray(cam.R).T + np.asarray(cam.t))[:, 2]
+    z = cam.world_to_camera(np.asarray(scene.model.xyz)[idx[inside]])[:, 2]
     z = z[z > 0]
     return float(np.median(z)) if z.size else None
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from strings_bench.core import vec3
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, find_model_dir, model_file, read_model
 from strings_bench.core.errors import DatasetError
@@ -76,7 +77,7 @@ def compute_extent(centers: np.ndarray) -> float:
     centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     if len(centers) == 0:
         return 1.0
-    radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max())
+    radius = float(vec3.norm(centers - centers.mean(0)).max())
     # A single camera (or coincident ones) has radius 0: fall back to 1 so LRs stay non-zero.
     return 1.1 * radius if radius > 0 else 1.0
 

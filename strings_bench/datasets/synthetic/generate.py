@@ -36,8 +36,9 @@ import numpy as np
 from PIL import Image
 from tqdm.auto import tqdm
 
+from strings_bench.core import vec3
 from strings_bench.scene.camera import Camera
-from strings_bench.scene.colmap import ColmapModel, read_model, write_model
+from strings_bench.scene.colmap import ColmapModel, in_canonical_order, read_model, write_model
 from strings_bench.core.errors import DatasetError
 from strings_bench.core.io import atomic_write_json, cache_root, sweep_stale_temps, writer_tag
 from strings_bench.scene.scene import KnownWord, write_annotations
@@ -51,7 +52,7 @@ from strings_bench.datasets.synthetic.scenes360 import BUILDERS_360, DEFAULT_TEX
 log = logging.getLogger(__name__)
 
 # Bump whenever rendering, scene content or SfM settings change what a build produces.
-GENERATOR_VERSION = "2"
+GENERATOR_VERSION = "3"  # 3: the scene build without BLAS (core/vec3.py), SfM in canonical order
 SCENE_NAMES = tuple(BUILDERS)  # the `synthetic` dataset (easy: object-centred, clean images)
 SCENE_NAMES_360 = tuple(BUILDERS_360)  # the `synthetic360` dataset (room-scale)
 # SCENE_NAMES_MULTI: the `synthetic-multi` dataset (one scene per script; multiscript.py)
@@ -71,7 +72,8 @@ class SyntheticSettings:
     min_word_px: float = 4.0  # words whose projected box is shorter than this are not annotated
     min_facing_cos: float = 0.2  # words seen more obliquely than ~78 degrees are not annotated
     # Difficulty controls (docs/synthetic.md, "Difficulty controls"). At their defaults every image is
-    # the one generator version 2 made; the scene content ones apply to synthetic360 scenes only.
+    # the one generator version 2 made (version 3: the same rooms computed without BLAS, the same pixels on every
+    # CPU); the scene content ones apply to synthetic360 scenes only.
     room_scale: float = 1.0  # synthetic360: multiplies the room, the clutter ring and the orbit radius (text shrinks ~1/x)
     text_px: tuple[float, float] | None = None  # synthetic360: word box heights (lo, hi) in pixels at room_scale 1; None: (6, 16) x width/320
     bg_frequency: float = 1.0  # synthetic360: multiplies the spatial frequency of floor, wall and clutter textures
@@ -266,12 +268,11 @@ def synthetic_difficulty(scene: str, settings: SyntheticSettings, extent: float,
 def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R, t) for a camera at `center` looking at `target` (x right, y down, z forward)."""
     f = np.asarray(target, np.float64) - center
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
+    f = vec3.unit(f)
+    r = vec3.unit(np.cross(f, up))
     down = np.cross(f, r)
     R = np.stack([r, down, f])
-    return R, -R @ center
+    return R, -vec3.matvec(R, center)
 
 
 def orbit_cameras(spec: SceneSpec, settings: SyntheticSettings, rng: np.random.Generator) -> list[Camera]:
@@ -322,22 +323,22 @@ def visible_words(spec: SceneSpec, cam: Camera, settings: SyntheticSettings) -> 
             continue
         if np.any(px[:, 0] < 0) or np.any(px[:, 0] > cam.width) or np.any(px[:, 1] < 0) or np.any(px[:, 1] > cam.height):
             continue
-        height = 0.5 * (np.linalg.norm(px[0] - px[3]) + np.linalg.norm(px[1] - px[2]))
+        height = 0.5 * (vec3.norm_2d(px[0] - px[3]) + vec3.norm_2d(px[1] - px[2]))
         if height < settings.min_word_px:
             continue
         suv = np.array([_bilinear(word.uv, a, b) for b in SAMPLE_FRACTIONS for a in SAMPLE_FRACTIONS])
         pts = prim.point(suv)
         _, normals = prim.surface(pts)
         to_cam = C - pts
-        cos = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
+        cos = vec3.dot(normals, to_cam) / vec3.norm(to_cam)
         if np.any(cos < settings.min_facing_cos):
             continue
         # The viewing angle and distance at the word's centre (the middle sample): recorded with the word.
         centre = prim.point(np.asarray([_bilinear(word.uv, 0.5, 0.5)]))
         _, n_c = prim.surface(centre)
         v = C - centre[0]
-        dist = float(np.linalg.norm(v))
-        angle = float(np.degrees(np.arccos(np.clip(abs(float(n_c[0] @ v)) / (np.linalg.norm(n_c[0]) * dist), 0.0, 1.0))))
+        dist = float(vec3.norm(v))
+        angle = float(np.degrees(np.arccos(np.clip(abs(float(vec3.dot(n_c[0], v))) / (vec3.norm(n_c[0]) * dist), 0.0, 1.0))))
         candidates.append((word, px, angle, dist))
         sample_pts.append(pts)
     if not candidates:
@@ -374,14 +375,14 @@ def _write_pairs(path: Path, names: list[str], overlap: int) -> int:
 
 def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Camera], settings: SyntheticSettings,
                                  relaxed: bool = False, threads: int | None = None) -> tuple[ColmapModel, dict]:
-    """SIFT features + matching on the rendered images, then pycolmap.triangulate_points with the
-    known cameras, on `threads` threads (default: the usable cores). Returns the triangulated model
-    and stage timings.
+    """SIFT features + matching on the rendered images on `threads` threads (default: the usable cores),
+    then pycolmap.triangulate_points with the known cameras on one thread. Returns the triangulated model, its
+    tracks and points in canonical order (scene/colmap.py, in_canonical_order), and stage timings.
 
-    pycolmap is not bit-reproducible run to run at any thread count (measured at 2 threads, the old
-    fixed count: the order of a track's observations and the last bits of coordinates, ~5e-16, vary);
-    the points and their tracks as sets do not, at 1 or 4 threads alike (tests/test_synthetic360.py),
-    so the thread count stays out of the cache key."""
+    Features and matches are computed per image and per pair, the same at any thread count. The triangulation's
+    bundle adjustment is not: on several threads the order of a track's observations and the last bits of
+    coordinates (~5e-16) varied from run to run, so it runs on one, and the canonical order removes what is
+    left of the threads' order; the thread count stays out of the cache key."""
     from strings_bench.core.cpus import usable_cores
 
     import pycolmap
@@ -439,7 +440,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
             image = pycolmap.Image(name=cam.name, camera_id=im.camera_id, image_id=im.image_id)
             rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.hstack([cam.R, cam.t[:, None]])))
         options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = threads
+        options.num_threads = 1  # see above: one thread, the same points from build to build
         options.random_seed = settings.seed
         if relaxed:
             options.triangulation.min_angle = 1.0
@@ -448,7 +449,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
         out.mkdir(exist_ok=True)
         rec = pycolmap.triangulate_points(rec, db, images_dir, out, clear_points=True, options=options)
         timings["triangulation_s"] = time.perf_counter() - t0
-    model = read_model(out)
+    model = in_canonical_order(read_model(out))
     _check_poses_kept(model, cameras)
     return model, timings
 
@@ -480,7 +481,7 @@ def depth_sample_points(cameras: list[Camera], depths: list[np.ndarray], images:
         ys, xs = ys[pick], xs[pick]
         z = depth[ys, xs]
         pc = np.stack([(xs + 0.5 - cam.cx) / cam.fx * z, (ys + 0.5 - cam.cy) / cam.fy * z, z], axis=1)
-        xyz.append((pc - cam.t) @ cam.R)
+        xyz.append(vec3.vecmat(pc - cam.t, cam.R))  # R^T (x - t), as row vectors
         rgb.append(images[v][ys, xs])
     xyz = np.concatenate(xyz) if xyz else np.zeros((0, 3))
     rgb = np.concatenate(rgb) if rgb else np.zeros((0, 3), np.uint8)
@@ -684,7 +685,7 @@ def _build_into(scene: str, settings: SyntheticSettings, out: Path, progress: bo
     sfm_s = sum(a.get("features_s", 0) + a.get("matching_s", 0) + a.get("triangulation_s", 0) for a in attempts)
     counts = model.visibility_counts()
     n_words = [len(v) for v in annotations.values()]
-    heights = [0.5 * (np.linalg.norm(w.polygon[0] - w.polygon[3]) + np.linalg.norm(w.polygon[1] - w.polygon[2]))
+    heights = [0.5 * (vec3.norm_2d(w.polygon[0] - w.polygon[3]) + vec3.norm_2d(w.polygon[1] - w.polygon[2]))
                for v in annotations.values() for w in v]
     meta = {
         "generator_version": GENERATOR_VERSION,

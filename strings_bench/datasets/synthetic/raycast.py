@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from strings_bench.core import vec3
 from strings_bench.scene.camera import Camera
 
 EPS_T = 1e-6
@@ -64,7 +65,8 @@ class Material:
 
 
 def _dot(d: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return d @ np.asarray(v, d.dtype)
+    """d . v over the last axis in d's dtype (no BLAS: core/vec3.py)."""
+    return vec3.dot(d, np.asarray(v, d.dtype))
 
 
 class Primitive:
@@ -96,30 +98,30 @@ class Quad(Primitive):
     def __init__(self, p0, eu, ev, material: Material, one_sided: bool = False):
         self.p0, self.eu, self.ev = (np.asarray(v, np.float64) for v in (p0, eu, ev))
         n = np.cross(self.ev, self.eu)
-        self.n = n / np.linalg.norm(n)
+        self.n = vec3.unit(n)
         self.material = material
         self.one_sided = one_sided
-        self._iu, self._iv = 1.0 / (self.eu @ self.eu), 1.0 / (self.ev @ self.ev)
+        self._iu, self._iv = 1.0 / vec3.dot(self.eu, self.eu), 1.0 / vec3.dot(self.ev, self.ev)
 
     def corners(self):
         return np.array([self.p0, self.p0 + self.eu, self.p0 + self.ev, self.p0 + self.eu + self.ev])
 
     def faces_away(self, o):
-        return self.one_sided and float(self.n @ (o - self.p0)) <= 0
+        return self.one_sided and float(vec3.dot(self.n, o - self.p0)) <= 0
 
     def intersect(self, o, d):
         dn = _dot(d, self.n)
         w = o - self.p0
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = -(w @ self.n) / dn
-            a = ((w @ self.eu) + t * _dot(d, self.eu)) * self._iu
-            b = ((w @ self.ev) + t * _dot(d, self.ev)) * self._iv
+            t = -vec3.dot(w, self.n) / dn
+            a = (vec3.dot(w, self.eu) + t * _dot(d, self.eu)) * self._iu
+            b = (vec3.dot(w, self.ev) + t * _dot(d, self.ev)) * self._iv
         ok = (t > EPS_T) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
         return np.where(ok, t, np.inf)
 
     def surface(self, p):
         w = p - self.p0
-        uv = np.stack([(w @ self.eu) * self._iu, (w @ self.ev) * self._iv], axis=1)
+        uv = np.stack([vec3.dot(w, self.eu) * self._iu, vec3.dot(w, self.ev) * self._iv], axis=1)
         return uv, np.broadcast_to(self.n, p.shape)
 
     def point(self, uv):
@@ -132,7 +134,7 @@ class Disc(Primitive):
 
     def __init__(self, c, n, r, material: Material, e1=None):
         self.c = np.asarray(c, np.float64)
-        self.n = np.asarray(n, np.float64) / np.linalg.norm(n)
+        self.n = vec3.unit(n)
         self.r = float(r)
         self.e1, self.e2 = _frame(self.n, e1)
         self.material = material
@@ -145,15 +147,15 @@ class Disc(Primitive):
         dn = _dot(d, self.n)
         w = o - self.c
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = -(w @ self.n) / dn
-            x = (w @ self.e1) + t * _dot(d, self.e1)
-            y = (w @ self.e2) + t * _dot(d, self.e2)
+            t = -vec3.dot(w, self.n) / dn
+            x = vec3.dot(w, self.e1) + t * _dot(d, self.e1)
+            y = vec3.dot(w, self.e2) + t * _dot(d, self.e2)
         ok = (t > EPS_T) & (x * x + y * y <= self.r * self.r)
         return np.where(ok, t, np.inf)
 
     def surface(self, p):
         w = p - self.c
-        uv = np.stack([0.5 + 0.5 * (w @ self.e1) / self.r, 0.5 - 0.5 * (w @ self.e2) / self.r], axis=1)
+        uv = np.stack([0.5 + 0.5 * vec3.dot(w, self.e1) / self.r, 0.5 - 0.5 * vec3.dot(w, self.e2) / self.r], axis=1)
         return uv, np.broadcast_to(self.n, p.shape)
 
     def point(self, uv):
@@ -171,7 +173,7 @@ class Cylinder(Primitive):
 
     def __init__(self, c, a, r, h, material: Material, e1=None):
         self.c = np.asarray(c, np.float64)
-        self.a = np.asarray(a, np.float64) / np.linalg.norm(a)
+        self.a = vec3.unit(a)
         self.r, self.h = float(r), float(h)
         self.e1, self.e2 = _frame(self.a, e1)
         self.material = material
@@ -183,20 +185,20 @@ class Cylinder(Primitive):
     def intersect(self, o, d):
         w = o - self.c
         da = _dot(d, self.a)
-        wa = float(w @ self.a)
+        wa = float(vec3.dot(w, self.a))
         dp = d - da[..., None] * self.a.astype(d.dtype)
         wp = w - wa * self.a
-        A = np.einsum("...i,...i->...", dp, dp)
+        A = vec3.dot(dp, dp)
         B = 2 * _dot(dp, wp)
-        C = float(wp @ wp) - self.r ** 2
+        C = float(vec3.dot(wp, wp)) - self.r ** 2
         return _nearest_root(A, B, C, lambda t: (wa + t * da >= 0) & (wa + t * da <= self.h))
 
     def surface(self, p):
         w = p - self.c
-        z = w @ self.a
+        z = vec3.dot(w, self.a)
         radial = w - z[:, None] * self.a
-        n = radial / np.linalg.norm(radial, axis=1, keepdims=True).clip(1e-12)
-        phi = np.mod(np.arctan2(radial @ self.e2, radial @ self.e1), 2 * np.pi)
+        n = radial / vec3.norm(radial)[:, None].clip(1e-12)
+        phi = np.mod(np.arctan2(vec3.dot(radial, self.e2), vec3.dot(radial, self.e1)), 2 * np.pi)
         return np.stack([phi / (2 * np.pi), 1 - z / self.h], axis=1), n
 
     def point(self, uv):
@@ -213,7 +215,7 @@ class Sphere(Primitive):
     def __init__(self, c, r, material: Material, a=(0, 0, 1), e1=None):
         self.c = np.asarray(c, np.float64)
         self.r = float(r)
-        self.a = np.asarray(a, np.float64) / np.linalg.norm(a)
+        self.a = vec3.unit(a)
         self.e1, self.e2 = _frame(self.a, e1)
         self.material = material
 
@@ -222,16 +224,16 @@ class Sphere(Primitive):
 
     def intersect(self, o, d):
         w = o - self.c
-        A = np.einsum("...i,...i->...", d, d)
+        A = vec3.dot(d, d)
         B = 2 * _dot(d, w)
-        C = float(w @ w) - self.r ** 2
+        C = float(vec3.dot(w, w)) - self.r ** 2
         return _nearest_root(A, B, C, None)
 
     def surface(self, p):
         w = (p - self.c) / self.r
-        n = w / np.linalg.norm(w, axis=1, keepdims=True).clip(1e-12)
-        lat = np.arcsin(np.clip(n @ self.a, -1, 1))
-        phi = np.mod(np.arctan2(n @ self.e2, n @ self.e1), 2 * np.pi)
+        n = w / vec3.norm(w)[:, None].clip(1e-12)
+        lat = np.arcsin(np.clip(vec3.dot(n, self.a), -1, 1))
+        phi = np.mod(np.arctan2(vec3.dot(n, self.e2), vec3.dot(n, self.e1)), 2 * np.pi)
         return np.stack([phi / (2 * np.pi), (np.pi / 2 - lat) / np.pi], axis=1), n
 
     def point(self, uv):
@@ -245,8 +247,8 @@ def _frame(a: np.ndarray, e1=None) -> tuple[np.ndarray, np.ndarray]:
     if e1 is None:
         e1 = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
     e1 = np.asarray(e1, np.float64)
-    e1 = e1 - (e1 @ a) * a
-    e1 /= np.linalg.norm(e1)
+    e1 = e1 - vec3.dot(e1, a) * a
+    e1 = vec3.unit(e1)
     return e1, np.cross(a, e1)
 
 
@@ -284,7 +286,7 @@ class World:
     background: tuple[float, float, float] = (0.62, 0.66, 0.72)
 
     def __post_init__(self):
-        self.light_dir = np.asarray(self.light_dir, np.float64) / np.linalg.norm(self.light_dir)
+        self.light_dir = vec3.unit(self.light_dir)
 
     # ---- ray queries ---------------------------------------------------------------------
     def first_hit(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -341,9 +343,9 @@ class World:
             p = o + tflat[sel, None].astype(np.float64) * dd
             uv, n = prim.surface(p)
             # Two-sided shading: turn the normal towards the viewer.
-            flip = np.einsum("ij,ij->i", n, dd) > 0
+            flip = vec3.dot(n, dd) > 0
             n = np.where(flip[:, None], -n, n)
-            lambert = self.ambient + self.diffuse * np.clip(n @ self.light_dir, 0, None)
+            lambert = self.ambient + self.diffuse * np.clip(vec3.dot(n, self.light_dir), 0, None)
             color[sel] = prim.material.sample(uv) * lambert[:, None].astype(np.float32)
             if len(prim.material.word_boxes):
                 text[sel] = prim.material.in_words(uv)

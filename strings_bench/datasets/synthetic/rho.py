@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from strings_bench.core import vec3
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.difficulty import Difficulty, difficulty_from_strokes, stroke_width_px
 
@@ -34,7 +35,7 @@ def crop_camera(cam: Camera, x0: int, y0: int, width: int, height: int, factor: 
 
 def word_factor(polygon: np.ndarray) -> int:
     """The re-rendering factor of a word whose box is `polygon` in the view's pixels."""
-    height = 0.5 * (np.linalg.norm(polygon[0] - polygon[3]) + np.linalg.norm(polygon[1] - polygon[2]))
+    height = 0.5 * (vec3.norm_2d(polygon[0] - polygon[3]) + vec3.norm_2d(polygon[1] - polygon[2]))
     return int(min(MAX_FACTOR, max(1, math.ceil(CROP_BOX_PX / max(height, 1e-6)))))
 
 
@@ -44,7 +45,7 @@ def word_stroke(spec, cam: Camera, polygon: np.ndarray, supersample: int, factor
     hi = np.ceil(polygon.max(0) * factor).astype(int) + MARGIN_PX * factor
     width, height = int(hi[0] - lo[0]), int(hi[1] - lo[1])
     res = spec.world.render(crop_camera(cam, int(lo[0]), int(lo[1]), width, height, factor), supersample)
-    gray = np.asarray(res.rgb, np.float64) @ np.array([0.299, 0.587, 0.114])
+    gray = vec3.dot(np.asarray(res.rgb, np.float64), np.array([0.299, 0.587, 0.114]))  # BT.601 luma
     w = stroke_width_px(gray, polygon * factor - lo)
     return None if w is None or w <= 0 else w / factor
 

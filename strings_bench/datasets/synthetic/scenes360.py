@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from strings_bench.core import vec3
 from strings_bench.datasets.synthetic.raycast import Cylinder, Disc, Material, Quad, Sphere
 from strings_bench.datasets.synthetic.scenes import Builder, SceneSpec
 from strings_bench.datasets.synthetic.textures import Canvas, blobs, load_font, tiles, tinted_noise, wood
@@ -106,14 +107,14 @@ class RoomBuilder(Builder):
         at room_scale 1 (mid elevation)."""
         pos, normal = np.asarray(pos, float), np.asarray(normal, float)
         nh = np.array([normal[0], normal[1], 0.0])
-        if np.linalg.norm(nh) < 0.3:  # a top face: the camera on the carrier's side of the orbit
+        if vec3.norm(nh) < 0.3:  # a top face: the camera on the carrier's side of the orbit
             nh = np.array([pos[0] - self.target[0], pos[1] - self.target[1], 0.0])
-            if np.linalg.norm(nh) < 1e-6:
+            if vec3.norm(nh) < 1e-6:
                 nh = np.array([1.0, 0.0, 0.0])
-        nh /= np.linalg.norm(nh)
+        nh = vec3.unit(nh)
         el = np.deg2rad(np.mean(ELEVATION))
         cam = self.target + ORBIT_RADIUS * (np.cos(el) * nh + np.array([0, 0, np.sin(el)]))
-        return float(np.linalg.norm(cam - pos))
+        return float(vec3.norm(cam - pos))
 
     def density(self, pos, normal) -> float:
         """Texels per metre for a carrier: TEXELS_PER_PIXEL texels per image pixel at its nominal distance."""

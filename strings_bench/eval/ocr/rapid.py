@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from strings_bench.core import vec3
 from strings_bench.core.errors import OCRError
 import strings_bench.eval.ocr._ort_guard as _ort_guard
 from strings_bench.eval.ocr.base import BackendStatus, OCRBackend, Word, BackendSettings
@@ -183,8 +184,8 @@ def reading_quad(quad: np.ndarray, turned: bool | None) -> np.ndarray:
     (`turned`; None = unknown, taken as not turned).
     """
     q = np.asarray(quad, dtype=np.float64).reshape(4, 2)
-    width = int(max(np.linalg.norm(q[0] - q[1]), np.linalg.norm(q[2] - q[3])))
-    height = int(max(np.linalg.norm(q[0] - q[3]), np.linalg.norm(q[1] - q[2])))
+    width = int(max(vec3.norm_2d(q[0] - q[1]), vec3.norm_2d(q[2] - q[3])))
+    height = int(max(vec3.norm_2d(q[0] - q[3]), vec3.norm_2d(q[1] - q[2])))
     if width > 0 and height / width >= 1.5:  # same rule and rounding as RapidOCR's crop
         q = q[[1, 2, 3, 0]]
     if turned:
