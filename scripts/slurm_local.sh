@@ -13,6 +13,7 @@
 # Environment: SLURM_LOCAL_PARTITION (default "debug"), SLURM_LOCAL_WAIT (seconds to wait for the node, 60).
 # Exit status: 0 with the node idle; 1 when it could not be installed or started (the reason on stderr).
 set -euo pipefail
+shopt -s extglob  # the *([0-9]) pattern below
 
 PARTITION=${SLURM_LOCAL_PARTITION:-debug}
 WAIT=${SLURM_LOCAL_WAIT:-60}
@@ -21,10 +22,15 @@ LOG_DIR=/var/log/slurm
 say() { echo "[slurm-local] $*" >&2; }
 die() { say "error: $*"; exit 1; }
 
-stop_slurm() {
+stop_slurm() {  # and wait until the daemons are gone, so that a restart does not find the old ones
+  local pids=() pidfile
   for pidfile in /run/slurmd.pid /run/slurmctld.pid; do
-    [ -f "$pidfile" ] && kill "$(cat "$pidfile")" 2>/dev/null || true
+    [ -f "$pidfile" ] && pids+=("$(cat "$pidfile")")
   done
+  [ ${#pids[@]} -gt 0 ] || return 0
+  kill "${pids[@]}" 2>/dev/null || true
+  for _ in $(seq 30); do kill -0 "${pids[@]}" 2>/dev/null || break; sleep 0.5; done
+  rm -f /run/slurmd.pid /run/slurmctld.pid
 }
 stop() {
   stop_slurm
@@ -36,7 +42,9 @@ stop() {
 [ "${1:-}" = "--stop" ] && { stop; exit 0; }
 
 node_state() { sinfo -h -N -o '%T' 2>/dev/null | head -1 || true; }
-if command -v sinfo >/dev/null && [ "$(node_state)" = "idle" ]; then
+OURS="Written by strings-bench scripts/slurm_local.sh"
+# A Slurm that is up and not configured by this script (a cluster's own) is left alone.
+if command -v sinfo >/dev/null && [ "$(node_state)" = "idle" ] && ! grep -qs "$OURS" "$CONF_DIR/slurm.conf"; then
   say "Slurm is up: $(sinfo -h -o '%P %D node(s) %T' | head -1)"
   exit 0
 fi
@@ -78,11 +86,13 @@ NODE_LINE=$(slurmd -C | head -1)
 NODE_LINE=${NODE_LINE/NodeName=* CPUs=/NodeName=$HOST CPUs=}
 # Leave 1 GiB of memory to the system, so that a job asking for the whole node does not starve the daemons.
 MEM=$(sed -n 's/.*RealMemory=\([0-9]*\).*/\1/p' <<<"$NODE_LINE")
-NODE_LINE=${NODE_LINE/RealMemory=$MEM/RealMemory=$(( MEM > 2048 ? MEM - 1024 : MEM ))}
+MEM=$(( MEM > 2048 ? MEM - 1024 : MEM ))
+NODE_LINE=${NODE_LINE/RealMemory=*([0-9])/RealMemory=$MEM}
+CPUS=$(sed -n 's/.*CPUs=\([0-9]*\).*/\1/p' <<<"$NODE_LINE")
 install -d -o slurm -g slurm -m 0755 /var/spool/slurmctld /var/spool/slurmd "$LOG_DIR"
 install -d "$CONF_DIR"
 cat > "$CONF_DIR/slurm.conf.new" <<EOF
-# Written by strings-bench scripts/slurm_local.sh: a single-node Slurm on $HOST.
+# $OURS: a single-node Slurm on $HOST.
 ClusterName=strings-bench-local
 SlurmctldHost=$HOST                 # the head node; a cluster may list a backup controller on a second line
 SlurmUser=slurm                     # the controller runs as this user; slurmd runs as root (it starts jobs as their users)
@@ -106,11 +116,14 @@ AccountingStorageType=accounting_storage/none
 # Schedule single cores and memory, so that several one-CPU jobs of an array share the node.
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core_Memory
+# A job that does not say how much memory it needs (no --mem) gets its CPUs' share of the node, not the whole node:
+# without this, one job holds all the memory and the others of an array wait ("Resources") however many cores are free.
+DefMemPerCPU=$(( MEM / CPUS ))
 MpiDefault=none
 ReturnToService=2                   # a node that was down comes back by itself once its slurmd answers
 SlurmdTimeout=60
 MinJobAge=600                       # scontrol still shows an ended job for 10 minutes (its final state)
-KillWait=10                         # seconds between SIGTERM and SIGKILL when a job is cancelled or times out
+KillWait=5                          # seconds between SIGTERM and SIGKILL when a job is cancelled or times out
 # Preemption is off here. A cluster that preempts (PreemptType=preempt/partition_prio or preempt/qos) with
 # PreemptMode=REQUEUE puts a preempted job back in the queue; strings-bench's jobs then continue from their
 # saved training state (docs/guide/cluster.md, "Slurm").
@@ -130,7 +143,7 @@ done
 
 # ---- 4. start the daemons (directly: no systemd in a container; on a cluster `systemctl enable --now slurmctld`
 # on the head node and `systemctl enable --now slurmd` on each compute node).
-if [ "$changed" = 1 ]; then stop_slurm; sleep 1; fi
+if [ "$changed" = 1 ]; then stop_slurm; fi  # the new configuration: restart (jobs in the queue are kept)
 running() { [ -f "$1" ] && kill -0 "$(cat "$1")" 2>/dev/null; }
 running /run/slurmctld.pid || /usr/sbin/slurmctld -i || die "slurmctld did not start (see $LOG_DIR/slurmctld.log)"
 running /run/slurmd.pid || /usr/sbin/slurmd || die "slurmd did not start (see $LOG_DIR/slurmd.log)"
