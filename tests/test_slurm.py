@@ -201,6 +201,24 @@ def test_a_task_cancelled_mid_training_is_reported_and_resumed_from_its_checkpoi
     assert sorted(_rows(out)) == sorted(("3dgs", s.name, str(it)) for s in scenes for it in CHECKPOINTS)
 
 
+@pytest.mark.slow
+def test_a_job_that_fails_on_its_node_is_reported_with_its_cell_and_log(slurm, scenes, tmp_path):
+    broken = tmp_path / "scenes" / "broken"
+    shutil.copytree(scenes[1], broken)
+    images_bin = broken / "sparse" / "0" / "images.bin"
+    images_bin.write_bytes(images_bin.read_bytes()[:40])  # a truncated COLMAP file: the job fails loading it
+    out = tmp_path / "run"
+    plan = plan_run(["3dgs"], [str(broken)], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
+    with pytest.raises(StringsBenchError) as caught:
+        _execute(plan, _runner(out))
+    message = str(caught.value)
+    rec = _records(out)["3dgs/broken/broken"]
+    assert "1 of 1 job(s) failed; 2 cell(s) not written" in message
+    assert "3dgs broken/broken @6 (3K), @14 (7K): " in message and "images.bin" in message
+    assert f"Slurm job {rec['job_id']} on " in message and rec["log_err"] in message
+    assert "images.bin" in Path(rec["log_err"]).read_text()  # the traceback is in the log the message names
+
+
 # ---- without a Slurm: options and errors ------------------------------------------------------------
 def test_slurm_options_are_checked_before_anything_is_planned(monkeypatch, capsys, tmp_path):
     from strings_bench.cli import main
