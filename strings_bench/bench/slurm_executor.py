@@ -50,8 +50,10 @@ INSTALL_HINT = "install the Slurm extra: pip install -e '.[slurm]' (or pip insta
 SHARED_FS_HINT = ("the run folder (--out) and the scene folders must be on a file system that every Slurm node mounts "
                   "at the same path (docs/guide/cluster.md, 'Slurm'); synthetic scenes live in STRINGS_BENCH_CACHE")
 SLURM_FOLDER = "slurm"  # in the run folder
+JOB_NAME = "strings-bench"  # every task's Slurm job name (squeue's NAME)
 JOBS_FILE = "jobs.json"  # in RUN_DIR/slurm: the Slurm job of every submitted (method, scene)
 WORKER_FILE = "worker.json"  # in a job's state folder: the host, pid and Slurm job of the task that ran it last
+ERROR_FILE = "error.json"  # beside it: the error of the task that failed last (its message and hint)
 FORWARDED_ENV = ("STRINGS_BENCH_CACHE", "NUMBA_CACHE_DIR")  # made absolute for the tasks (sbatch exports the rest)
 DEFAULT_TIME_MIN = 24 * 60
 RESOURCE_KEYS = ("gpus", "cpus", "mem", "time")  # --slurm-resources METHOD=gpus:1,cpus:8,mem:32G,time:600
@@ -190,7 +192,16 @@ class RunOnNode:
         atomic_write_json(record, {"host": socket.gethostname(), "pid": os.getpid(), "slurm_job_id": slurm_id,
                                    "restarts": int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0),
                                    "started": time.time()})
-        return self.runner(job)
+        try:
+            return self.runner(job)
+        except Exception as exc:
+            # submitit keeps only the traceback's text: the error itself, for the driver's report, goes beside the
+            # worker record; the exception is raised on, so the task ends FAILED with its traceback in its log
+            message, hint = (exc.message, exc.hint) if isinstance(exc, StringsBenchError) else (
+                f"{type(exc).__name__}: {exc}", None)
+            atomic_write_json(record.with_name(ERROR_FILE), {"slurm_job_id": slurm_id, "host": socket.gethostname(),
+                                                             "message": message, "hint": hint})
+            raise
 
     def checkpoint(self, job):
         import submitit
@@ -320,7 +331,7 @@ class SlurmExecutor(Executor):
     def _squeue(self, ids: Iterable[str]) -> dict[str, str]:
         """Slurm id ("123" or "123_4") -> state, for the given jobs still in the queue (one squeue call)."""
         bases = sorted({str(i).split("_")[0] for i in ids})
-        args = ["squeue", "-h", "-r", "-o", "%i|%T"] + ([f"--jobs={','.join(bases)}"] if bases else ["--jobs=0"])
+        args = ["squeue", "-h", "-r", "-o", "%i|%T|%j"] + ([f"--jobs={','.join(bases)}"] if bases else ["--jobs=0"])
         try:
             proc = subprocess.run(args, capture_output=True, text=True, timeout=120)
         except FileNotFoundError as exc:
@@ -335,8 +346,8 @@ class SlurmExecutor(Executor):
                                     hint="is the Slurm controller up? (`sinfo`)")
         out = {}
         for line in proc.stdout.splitlines():
-            sid, _, state = line.strip().partition("|")
-            if sid:
+            sid, state, name = (line.strip().split("|", 2) + ["", ""])[:3]
+            if sid and name == JOB_NAME:  # a job id Slurm has given again to another job is not ours
                 out[sid] = state
         return out
 
@@ -388,7 +399,7 @@ class SlurmExecutor(Executor):
         submitit = self.submitit
         folder = self._run_dir / SLURM_FOLDER / "%j"
         ex = submitit.SlurmExecutor(folder=folder, max_num_timeout=3)
-        params = {**res.sbatch(), "job_name": "strings-bench", "signal_delay_s": 90,
+        params = {**res.sbatch(), "job_name": JOB_NAME, "signal_delay_s": 90,
                   # torch, numba and OCR use the task's CPUs, as many threads as it has (not the node's)
                   "setup": ["export OMP_NUM_THREADS=${SLURM_CPUS_PER_TASK:-1}"]}
         if self.partition:
@@ -485,13 +496,15 @@ class SlurmExecutor(Executor):
         if outcome == "success":
             task.future.set_result(value)
             return
-        # submitit keeps the task's traceback as text; its last line is the exception
-        lines = [ln for ln in str(value).strip().splitlines() if ln.strip()]
-        last = lines[-1].strip() if lines else "unknown error"
-        for prefix in ("strings_bench.core.errors.StringsBenchError: ", "StringsBenchError: "):
-            last = last[len(prefix):] if last.startswith(prefix) else last
-        task.future.set_exception(StringsBenchError(
-            f"{last}\nSlurm job {task.slurm_id}{self._node(task)}; its log: {task.paths().stderr}"))
+        where = f"Slurm job {task.slurm_id}{self._node(task)}; its log: {task.paths().stderr}"
+        try:
+            error = json.loads((Path(task.job.state_path()).parent / ERROR_FILE).read_text(encoding="utf-8"))
+            if error.get("slurm_job_id") != task.slurm_id:
+                raise ValueError("an earlier task's error")
+        except (OSError, ValueError):  # it failed before RunOnNode ran (unpickling, imports): the traceback's end
+            lines = [ln.strip() for ln in str(value).strip().splitlines() if ln.strip()]
+            error = {"message": lines[-1] if lines else "unknown error", "hint": None}
+        task.future.set_exception(StringsBenchError(f"{error['message']}\n{where}", hint=error.get("hint")))
 
     def _node(self, task: _Task) -> str:
         try:
