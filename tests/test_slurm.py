@@ -3,7 +3,9 @@
 - a grid of 2 methods x 2 synthetic scenes submitted with --detach as one job array, followed by a second run
   (which submits nothing), gives the local executor's results.csv in every non-time column;
 - a task cancelled mid-training (scancel) is reported with its cell and log path; the same command then
-  resubmits only that job, which continues from the training state it saved before it was cancelled.
+  resubmits only that job, which continues from the training state it saved before it was cancelled;
+- a job failing on its node (a corrupt scene) is reported with its cells, its own message and its log;
+- Ctrl-C cancels the tasks, waits until they have left the queue and leaves only complete cells.
 
 The Slurm tests need `sinfo`, `sbatch`, ... and a node that goes idle: the fixture runs scripts/slurm_local.sh
 (apt-get install and start, as root) and skips with its reason where that fails. They are slow (each Slurm task
@@ -18,6 +20,7 @@ import csv
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -217,6 +220,42 @@ def test_a_job_that_fails_on_its_node_is_reported_with_its_cell_and_log(slurm, s
     assert "3dgs broken/broken @6 (3K), @14 (7K): " in message and "images.bin" in message
     assert f"Slurm job {rec['job_id']} on " in message and rec["log_err"] in message
     assert "images.bin" in Path(rec["log_err"]).read_text()  # the traceback is in the log the message names
+
+
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raises KeyboardInterrupt during the test, as in a terminal, even where the suite was started with
+    SIGINT ignored (a background job of a non-interactive shell)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+@pytest.mark.slow
+def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(slurm, scenes, tmp_path, sigint_raises):
+    out, pause = tmp_path / "run", tmp_path / "pause"
+    pause.mkdir()
+    plan = _plan(out, scenes[:1], methods=["3dgs"])
+    # The job stops when its last cell's renders are written but not its result.json.
+    job_runner = _runner(out, pause_dir=str(pause), pause_cell=CHECKPOINTS[-1])
+
+    def interrupt_when_paused():
+        end = time.monotonic() + 300
+        while not list(pause.glob("paused-*")) and time.monotonic() < end:
+            time.sleep(0.2)
+        os.kill(os.getpid(), signal.SIGINT)  # as Ctrl-C in the driver's terminal
+
+    threading.Thread(target=interrupt_when_paused, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        _execute(plan, job_runner)
+    job_id = _records(out)[f"3dgs/{scenes[0].name}/{scenes[0].name}"]["job_id"]
+    queued = subprocess.run(["squeue", "-h", "-j", job_id], capture_output=True, text=True).stdout.strip()
+    assert queued == ""  # cancelled, and gone from the queue before execute returned
+    assert not [p for p in out.glob("cells/*/*/*/*") if not (p / RESULT_FILE).exists()]  # half-written cell removed
+    assert sorted(p.parent.name for p in out.glob("cells/**/result.json")) == ["6"]
+    assert len(list(out.glob("state/**/training_state.pt"))) == 1  # kept: the same command continues from it
 
 
 # ---- without a Slurm: options and errors ------------------------------------------------------------

@@ -134,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
     from strings_bench.bench import run as run_bench
 
     out = run_bench(run_config(args))
-    if getattr(args, "detach", False):
-        print(f"submitted: {out / 'slurm' / 'jobs.json'} (the same command again follows the jobs and writes the report)")
+    if getattr(args, "detach", False):  # the runner has said how many cells are still to come
+        print(f"jobs:    {out / 'slurm' / 'jobs.json'}")
+        print(f"results: {out / 'results.csv'} (so far; the same command again follows the jobs and writes the report)")
         return 0
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
