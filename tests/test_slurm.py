@@ -117,8 +117,9 @@ def _runner(out: Path, **pause) -> runner.Runner:
 
 
 def _execute(plan, job_runner, **options):
-    return runner.execute(plan, executor=SlurmExecutor(job_runner, poll_seconds=1, **options), with_lpips=False,
-                          progress=False, write_report=False)
+    # lost_after: the run folder is local here, a task's result file is seen at once (on NFS it may take 60 s)
+    return runner.execute(plan, executor=SlurmExecutor(job_runner, poll_seconds=1, lost_after=3, **options),
+                          with_lpips=False, progress=False, write_report=False)
 
 
 @pytest.mark.slow

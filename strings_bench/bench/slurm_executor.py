@@ -61,7 +61,9 @@ FORWARDED_ENV = ("STRINGS_BENCH_CACHE", "NUMBA_CACHE_DIR")  # made absolute for 
 DEFAULT_TIME_MIN = 24 * 60
 RESOURCE_KEYS = ("gpus", "cpus", "mem", "time")  # --slurm-resources METHOD=gpus:1,cpus:8,mem:32G,time:600
 POLL_SECONDS = 5.0  # how often squeue is asked (one call for every job of the run)
-LOST_POLLS = 2  # a task absent from the queue with no result on this many polls in a row has ended without one
+# A task absent from the queue with no result file for this long has ended without one. Not at once: on NFS a
+# new file in a folder may stay unseen for up to the client's attribute cache time (acdirmax, 60 s by default).
+LOST_AFTER_SECONDS = 60.0
 
 
 def import_submitit():
@@ -219,7 +221,7 @@ class _Task:
     slurm_id: str
     folder: Path
     future: Future
-    absent: int = 0  # polls in a row without the task in the queue and without its result
+    absent_since: float | None = None  # since when the task is neither in the queue nor has a result
 
     def paths(self):
         from submitit.core.utils import JobPaths
@@ -247,7 +249,8 @@ class SlurmExecutor(Executor):
     def __init__(self, runner: Callable, partition: str | None = None, gpus_per_task: int | None = None,
                  cpus_per_job: float = 1, mem: str | None = None, time_min: int = DEFAULT_TIME_MIN,
                  array_parallelism: int | None = None, sbatch_options: dict | list | None = None,
-                 method_resources: dict | list | None = None, detach: bool = False, poll_seconds: float = POLL_SECONDS):
+                 method_resources: dict | list | None = None, detach: bool = False, poll_seconds: float = POLL_SECONDS,
+                 lost_after: float = LOST_AFTER_SECONDS):
         self.check_options(partition=partition, gpus_per_task=gpus_per_task, cpus_per_job=cpus_per_job,
                            time_min=time_min, array_parallelism=array_parallelism, sbatch_options=sbatch_options,
                            method_resources=method_resources)
@@ -262,6 +265,7 @@ class SlurmExecutor(Executor):
         self.method_resources = parse_method_resources(method_resources)
         self.detach = bool(detach)
         self.poll_seconds = poll_seconds
+        self.lost_after = lost_after
         self._env = {k: os.path.abspath(os.environ[k]) for k in FORWARDED_ENV if os.environ.get(k)}
         self._run_dir: Path | None = None
         self._tasks: dict[str, _Task] = {}  # slurm id -> task, until it has ended
@@ -302,7 +306,7 @@ class SlurmExecutor(Executor):
 
     # -- starting -------------------------------------------------------------------------------
     def start(self, run_dir: Path, jobs: list) -> None:
-        """Check that Slurm answers (squeue) and that every method of --slurm-resources is in the run."""
+        """Check that Slurm answers (sinfo), that the partition exists, and say what each job asks for."""
         self._run_dir = Path(os.path.abspath(run_dir))
         unknown = sorted(set(self.method_resources) - {j.method for j in jobs})
         if unknown and jobs:
@@ -462,6 +466,8 @@ class SlurmExecutor(Executor):
                 self.poll()
             except StringsBenchError as exc:  # squeue failing for a while (controller restart): try again
                 log.warning("%s", exc)
+            except Exception:  # noqa: BLE001 - the thread must go on, or the driver would wait for ever
+                log.exception("following the Slurm tasks")
             self._stop.wait(self.poll_seconds)
 
     def poll(self) -> None:
@@ -477,11 +483,11 @@ class SlurmExecutor(Executor):
             if result.exists():
                 self._settle(task, result)
             elif task.slurm_id in queue:
-                task.absent = 0
-            else:
-                task.absent += 1
-                if task.absent >= LOST_POLLS:
-                    self._lost(task)
+                task.absent_since = None
+            elif task.absent_since is None:
+                task.absent_since = time.monotonic()
+            elif time.monotonic() - task.absent_since >= self.lost_after:
+                self._lost(task)
 
     def _end(self, task: _Task) -> None:
         with self._lock:
@@ -527,7 +533,8 @@ class SlurmExecutor(Executor):
         task.future.set_exception(StringsBenchError(
             f"Slurm job {task.slurm_id}{self._node(task)} {how} before the job finished (cancelled, preempted, its "
             f"node lost or its time limit reached)\nits log: {task.paths().stderr}",
-            hint="re-run the same command: the job is submitted again and continues from its saved training state"))
+            hint="re-run the same command: the job is submitted again and continues from its saved training state "
+                 "(a job that ended COMPLETED without a result file: is the run folder shared? " + SHARED_FS_HINT + ")"))
 
     def progress_note(self) -> str | None:
         """For the progress bar: how many of this run's tasks are pending and running in Slurm."""
