@@ -2,7 +2,8 @@
 
 A `Job` trains one method on one scene and evaluates its checkpoints; it is plain data, so it can
 travel to another process or machine. An `Executor` runs jobs (`submit(job)` -> Future): the
-`LocalExecutor` here, one after another in this process, or the `RayExecutor` (ray_executor.py).
+`LocalExecutor` here, one after another in this process, the `RayExecutor` (ray_executor.py) or the
+`SlurmExecutor` (slurm_executor.py).
 """
 
 from __future__ import annotations
@@ -64,22 +65,34 @@ class Executor:
     - `check_options(device, **options)`, on the class: refuse what it cannot do before any scene is built
       (default: it takes no options);
     - `start(run_dir, jobs)` before the first submit (connect, check that workers see the run folder),
-      `cancel()` on Ctrl-C (stop every job still running), `close()` after the run.
+      `submit_many(jobs)` (a stage's jobs at once: the Slurm executor sends them as a job array),
+      `cancel()` on Ctrl-C (stop every job still running), `close()` after the run;
+    - `detach` (False): True when the run only submits its jobs and returns (`--detach`); a later run follows them.
     """
 
     in_process = True
+    detach = False
 
     @classmethod
     def check_options(cls, device: str = "auto", **options) -> None:
         if options:
             raise StringsBenchError(f"executor {cls.__name__} takes no options (given: {', '.join(sorted(options))})",
-                                    hint="--ray-address, --max-retries and --cpus-per-job apply to --executor ray")
+                                    hint="--ray-address and --max-retries apply to --executor ray, the --slurm-* options and "
+                                         "--detach to --executor slurm, --cpus-per-job to both")
 
     def submit(self, job: Job) -> Future:
         raise NotImplementedError
 
+    def submit_many(self, jobs: list[Job]) -> list[Future]:
+        """Submit several jobs at once (a batch scheduler sends them as one job array); one Future each."""
+        return [self.submit(j) for j in jobs]
+
     def map(self, jobs: Iterable[Job]) -> list[Any]:
         return [self.submit(j).result() for j in jobs]
+
+    def progress_note(self) -> str | None:
+        """A few words for the progress bar while jobs run elsewhere (e.g. how many are queued), or None."""
+        return None
 
     def start(self, run_dir: Path, jobs: list[Job]) -> None:
         pass
@@ -111,8 +124,9 @@ class LocalExecutor(Executor):
 
 
 
-# name -> the executor class, or "module:Class" imported when chosen (Ray is imported only then).
-EXECUTORS: dict[str, type[Executor] | str] = {"local": LocalExecutor, "ray": "strings_bench.bench.ray_executor:RayExecutor"}
+# name -> the executor class, or "module:Class" imported when chosen (Ray and submitit are imported only then).
+EXECUTORS: dict[str, type[Executor] | str] = {"local": LocalExecutor, "ray": "strings_bench.bench.ray_executor:RayExecutor",
+                                              "slurm": "strings_bench.bench.slurm_executor:SlurmExecutor"}
 
 
 def executor_factory(name: str) -> type[Executor]:

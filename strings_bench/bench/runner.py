@@ -26,7 +26,8 @@ The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by
 schedules are core/schedules.py; `strings_bench.bench.run` plans and executes. The run folder is written and read
 through the store (strings_bench/store/). Execution goes through an `Executor` (bench/executors.py:
 `submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one after another in this process,
-`RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
+`RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task, `SlurmExecutor`
+(bench/slurm_executor.py, `--executor slurm`) as a task of a Slurm job array. A distributed executor only has to run `run_job(job)` somewhere that sees RUN_DIR (jobs
 are plain data) — cells are independent files, and results.csv is rebuilt from them on the driver.
 """
 
@@ -295,6 +296,8 @@ def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, wri
         for stage in stages:
             if stage:
                 _run_stage(ex, stage, errors, in_process, run_dir, cells, bar)
+                if ex.detach:  # submitted, not waited for: a later stage (a --budget's capped methods) reads this
+                    break      # one's cells, so a later run submits it
     except KeyboardInterrupt:
         ex.cancel()
         discard_incomplete_cells(run_dir, [j for j in pending if not all(is_finished(run_dir, k) for k in j.cells())])
@@ -304,6 +307,11 @@ def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, wri
         if bar is not None:
             bar.close()
         write_results_csv(run_dir)
+    if ex.detach and pending:
+        left = sum(not is_finished(run_dir, k) for k in cells)
+        log.warning("submitted; %d of %d cell(s) still to come. Run the same command again to follow the jobs (it "
+                    "submits what is missing) and write the report", left, len(cells))
+        return run_dir
     if write_report:
         write_run_report(run_dir)
     if errors:
@@ -314,8 +322,11 @@ def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, wri
 def _run_stage(ex: Executor, jobs: list[Job], errors: list, in_process: bool, run_dir: Path, cells: list, bar) -> None:
     """Submit `jobs` and wait for all of them; failures are appended to `errors` (the others go on)."""
     done = sum(is_finished(run_dir, k) for k in cells)
-    futures = {ex.submit(job): job for job in jobs}
+    futures = dict(zip(ex.submit_many(jobs), jobs))
+    if ex.detach:
+        return
     waiting = set(futures)
+    note = None
     while waiting:
         finished, waiting = wait(waiting, timeout=POLL_SECONDS, return_when=FIRST_COMPLETED)
         if not in_process:
@@ -326,6 +337,9 @@ def _run_stage(ex: Executor, jobs: list[Job], errors: list, in_process: bool, ru
                 if bar is not None:
                     bar.n = now
                     bar.refresh()
+            if bar is not None and ex.progress_note() != note:  # e.g. how many jobs Slurm runs and queues
+                note = ex.progress_note()
+                bar.set_postfix_str(note or "")
         for fut in finished:
             exc = fut.exception()
             if exc is not None:

@@ -63,8 +63,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="OCR-CER profile (default paper: the authors' rules exactly; robust: repairs invalid polygons, "
                         "NFC, all whitespace removed); recorded in run.json and every result.json; see docs/ocr.md")
     p.add_argument("--executor", default="local", choices=sorted(EXECUTORS),
-                   help="where jobs run: local (default; one after another in this process) or ray (each method x scene "
-                        "a Ray task, concurrently; needs the ray extra and a run folder every node sees; docs/guide/cluster.md)")
+                   help="where jobs run: local (default; one after another in this process), ray (each method x scene "
+                        "a Ray task, concurrently; needs the ray extra) or slurm (each method x scene a task of a Slurm "
+                        "job array; needs the slurm extra); ray and slurm need a run folder every node sees "
+                        "(docs/guide/cluster.md)")
     p.add_argument("--ray-address", default=None, metavar="ADDRESS",
                    help="with --executor ray: the Ray cluster to join (e.g. auto, HEAD_IP:6379, ray://HEAD_IP:10001); "
                         "default: RAY_ADDRESS, else a local Ray is started")
@@ -72,7 +74,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="with --executor ray: run a job again up to N times when its worker dies (default 3); it continues "
                         "from its saved training state. A job that fails by itself is not retried")
     p.add_argument("--cpus-per-job", type=float, default=None, metavar="N",
-                   help="with --executor ray: CPUs each job asks Ray for (default 1; a GPU job also asks for 1 GPU)")
+                   help="with --executor ray or slurm: CPUs each job asks for (default 1; with ray a GPU job also asks "
+                        "for 1 GPU; with slurm an integer, its --cpus-per-task)")
+    p.add_argument("--slurm-partition", default=None, metavar="P",
+                   help="with --executor slurm: the partition the jobs are submitted to (default: the cluster's default)")
+    p.add_argument("--slurm-gpus-per-task", type=int, default=None, metavar="N",
+                   help="with --executor slurm: GPUs each job asks for (default 1 with --device cuda, else 0: the jobs "
+                        "train on the CPU)")
+    p.add_argument("--slurm-mem", default=None, metavar="MEM",
+                   help="with --executor slurm: memory each job asks for, as sbatch --mem (e.g. 16G; default: the "
+                        "partition's)")
+    p.add_argument("--slurm-time", type=int, default=None, metavar="MINUTES",
+                   help="with --executor slurm: each job's time limit in minutes (default 1440); a job at its limit is "
+                        "requeued and continues from its saved training state")
+    p.add_argument("--slurm-array-parallelism", type=int, default=None, metavar="N",
+                   help="with --executor slurm: at most N jobs of an array run at once (sbatch --array=...%%N)")
+    p.add_argument("--slurm-resources", action="append", default=[], metavar="METHOD=KEY:VALUE[,KEY:VALUE]",
+                   help="with --executor slurm: one method's resources where they differ from the above, KEY one of "
+                        "gpus, cpus, mem, time, e.g. --slurm-resources strings=gpus:1,mem:32G; repeatable. Jobs that "
+                        "ask for the same resources go to Slurm as one job array")
+    p.add_argument("--slurm-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --executor slurm: any other sbatch option, without its --, e.g. --slurm-option "
+                        "account=proj42 --slurm-option qos=high; repeatable")
+    p.add_argument("--detach", action="store_true",
+                   help="with --executor slurm: submit the jobs and return; the same command again follows them (it "
+                        "submits only what is missing) and writes the report")
     p.add_argument("--downscale", type=float, default=None, help="image downscale factor (default: the schedule's, 1)")
     p.add_argument("--set", dest="settings", action="append", default=[], metavar="[METHOD.]KEY=VALUE",
                    help="override a method setting (VALUE parsed as JSON when it can be): KEY=VALUE for every method of "
@@ -108,24 +134,48 @@ def run(args: argparse.Namespace) -> int:
     from strings_bench.bench import run as run_bench
 
     out = run_bench(run_config(args))
+    if getattr(args, "detach", False):  # the runner has said how many cells are still to come
+        print(f"jobs:    {out / 'slurm' / 'jobs.json'}")
+        print(f"results: {out / 'results.csv'} (so far; the same command again follows the jobs and writes the report)")
+        return 0
     print(f"results: {out / 'results.csv'}")
     print(f"report:  {out / 'report' / 'report.md'}")
     print(f"html:    {(out / 'report' / 'index.html').resolve().as_uri()}")
     return 0
 
 
+RAY_OPTIONS = {"address": "--ray-address", "max_retries": "--max-retries"}
+SLURM_OPTIONS = {"partition": "--slurm-partition", "gpus_per_task": "--slurm-gpus-per-task", "mem": "--slurm-mem",
+                 "time_min": "--slurm-time", "array_parallelism": "--slurm-array-parallelism",
+                 "method_resources": "--slurm-resources", "sbatch_options": "--slurm-option", "detach": "--detach"}
+SHARED_OPTIONS = {"cpus_per_job": "--cpus-per-job"}  # ray and slurm
+
+
 def executor_options(args: argparse.Namespace) -> dict | None:
-    """The --executor ray options given on the command line (None for the local executor); refused
-    with another executor."""
-    given = {"address": args.ray_address, "max_retries": args.max_retries, "cpus_per_job": args.cpus_per_job}
-    given = {k: v for k, v in given.items() if v is not None}
-    if args.executor != "ray":
-        if given:
-            names = {"address": "--ray-address", "max_retries": "--max-retries", "cpus_per_job": "--cpus-per-job"}
-            raise StringsBenchError(f"{', '.join(names[k] for k in given)} appl{'ies' if len(given) == 1 else 'y'} "
-                                    f"to --executor ray only", hint="add --executor ray, or leave the option out")
-        return None
-    return {**given, "log_to_driver": bool(getattr(args, "verbose", False))}
+    """The options of --executor ray or slurm given on the command line (None for the local executor); an option
+    of another executor is refused."""
+    values = {"address": args.ray_address, "max_retries": args.max_retries, "cpus_per_job": args.cpus_per_job,
+              "partition": getattr(args, "slurm_partition", None),
+              "gpus_per_task": getattr(args, "slurm_gpus_per_task", None), "mem": getattr(args, "slurm_mem", None),
+              "time_min": getattr(args, "slurm_time", None),
+              "array_parallelism": getattr(args, "slurm_array_parallelism", None),
+              "method_resources": getattr(args, "slurm_resources", None) or None,
+              "sbatch_options": getattr(args, "slurm_option", None) or None,
+              "detach": getattr(args, "detach", False) or None}
+    given = {k: v for k, v in values.items() if v is not None}
+    own = {"ray": {**RAY_OPTIONS, **SHARED_OPTIONS}, "slurm": {**SLURM_OPTIONS, **SHARED_OPTIONS}}.get(args.executor, {})
+    names = {**RAY_OPTIONS, **SLURM_OPTIONS, **SHARED_OPTIONS}
+    foreign = [k for k in given if k not in own]
+    if foreign:
+        takers = [ex for ex, opts in (("ray", RAY_OPTIONS), ("slurm", SLURM_OPTIONS)) if foreign[0] in {**opts, **SHARED_OPTIONS}]
+        flags = ", ".join(names[k] for k in foreign)
+        raise StringsBenchError(f"{flags} appl{'ies' if len(foreign) == 1 else 'y'} to --executor {' or '.join(takers)} only",
+                                hint=f"add --executor {takers[0]}, or leave the option out")
+    if args.executor == "ray":
+        return {**given, "log_to_driver": bool(getattr(args, "verbose", False))}
+    if args.executor == "slurm":
+        return given
+    return None
 
 
 def run_config(args: argparse.Namespace):
