@@ -54,7 +54,7 @@ COMMANDS: dict[str, Command] = {
     "ocr": Command("strings_bench.cli.ocr", "OCR backends: check them, read images"),
     "cer": Command("strings_bench.cli.cer", "OCR-CER of predicted OCR results against GT OCR results"),
     "docs": Command("strings_bench.cli.docs",
-                    "rewrite the documentation's generated tables and command reference (in a source checkout)"),
+                    "rewrite the documentation's generated tables and command reference, or build the site (in a source checkout)"),
 }
 
 

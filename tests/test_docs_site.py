@@ -1,0 +1,148 @@
+"""The documentation site: MkDocs builds it in strict mode (a broken link, a missing page or a missing API object
+fails), a planted dead link or missing object does fail it, and the landing page, a guide page and an API page
+render in headless Chromium (not blank, their title, the navigation)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install -e '.[docs]')")
+pytest.importorskip("mkdocstrings", reason="the docs extra is not installed (pip install -e '.[docs]')")
+
+from strings_bench.cli.docs import build_site  # noqa: E402
+from strings_bench.core.errors import StringsBenchError  # noqa: E402
+
+# The built site's pages the browser test opens, and what each must show.
+PAGES = {
+    "index.html": "Documentation",
+    "guide/getting-started.html": "Getting started",
+    "reference/api.html": "Python API",
+}
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("site")
+    start = time.perf_counter()
+    build_site(ROOT, out)
+    seconds = time.perf_counter() - start
+    print(f"site built in {seconds:.1f} s")
+    return out
+
+
+def test_site_builds_in_strict_mode(site):
+    for page in PAGES:
+        assert (site / page).is_file(), page
+    # every page of the navigation was built (a nav entry without its file is a strict-mode error as well)
+    for md in ["guide/troubleshooting", "cookbook/README", "maintainers/gpu-campaign", "changelog"]:
+        assert (site / f"{md}.html").is_file(), md
+
+
+def test_api_reference_has_every_object(site):
+    """Every object docs/reference/api.md names is rendered with its own heading (mkdocstrings' id is its path)."""
+    from tests.test_docs_api import api_objects
+
+    html = (site / "reference" / "api.html").read_text(encoding="utf-8")
+    missing = [obj for obj in api_objects() if f'id="{obj}"' not in html]
+    assert not missing, missing
+
+
+def _copy_checkout(tmp_path: Path) -> Path:
+    """A checkout to plant faults in: mkdocs.yml and docs/ copied, the rest linked."""
+    root = tmp_path / "checkout"
+    root.mkdir()
+    shutil.copy(ROOT / "mkdocs.yml", root / "mkdocs.yml")
+    shutil.copytree(ROOT / "docs", root / "docs")
+    for name in ("strings_bench", "examples", "CHANGELOG.md", "README.md"):
+        (root / name).symlink_to(ROOT / name)
+    return root
+
+
+def _build_fails(root: Path, capfd) -> str:
+    with pytest.raises(StringsBenchError, match="did not build"):
+        build_site(root, root / "site")
+    out = capfd.readouterr()
+    return out.out + out.err
+
+
+def test_a_dead_link_fails_the_build(tmp_path, capfd):
+    root = _copy_checkout(tmp_path)
+    page = root / "docs" / "guide" / "running.md"
+    page.write_text(page.read_text(encoding="utf-8") + "\nSee [the missing page](no-such-page.md).\n", encoding="utf-8")
+    assert "no-such-page.md" in _build_fails(root, capfd)
+
+
+def test_a_missing_api_object_fails_the_build(tmp_path, capfd):
+    root = _copy_checkout(tmp_path)
+    page = root / "docs" / "reference" / "api.md"
+    page.write_text(page.read_text(encoding="utf-8") + "\n::: strings_bench.engine.splatting.NoSuchMethod\n",
+                    encoding="utf-8")
+    assert "NoSuchMethod" in _build_fails(root, capfd)
+
+
+def test_docs_build_command(tmp_path):
+    """`strings-bench docs build` is the command the README names; it prints where the site is."""
+    done = subprocess.run([sys.executable, "-m", "strings_bench", "docs", "build", "--help"], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode == 0 and "--site-dir" in done.stdout
+    assert "strings-bench docs build" in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+# ---- the site in a real browser -----------------------------------------------------------------------------
+def _chromium() -> str | None:
+    import os
+
+    for c in (os.environ.get("STRINGS_BENCH_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
+              shutil.which("chromium-browser")):
+        if c and Path(c).is_file():
+            return c
+    return None
+
+
+def test_pages_render_in_headless_chromium(site, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright's Python package is not installed")
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("no chromium executable (/usr/bin/chromium; scripts/system_deps.sh installs Debian's)")
+    import numpy as np
+    from PIL import Image
+
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.on("pageerror", lambda e: errors.append(f"{page.url}: {e}"))
+            for rel, heading in PAGES.items():
+                page.goto((site / rel).as_uri())
+                page.wait_for_load_state("load")
+                assert heading in page.title(), (rel, page.title())
+                assert "strings-bench" in page.title(), (rel, page.title())
+                assert page.locator("article h1").first.inner_text().strip().startswith(heading.split()[0]), rel
+                # the navigation: the site's sections, each a working link
+                nav = page.locator("nav.md-nav--primary a.md-nav__link")
+                assert nav.count() >= 20, (rel, nav.count())
+                labels = " ".join(nav.all_inner_texts())
+                for section in ("Getting started", "Troubleshooting", "Design notes", "Python API"):
+                    assert section in labels, (rel, section)
+                shot = tmp_path / (rel.replace("/", "_") + ".png")
+                page.screenshot(path=str(shot))
+                with Image.open(shot) as im:
+                    pixels = np.asarray(im.convert("L"), dtype=np.float32)
+                assert pixels.shape == (900, 1280)
+                # not blank: text and a coloured header, not one flat colour
+                assert pixels.std() > 20 and (pixels < 100).mean() > 0.01, (rel, pixels.std())
+            # the API page holds the rendered objects, with their signatures
+            page.goto((site / "reference" / "api.html").as_uri())
+            assert page.locator(".doc-object").count() >= 10
+            assert page.locator(".doc-signature").count() >= 10
+        finally:
+            browser.close()
+    assert not errors, errors
