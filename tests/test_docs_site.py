@@ -76,11 +76,19 @@ def _build_fails(root: Path, capfd) -> str:
     return out.out + out.err
 
 
-def test_a_dead_link_fails_the_build(tmp_path, capfd):
+def test_a_dead_link_or_a_missing_page_fails_the_build(tmp_path, capfd):
+    """Both planted in one build (each a strict-mode warning, so MkDocs reports both before it stops)."""
     root = _copy_checkout(tmp_path)
     page = root / "docs" / "guide" / "running.md"
     page.write_text(page.read_text(encoding="utf-8") + "\nSee [the missing page](no-such-page.md).\n", encoding="utf-8")
-    assert "no-such-page.md" in _build_fails(root, capfd)
+    config = root / "mkdocs.yml"
+    text = config.read_text(encoding="utf-8")
+    assert "  - Troubleshooting: guide/troubleshooting.md\n" in text
+    config.write_text(text.replace("  - Troubleshooting: guide/troubleshooting.md\n",
+                                   "  - Troubleshooting: guide/troubleshooting.md\n  - Missing: guide/no-such-guide.md\n"),
+                      encoding="utf-8")
+    out = _build_fails(root, capfd)
+    assert "no-such-page.md" in out and "no-such-guide.md" in out
 
 
 def test_a_missing_api_object_fails_the_build(tmp_path, capfd):
