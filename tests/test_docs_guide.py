@@ -120,3 +120,27 @@ def test_default_run_time_is_stated_from_its_one_source():
     found = {str(p.relative_to(ROOT)): [m.group(0) for m in stray.finditer(
         " ".join(p.read_text(encoding="utf-8").split()).replace(DEFAULT_RUN_TIME, ""))] for p in USER_TEXT}
     assert not {k: v for k, v in found.items() if v}, found
+
+
+NUMBERS = {"two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9, "ten": 10}
+
+
+def _stated(pattern: str, text: str) -> list[int]:
+    return [NUMBERS[m.lower()] if m.lower() in NUMBERS else int(m) for m in re.findall(pattern, text, re.I)]
+
+
+def test_counts_of_methods_and_scenes_are_the_registries():
+    """"six other Gaussian Splatting methods" (README) is the registry's count of published baselines besides 3DGS;
+    "the five synthetic scenes" (the guide, and `run --help` through cli.md) is the synthetic card's."""
+    from strings_bench.datasets.registry import get_dataset
+    from strings_bench.methods import list_methods
+
+    others = [s for s in list_methods() if s.group == "baseline" and s.name != "3dgs"
+              and not s.description.startswith("this suite's variant")]
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    assert _stated(r"\b(\w+) other Gaussian Splatting methods", readme) == [len(others)], [s.name for s in others]
+    n_synthetic = len(get_dataset("synthetic").scenes)
+    texts = [readme, *(" ".join(p.read_text(encoding="utf-8").split()) for p in [*GUIDE, DOCS / "guide" / "cli.md"])]
+    number = "|".join(NUMBERS) + r"|\d+"
+    stated = [n for t in texts for n in _stated(rf"\b({number}) synthetic scenes\b", t)]
+    assert stated and set(stated) == {n_synthetic}, (stated, n_synthetic)
