@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Create or update the local virtual environment .venv (idempotent).
 # Re-installs only when pyproject.toml changed since the last successful install.
-# --test also installs the test extras (pytest, playwright, ray, submitit), as scripts/test.sh does.
+# --test also installs the test extras (pytest, playwright, ray, submitit) and the docs extra (MkDocs, for the
+# site's strict build in the tests), as scripts/test.sh does.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 EXTRAS=""
-[ "${1:-}" = "--test" ] && EXTRAS="test,ray,slurm"
+[ "${1:-}" = "--test" ] && EXTRAS="test,ray,slurm,docs"
 if [ ! -x .venv/bin/python ]; then
   echo "[setup] creating .venv with $($PY --version)"
   "$PY" -m venv .venv

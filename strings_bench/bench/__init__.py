@@ -14,8 +14,23 @@ __all__ = ["run"]
 
 
 def run(config=None, datasets=None, **given) -> Path:
-    """Plan and execute a run. Takes a RunConfig (bench/plan.py: every option, documented there), or
-    methods, datasets and RunConfig fields as keywords: `run(["3dgs"], ["synthetic/books"], schedule="tiny")`."""
+    """Plan and execute a run: `strings-bench run` from Python.
+
+    Args:
+        config: a `RunConfig`, or the method names (`--methods`).
+        datasets: registry ids or scene folders (`--datasets`; None: the schedule's scenes).
+        **given: `RunConfig` fields (`schedule="tiny"`, `run_dir=...`), over `config`'s.
+    Returns:
+        the run folder (results.csv, cells/, report/). Finished cells of an earlier run in the same folder are kept
+        and skipped: a run resumes.
+    Raises:
+        TypeError: an unknown keyword, naming the `RunConfig` fields.
+        StringsBenchError: anything refused before training starts (an unknown method, setting, preset, scene,
+            OCR engine or device; a folder made under other settings), each with a hint; or a failure of a job.
+
+    Example:
+        ``run(["3dgs"], ["synthetic/books"], schedule="tiny", run_dir="runs/smoke")``
+    """
     from strings_bench.bench.executors import executor_factory
     from strings_bench.bench.plan import RunConfig, plan_run
     from strings_bench.bench.runner import execute

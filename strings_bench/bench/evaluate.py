@@ -89,6 +89,25 @@ def _scene_downscale(scene, render: np.ndarray, i: int, given: float | None) -> 
 # ---- the command ---------------------------------------------------------------------------------------
 @dataclass
 class EvaluateOptions:
+    """How `evaluate` scores a predictions folder; `strings-bench evaluate`'s options, one field each.
+
+    Attributes:
+        scene: the ground truth as a scene of the suite: a registry id ("synthetic/books") or a scene folder; its
+            masks, known text and test split are used. Give `scene` or `gt`, not both.
+        gt: a folder of ground-truth images named like the renders (when the predictions hold none).
+        masks: a folder of text masks (<view stem>.png), over the scene's or the layout's own.
+        out: the output run folder (default: runs/evaluate/<predictions' name>).
+        method, dataset, scene_name, iteration: the names the cells get (defaults: from the predictions).
+        downscale: the renders' downscale against the scene's images (default: from the sizes).
+        ocr: engine name(s), comma-separated ("rapidocr", "rapidocr,tesseract"), or an `OCRBackend` object.
+        cer_profile: how text is normalised before CER ("paper": the authors' protocol).
+        with_lpips: compute LPIPS (needs the LPIPS-VGG weights).
+        allow_missing: score a test view without a render as unread (CER 1) instead of refusing.
+        train_seconds: the training time to record with the cells (None: not known).
+        report: write report/ (tables, figures, index.html).
+        progress: show progress bars.
+    """
+
     scene: str | None = None  # registry id (synthetic/books) or a scene folder
     gt: Path | None = None
     masks: Path | None = None
@@ -112,7 +131,22 @@ def default_out(pred: Path) -> Path:
 
 
 def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
-    """Evaluate the predictions at `pred` (see the module docstring); returns the output folder."""
+    """Score the renders at `pred` with the suite's OCR-CER, word-crop and image metrics, into a run folder.
+
+    Args:
+        pred: a predictions folder or archive in one of the layouts (`inria`, `nerfbaselines`, `folder`: the
+            module's docstring; docs/guide/evaluate.md).
+        opts: the options (`EvaluateOptions`).
+        say: where progress lines go (default: print).
+    Returns:
+        the output folder: results.csv, cells/<method>/<dataset>/<scene>/<iteration>/result.json and, unless
+        `opts.report` is False, report/. A checkpoint already scored there is skipped (the run resumes).
+    Raises:
+        PredictionsError: the layout is not recognised, a render is missing (without `allow_missing`) or not the
+            size of its ground truth, both `scene` and `gt` are given, or the folder was evaluated before with
+            other options.
+        OCRError: an unknown OCR engine (before anything is read).
+    """
     from strings_bench.bench.records import versions, write_gt_pngs, write_run_report
     from strings_bench.eval.ocr import get_engines
     from strings_bench.store import CellConfig, CellRecord, iteration_label, write_cell, write_results_csv

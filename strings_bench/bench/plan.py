@@ -42,21 +42,36 @@ DENSE_EVAL = ("words", "full")
 class RunConfig:
     """Everything a run is given; `strings-bench run`'s options, one field each (docs/guide/running.md).
 
-    methods: method names (`--methods`).
-    datasets: registry ids or scene folders (`--datasets`); None: the schedule's default scenes.
-    run_dir: the run folder; the same folder resumes.
-    schedule: the run's schedule (core/schedules.py: paper, standard, early, quick, tiny).
-    steps_scale, checkpoints: replace the schedule's scale / paper checkpoints.
-    miniature: how the shrunk schedule stands in for the paper's (core/schedules.py MINIATURES; None: the schedule's).
-    dense_every: also evaluate every that many paper iterations (`--checkpoints every:500`); dense_eval: how the
-        checkpoints only it adds are evaluated: "words" (the word-crop metrics and PSNR/SSIM; no OCR of the renders,
-        no LPIPS) or "full" (as every other checkpoint).
-    downscale: image downscale (None: the schedule's).
-    method_presets: method -> preset names chosen for it (`--presets strings=release`).
-    method_overrides: method (or ALL_METHODS) -> settings (`--set`).
-    ocr: OCR engine name(s), comma-separated; the first is the primary.
-    ocr_backend: an OCR backend object used in place of the names (tests, benchmarks).
-    the two last fields: the equal Gaussian cap, `--budget N|METHOD` and `--budget-from FOLDER` (bench/budget.py).
+    Attributes:
+        methods: method names (`--methods`).
+        datasets: registry ids or scene folders (`--datasets`); None: the schedule's default scenes.
+        run_dir: the run folder; the same folder resumes.
+        schedule: the run's schedule (`strings-bench run --help` lists them; core/schedules.py).
+        steps_scale: replaces the schedule's scale (1.0 = the paper's 30K iterations).
+        checkpoints: replace the schedule's paper checkpoints (paper iterations, e.g. (3000, 7000)).
+        dense_every: also evaluate every that many paper iterations (`--checkpoints every:500`).
+        miniature: how the shrunk schedule stands in for the paper's (core/schedules.py MINIATURES; None: the
+            schedule's).
+        dense_eval: how the checkpoints only `dense_every` adds are evaluated: "words" (the word-crop metrics and
+            PSNR/SSIM; no OCR of the renders, no LPIPS) or "full" (as every other checkpoint).
+        downscale: image downscale (None: the schedule's).
+        method_presets: method -> preset names chosen for it (`--presets strings=release`).
+        method_overrides: method (or ALL_METHODS, "*") -> settings (`--set`).
+        ocr: OCR engine name(s), comma-separated; the first is the primary.
+        ocr_backend: an `OCRBackend` object used in place of the names (an engine of your own).
+        cer_profile: how text is normalised before CER (`--cer-profile`; "paper": the authors' protocol).
+        device: "auto", "cpu", "cuda" or "cuda:N" (`--device`).
+        save_every: how often the training state is saved (`--save-every`: minutes, or "Nsteps").
+        keep_models: keep each checkpoint's model (PLY) in its cell (`--keep-models`).
+        executor: "local" or "ray" (`--executor`), with `executor_options`.
+        executor_options: the executor's options (with `--executor ray`: `--ray-address`, `--max-retries`,
+            `--cpus-per-job`).
+        with_lpips: compute LPIPS (`--no-lpips` turns it off).
+        lpips_at: "last" (each job's last checkpoint) or "all".
+        progress: show progress bars.
+        write_report: write report/ at the end.
+        budget: the equal Gaussian cap, `--budget N|METHOD` (bench/budget.py).
+        budget_from: `--budget-from FOLDER`: the cap from an earlier run's Gaussian counts.
     """
 
     methods: list[str] = field(default_factory=list)

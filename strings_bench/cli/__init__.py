@@ -56,7 +56,7 @@ COMMANDS: dict[str, Command] = {
     "verdicts": Command("strings_bench.cli.verdicts",
                         "the paper's claims judged from the banked data by one rule, at every scale measured"),
     "docs": Command("strings_bench.cli.docs",
-                    "rewrite the documentation's generated tables and command reference (in a source checkout)"),
+                    "rewrite the documentation's generated tables and command reference, or build the site (in a source checkout)"),
 }
 
 

@@ -1,4 +1,5 @@
-"""CLI: `strings-bench docs refresh [--check]`: rewrite the documentation's generated parts from their sources.
+"""CLI: `strings-bench docs refresh [--check]`: rewrite the documentation's generated parts from their sources;
+`strings-bench docs build [--site-dir DIR]`: build the documentation site (MkDocs, strict: a warning fails it).
 
 Two kinds of generated text, both in a source checkout:
 
@@ -10,6 +11,10 @@ Two kinds of generated text, both in a source checkout:
 page that is not a history page has a table read from a transcribed CSV (`docs/results/data/tables/`: tables first
 typed by hand, not derived from banked records or a command's output on them; `transcribed_reads`). A history page
 says so in its first lines with HISTORY_MARK, and its tables are what was measured then, transcribed.
+
+`build` runs MkDocs on mkdocs.yml in strict mode, so that a broken link, a page missing from the navigation's
+targets or an API object that does not exist stops the build (the `docs` extra installs MkDocs:
+`pip install -e ".[docs]"`; docs/site.md says why MkDocs).
 """
 
 from __future__ import annotations
@@ -34,13 +39,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     r.add_argument("--check", action="store_true", help="only compare; exit status 1 when something is out of date")
     r.add_argument("--root", default=".", help="the source checkout (default: the current folder)")
     r.set_defaults(func=cmd_refresh)
+    b = sub.add_parser("build", help="build the documentation site (MkDocs, strict) into build/site",
+                       description="Builds the documentation site from docs/ and mkdocs.yml with MkDocs in strict mode: "
+                                   "a broken link, a missing page or a missing API object fails the build. Open "
+                                   "SITE_DIR/index.html in a browser. Needs the docs extra (pip install -e \".[docs]\").")
+    b.add_argument("--site-dir", default=None, help="where to write the site (default: build/site under the checkout)")
+    b.add_argument("--root", default=".", help="the source checkout (default: the current folder)")
+    b.set_defaults(func=cmd_build)
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     """`strings-bench docs` without a subcommand: its help."""
-    print("usage: strings-bench docs refresh [--check] [--root DIR]")
+    print("usage: strings-bench docs refresh [--check] [--root DIR]\n"
+          "       strings-bench docs build [--site-dir DIR] [--root DIR]")
     return 2
 
 
@@ -186,4 +199,44 @@ def cmd_refresh(args: argparse.Namespace) -> int:
         print("the generated tables and the command-line reference match their sources")
         return 0
     print("rewrote: " + ", ".join(rel) if rel else "nothing to rewrite")
+    return 0
+
+
+# ---- build -------------------------------------------------------------------------------------------
+SITE_CONFIG = Path("mkdocs.yml")
+
+
+def build_site(root: Path, site_dir: Path | None = None) -> Path:
+    """Build the documentation site of the checkout `root` with MkDocs in strict mode; the site folder.
+
+    Raises StringsBenchError when MkDocs is not installed, when `root` has no mkdocs.yml, or when the build
+    fails (MkDocs' own messages, warnings included, are printed above it)."""
+    import subprocess
+    import sys
+
+    from strings_bench.core.errors import StringsBenchError
+
+    root = Path(root).resolve()
+    config = root / SITE_CONFIG
+    if not config.is_file():
+        raise StringsBenchError(f"{root} has no {SITE_CONFIG}", hint="run it in a source checkout, or pass --root DIR")
+    try:
+        import mkdocs  # noqa: F401
+        import mkdocstrings  # noqa: F401
+        import material  # noqa: F401
+    except ImportError as exc:
+        raise StringsBenchError(f"the documentation tools are not installed ({exc.name} is missing)",
+                                hint='pip install -e ".[docs]"  (bash scripts/bootstrap.sh --test installs them)') from None
+    site = Path(site_dir).resolve() if site_dir else root / "build" / "site"
+    cmd = [sys.executable, "-m", "mkdocs", "build", "--strict", "--clean", "-f", str(config), "-d", str(site)]
+    done = subprocess.run(cmd, cwd=root)
+    if done.returncode != 0:
+        raise StringsBenchError(f"the documentation site did not build (mkdocs exited with status {done.returncode})",
+                                hint="fix the warnings MkDocs printed above: strict mode counts each as an error")
+    return site
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    site = build_site(Path(args.root), Path(args.site_dir) if args.site_dir else None)
+    print(f"built the documentation site: {site / 'index.html'}")
     return 0

@@ -11,7 +11,7 @@ multiplied by the schedule's steps_scale; intervals keep at least strategies.bas
 steps. Measured on 2 CPU cores (synthetic scenes, 320x240; see README and docs/engine.md):
 - cpu (0.05: 150/350/1 500 steps for 3K/7K/30K, synthetic360-cpu/storeroom) is the default run: the
   CPU regime of docs/synthetic.md on a frozen room-scale scene where 3DGS reads late, as on the paper's
-  captures, in about 10 minutes (README, "What the default run shows");
+  captures, in DEFAULT_RUN_TIME (README, "Results of the default run");
 - early (0.15: 450/1 050 steps for 3K/7K, synthetic/extinguisher), the default before: the paper's
   "readable early" checkpoints on an easy object-centred scene where 3DGS reads early
   (docs/results/default-run.md, "The default run");
@@ -42,6 +42,12 @@ def iteration_label(iteration: int) -> str:
 # 3K is the end of STRinGS' phase 1 (the position-LR ablation of the paper is read there).
 PAPER_CHECKPOINTS = (3000, 7000, 30000)
 DEFAULT_DATASETS = ("synthetic",)
+# The default run's time (`strings-bench run --methods strings,3dgs`, the run alone: no set-up), stated here once:
+# `run --help`, the docs' CLI reference, the HTML report's schedule line and the README take it from here. Measured
+# from a fresh clone on 2 idle cores: docs/results/data/engine-stages/demo-fresh-clone-4.csv, "the run" row (302 s;
+# docs/results/engine-speed.md); tests/test_docs_figures.py holds this figure to that row.
+DEFAULT_RUN_MINUTES = 5
+DEFAULT_RUN_TIME = f"about {DEFAULT_RUN_MINUTES} min on 2 CPU cores"
 DEFAULT_SCHEDULE = "cpu"
 
 
@@ -147,7 +153,7 @@ SCHEDULES: dict[str, Schedule] = {
     "cpu": Schedule("cpu", 0.05, paper_checkpoints=PAPER_CHECKPOINTS,
                     datasets=("synthetic360-cpu/storeroom",),
                     description="the default: the CPU regime, the paper's schedule scaled by 0.05 (150/350/1500 "
-                                "iterations for 3K/7K/30K) on synthetic360-cpu/storeroom, ~10 min on 2 CPU cores; "
+                                f"iterations for 3K/7K/30K) on synthetic360-cpu/storeroom, {DEFAULT_RUN_TIME}; "
                                 "3DGS reads late there, as on the paper's captures"),
     # The longer CPU regime, frozen on 3DGS alone before any other method ran on it: at x0.1 3DGS's
     # known-text CER at 7K is 0.755 (draws 0-2 of the three rooms, range 0.690-0.789) against the paper's 0.736
@@ -166,7 +172,7 @@ SCHEDULES: dict[str, Schedule] = {
     "quick": Schedule("quick", 0.01, paper_checkpoints=(7000, 30000),
                     description="the paper's schedule scaled by 0.01 (70/300 iterations for 7K/30K) on the five "
                                 "synthetic scenes, ~10 min on 2 CPU cores; text stays illegible (CER ~1.0)"),
-    "tiny": Schedule("tiny", 0.005, description="smoke test: scaled by 0.005 (35/150 iterations for 7K/30K)"),
+    "tiny": Schedule("tiny", 0.005, description="smoke test: scaled by 0.005 (15/35/150 iterations for 3K/7K/30K)"),
 }
 
 

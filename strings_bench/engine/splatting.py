@@ -53,6 +53,7 @@ from strings_bench.engine.strategies.default import DefaultStrategy
 from strings_bench.core.method import Method
 
 if TYPE_CHECKING:
+    from strings_bench.raster.types import RasterOutput
     from strings_bench.scene.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -215,7 +216,16 @@ class GaussianSplatting(Method):
     @classmethod
     def from_settings(cls, **settings) -> "GaussianSplatting":
         """Build from flat settings: TrainConfig fields, `lr_<group>`, strategy fields and the fields of
-        `method_settings_cls`. Unknown keys are an error naming the valid ones."""
+        `method_settings_cls`. Called by `MethodSpec.build` when a run plans a job, before `setup`.
+
+        Args:
+            **settings: flat setting name -> value (the spec's defaults, presets, steps scale and `--set`,
+                merged); `forced_settings` win over them.
+        Returns:
+            the method, not set up; `settings` holds what it was given.
+        Raises:
+            StringsBenchError: an unknown key, naming the valid ones.
+        """
         settings = {**settings, **cls.forced_settings}
         own = {f.name for f in dataclasses.fields(cls.method_settings_cls)} if cls.method_settings_cls else set()
         config, strategy = config_from_settings(settings, cls.strategy_cls, ignore=tuple(own))
@@ -227,7 +237,13 @@ class GaussianSplatting(Method):
 
     @classmethod
     def settings_schema(cls) -> list[Setting]:
-        """Every setting this method takes, with its default and meaning (`strings-bench methods show`)."""
+        """Every setting this method takes, with its default and meaning. Called by `strings-bench methods show`
+        and when a run checks `--set` keys, without building the method.
+
+        Returns:
+            one `Setting` per key: TrainConfig's, the learning rates (`lr_<group>`), the strategy's fields, then
+            `method_settings_cls`' fields.
+        """
         out = dataclass_settings(TrainConfig, "training", skip=("lrs",))
         out += dataclass_settings(LearningRates, "learning rates (x scene extent for means)", prefix="lr_")
         seen = {s.name for s in out}
@@ -239,18 +255,21 @@ class GaussianSplatting(Method):
 
     # ---- schedule helpers -------------------------------------------------------------------
     def at(self, nominal: float) -> int:
-        """The step actually run for nominal 3DGS iteration `nominal` (x steps_scale, at least 1)."""
+        """The step actually run for nominal 3DGS iteration `nominal` (x steps_scale, at least 1). Called by the
+        hooks that read a schedule."""
         return scaled_step(nominal, self.config.steps_scale)
 
     def every(self, nominal: float) -> int:
-        """The interval actually used for a nominal 3DGS interval (x steps_scale, at least config.interval_floor
-        steps: 50 unless the miniature lowers it)."""
+        """The interval actually used for a nominal 3DGS interval `nominal` (x steps_scale, at least
+        config.interval_floor steps: 50 unless the miniature lowers it). Called by the hooks that read a schedule."""
         return scaled_interval(nominal, self.config.steps_scale, self.config.interval_floor)
 
     # ---- set-up --------------------------------------------------------------------------------
     def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:
-        """Prepare training on `scene` (see `Method.setup`): `prepare` (preprocessing), the training
-        images decoded once, the initial model, Adam and the strategy state, all on `device`."""
+        """Prepare training on `scene` (see `Method.setup`): the training images decoded once, `prepare`
+        (preprocessing), the initial model (`initial_model`, then `set_model`: Adam and the strategy state), all on
+        `device`. Called once by the loop before the first step (timed as preprocess_seconds), and again before
+        `load_state_dict` on resume."""
         self.scene = scene
         self.downscale = float(downscale)
         self.device = torch.device(device)
@@ -266,20 +285,48 @@ class GaussianSplatting(Method):
         self.set_model(self._given_model if self._given_model is not None else self.initial_model(scene))
 
     def prepare(self, scene: "Scene") -> None:
-        """Preprocessing before the initial model (STRinGS: masks and Algorithm 1)."""
+        """Preprocessing before the initial model (STRinGS: masks and Algorithm 1). Called once by `setup`, after the
+        training images are loaded and before `initial_model`; timed as preprocess_seconds. Default: nothing.
+
+        Args:
+            scene: the scene being trained on (also `self.scene`).
+        """
 
     # ---- hooks --------------------------------------------------------------------------------
     def initial_model(self, scene: "Scene") -> GaussianModel:
-        """The model training starts from: one Gaussian per SfM point (3DGS initialisation)."""
+        """The model training starts from. Called once by `setup`, after `prepare` (not when the method was given
+        a `model`).
+
+        Args:
+            scene: the scene; `scene.model.xyz` (P, 3) float world units and `scene.model.rgb` (P, 3) uint8 are
+                its SfM points.
+        Returns:
+            a `GaussianModel` on `self.device`; default one Gaussian per SfM point (3DGS initialisation).
+        """
         return GaussianModel.from_points(scene.model.xyz, scene.model.rgb, sh_degree=self.config.sh_degree,
                                          init_opacity=self.config.init_opacity, device=self.device)
 
     def train_views(self) -> list[int]:
-        """The views training samples from (changing the list restarts the permutation)."""
+        """The views training samples from. Called by `views_for_step` every step, and by `set_model` (the
+        strategy's cameras). Changing the list restarts the permutation.
+
+        Returns:
+            scene view indices; default `scene.train_idx`.
+        """
         return list(self.scene.train_idx)
 
     def views_for_step(self, step: int) -> int:
-        """3DGS order: a random permutation of the training views, redrawn when used up."""
+        """The view trained on at `step`. Called once per step in `train_step`, after `position_lr` and before the
+        render.
+
+        Args:
+            step: the 1-based step.
+        Returns:
+            a scene view index; default 3DGS' order: a random permutation of `train_views()`, redrawn when used
+            up, from the method's seeded generator.
+        Raises:
+            TrainingError: the scene has no training views.
+        """
         views = self.train_views()
         if not views:
             raise TrainingError(f"scene {self.scene.name} has no training views",
@@ -291,8 +338,9 @@ class GaussianSplatting(Method):
             self._view_stack = [views[i] for i in self.rng.permutation(len(views))][::-1]
         return self._view_stack.pop()
 
-    def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
-        """The training loss of one step.
+    def loss(self, out: "RasterOutput", gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
+        """The training loss of one step. Called once per step in `train_step`, after the render and the strategy's
+        `step_pre_backward`; the strategy's `loss_terms` are added to what it returns, then backward runs.
 
         Args:
             out: the rasterizer's output (`RasterOutput`; `out.color` is (H, W, 3) float32 in [0, 1]).
@@ -305,7 +353,14 @@ class GaussianSplatting(Method):
         return gs_loss(out.color, gt, self.config.lambda_dssim)
 
     def position_lr(self, step: int) -> float:
-        """The position learning rate (world units) at `step`: 3DGS' log-linear decay x scene extent."""
+        """The position learning rate at `step`. Called first thing in each `train_step` (after `on_step_start`).
+
+        Args:
+            step: the 1-based step.
+        Returns:
+            the learning rate of the means, in world units (scene extent x the 3DGS rate); default 3DGS'
+            log-linear decay over `position_lr_steps` (scaled), times `position_lr_gain`.
+        """
         lrs = self.config.lrs
         lr = exponential_lr(step, lrs.means * self.extent, lrs.means_final * self.extent,
                             self.at(self.config.position_lr_steps))
@@ -313,23 +368,50 @@ class GaussianSplatting(Method):
         return lr if gain == 1 else lr * gain
 
     def position_lr_scale(self, step: int):
-        """A factor on the position step at `step`: None (none), a float, or an (N,) tensor on the
-        model's device scaling each Gaussian's update (STRinGS: 0 in phase 1, eta_r per row in phase 2)."""
+        """A factor on the position step at `step`. Called once per step in `train_step`, after backward and
+        before the optimizer step.
+
+        Args:
+            step: the 1-based step.
+        Returns:
+            None (no factor; the default), a float multiplying the position learning rate, or an (N,) float
+            tensor on the model's device scaling each Gaussian's position update (STRinGS: 0 in phase 1,
+            eta_r per row in phase 2).
+        """
         return None
 
     def sh_degree_for_step(self, step: int) -> int:
-        """The SH degree used at `step`: +1 every `sh_increase_every` (scaled) up to `sh_degree`."""
+        """The SH degree rendered at `step`. Called in each `train_step` (the render) and by `render`.
+
+        Returns:
+            0..`config.sh_degree`; default +1 every `sh_increase_every` (scaled) steps.
+        """
         return min(self.config.sh_degree, step // self.every(self.config.sh_increase_every))
 
     def strategy_step(self, step: int) -> int:
-        """The step number the densification strategy sees (STRinGS restarts it in phase 2)."""
+        """The step number the densification strategy sees. Called once per step in `train_step`, before the render.
+
+        Returns:
+            a 1-based step; default `step` itself (STRinGS restarts the count in phase 2).
+        """
         return step
 
     def on_step_start(self, step: int) -> None:
-        """Called first in every step; a phase switch calls `self.set_model(new_model)` here."""
-        pass
+        """Called first in every `train_step`, before anything is rendered; a phase switch calls
+        `self.set_model(new_model)` here. Default: nothing.
+
+        Args:
+            step: the 1-based step about to run.
+        """
 
     def checkpoint_extra(self, step: int) -> dict:
+        """Method statistics stored in the checkpoint's result (`CheckpointResult.extra`, then result.json). Called
+        at each checkpoint after the test views are rendered, before `refine(step)`.
+
+        Returns:
+            a JSON-serialisable dict; default the steps scale, the paper iteration, the SH degree, the last loss,
+            the peak Gaussian count and the motion log's summary. Extend it with `{**super().checkpoint_extra(step), ...}`.
+        """
         extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
                  "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss,
                  "peak_gaussians": int(self.size_log["peak_gaussians"]), **motion_record(self.motion_log)}
@@ -351,11 +433,21 @@ class GaussianSplatting(Method):
 
     # ---- model / optimizer ---------------------------------------------------------------------
     def make_optimizer(self, model: GaussianModel) -> GaussianAdam:
-        """Adam over `model`'s parameters with the 3DGS learning rates (position LR x extent)."""
+        """The optimizer of `model`. Called by `set_model` (the initial model, a phase switch) and on resume.
+
+        Returns:
+            a `GaussianAdam` over `model.params`; default the 3DGS learning rates, the position's x scene extent.
+        """
         return GaussianAdam(model.params, self.config.lrs.group_lrs(self.extent))
 
     def set_model(self, model: GaussianModel) -> None:
-        """Start optimising `model` (fresh Adam state and strategy state): initial model, phase switches."""
+        """Start optimising `model`, with a fresh optimizer (`make_optimizer`) and strategy state. Called by `setup`
+        with the initial model; call it from `on_step_start` to switch phase.
+
+        Raises:
+            TrainingError: `model` has no Gaussians.
+            StringsBenchError: `model` already holds more Gaussians than the run's budget allows.
+        """
         if len(model) == 0:
             raise TrainingError(f"the initial model for scene {self.scene.name} has no Gaussians",
                                 hint="the SfM model (or the selected subset of points) is empty")
@@ -380,7 +472,11 @@ class GaussianSplatting(Method):
 
     def reserved_gaussians(self) -> int:
         """Gaussians this method will add by itself later (outside the strategy), kept free under a budget
-        (`Strategy.cap_now`): 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1."""
+        (`Strategy.cap_now`). Called by `set_model`.
+
+        Returns:
+            a count, 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1.
+        """
         return 0
 
     def target(self, view_idx: int) -> torch.Tensor:
@@ -414,22 +510,41 @@ class GaussianSplatting(Method):
         return cam
 
     def render_raster(self, view_idx: int, sh_degree: int | None = None, model: GaussianModel | None = None, **kw):
-        """The rasterizer's full output (colour, alpha, depth, radii, means2d) for a view, of `model`
-        (default: the model being trained)."""
+        """Render a view. Called once per step in `train_step` (with the strategy's `get_raster_kwargs`) and by
+        `render` at checkpoints.
+
+        Args:
+            view_idx: the scene view.
+            sh_degree: the SH bands used (None: all the model holds).
+            model: what to render (default: the model being trained).
+            **kw: further `rasterize` arguments (`mip_filter`, `compute_absgrad`).
+        Returns:
+            the `RasterOutput` (colour (H, W, 3), alpha, depth, radii, means2d) at the training resolution.
+        """
         model = self.model if model is None else model
         return model.render(self.camera(view_idx), self.background, sh_degree=sh_degree,
                             backend=self.config.backend, **kw)
 
     def model_to_render(self) -> GaussianModel:
-        """The model that checkpoint renders show: the trained one (Mip-Splatting: its 3D filter folded in)."""
+        """The model that checkpoint renders show. Called by `render` at each checkpoint.
+
+        Returns:
+            a `GaussianModel`; default the trained one (Mip-Splatting: its 3D filter folded in).
+        """
         return self.model
 
     # ---- the protocol ----------------------------------------------------------------------------
     def train_step(self, step: int) -> float:
-        """One optimisation step (see `Method.train_step`): render the step's view, loss plus the
-        strategy's loss terms, backward, finite checks, Adam with the position LR and its row scale.
-        Returns the loss; raises `TrainingError` naming the iteration and parameter groups on a
-        non-finite loss, gradient or parameter."""
+        """One optimisation step (see `Method.train_step`), called by the loop for step = 1, 2, ...: the hooks in
+        this order: `on_step_start`, `position_lr`, `views_for_step`, `strategy_step`, `render_raster`, the
+        strategy's `step_pre_backward`, `loss` plus the strategy's `loss_terms`, backward, finite checks,
+        `position_lr_scale`, then Adam.
+
+        Returns:
+            the step's loss (a float).
+        Raises:
+            TrainingError: a non-finite loss, gradient or parameter, naming the iteration and parameter groups.
+        """
         self.step = step
         self.on_step_start(step)
         model, opt, strategy = self.model, self.optimizer, self.strategy
@@ -476,7 +591,8 @@ class GaussianSplatting(Method):
         return value
 
     def refine(self, step: int) -> None:
-        """The strategy's post-backward work for `step` (densify, prune, reset), then zero the gradients."""
+        """The strategy's post-backward work for `step` (`step_post_backward`: densify, prune, reset), then zero the
+        gradients. Called by the loop after `train_step(step)`, and after the checkpoint of `step` was evaluated."""
         if self._step_info is None or self._step_info[0] != step:
             return
         _, sstep, info = self._step_info
@@ -490,16 +606,22 @@ class GaussianSplatting(Method):
 
     @torch.no_grad()
     def render(self, view_idx: int) -> np.ndarray:
-        """The current model's (H, W, 3) float32 render of a view, in [0, 1], at the step's SH degree."""
+        """The current model's render of view `view_idx` at the step's SH degree. Called at each checkpoint, once per
+        test view, after `train_step` and before `refine`.
+
+        Returns:
+            (H, W, 3) float32 in [0, 1], at the training downscale.
+        """
         out = self.render_raster(view_idx, sh_degree=self.sh_degree_for_step(self.step), model=self.model_to_render())
         return out.color.detach().clamp(0, 1).cpu().numpy().astype(np.float32)
 
     def num_gaussians(self) -> int:
-        """Gaussians in the current model."""
+        """Gaussians in the current model (0 before `setup`). Called at each checkpoint and for the budget."""
         return len(self.model) if self.model is not None else 0
 
     def save_model(self, path) -> None:
-        """Write the model as a 3DGS PLY (atomic)."""
+        """Write the model as a 3DGS PLY to `path` (atomic). Called at checkpoints with `run --keep-models`, and by
+        `methods check`."""
         from strings_bench.engine.ply import write_ply
 
         write_ply(path, self.model)
@@ -508,7 +630,8 @@ class GaussianSplatting(Method):
     def state_dict(self) -> dict:
         """Everything needed to continue bit for bit: step, model, Adam moments, strategy statistics
         (tensors on the CPU, generators as their state), the view-order generator and stack, the last
-        loss, and `extra_state()`."""
+        loss, and `extra_state()`. Called when the training state is saved: at checkpoints and every
+        `--save-every`."""
         return {
             "step": self.step,
             "model": self.model.state_dict(),
@@ -524,7 +647,8 @@ class GaussianSplatting(Method):
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore `state_dict()` after `setup()` (on this method's device)."""
+        """Restore `state_dict()` (the `state` given) after `setup()`, on this method's device. Called on resume,
+        before the first step run again."""
         model = GaussianModel.from_state_dict(state["model"], device=self.device)
         self.model = model
         self.optimizer = self.make_optimizer(model)
@@ -542,11 +666,20 @@ class GaussianSplatting(Method):
         self.load_extra_state(state.get("extra") or {})
 
     def extra_state(self) -> dict:
-        """A subclass's own resumable state (phase flags, ...)."""
+        """A subclass's own resumable state (phase flags, ...). Called by `state_dict` when the training state is
+        saved (at checkpoints and every `--save-every` minutes).
+
+        Returns:
+            anything `torch.save` can store; default {}.
+        """
         return {}
 
     def load_extra_state(self, state: dict) -> None:
-        pass
+        """Restore `extra_state()`. Called by `load_state_dict` on resume, after `setup`. Default: nothing.
+
+        Args:
+            state: what `extra_state()` returned ({} for a state saved without it).
+        """
 
     def _nonfinite_error(self, step: int, what: str, groups: list[str] | None = None) -> TrainingError:
         bad_params = [k for k, p in self.model.params.items() if not torch.isfinite(p.detach()).all()]

@@ -369,6 +369,14 @@ _loaded = False
 
 
 def register_method(spec: MethodSpec) -> MethodSpec:
+    """Make `spec` a method of this process (`run`, `methods list`) under its name, replacing one of that name.
+
+    A method in a package of your own needs no call: the `strings_bench.methods` entry point of its pyproject.toml
+    registers it in every process. For the duration of a block only: `registered(spec)`.
+
+    Returns:
+        `spec` (so that it can be used as `SPEC = register_method(MethodSpec(...))`).
+    """
     _METHODS[spec.name] = spec
     return spec
 

@@ -174,13 +174,15 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera, background, 
         backend: "auto" (gsplat for CUDA tensors when gsplat imports, else "cpu"), "cpu" (numba
             preprocessing and tile kernels with a hand-written backward; float32 blending on the
             vector units), "cpu-f64" (the same with the float64 blend kernels: the reference the
-            tests hold "cpu" to; about 3x slower) or "gsplat" (CUDA only).
+            tests hold "cpu" to; slower: docs/raster.md) or "gsplat" (CUDA only).
         mip_filter: bool. Mip-Splatting's 2D filter: a 0.1 px^2 dilation with opacity compensation
             sqrt(det Sigma2D / det(Sigma2D + 0.1 I)) instead of 3DGS's plain 0.3 px^2 dilation.
         compute_absgrad: bool. Allocate `absgrad` and fill it during backward with the AbsGS
             statistic sum_pixels |dL_pixel / d means2d| per component (pixel units).
-        near, far: float, camera-space depth z (world units) outside of which a Gaussian is
-            culled (z <= near or z >= far). Need 0 < near < far.
+        near: float, camera-space depth z (world units) at or below which a Gaussian is culled
+            (z <= near). Needs 0 < near < far.
+        far: float, camera-space depth z (world units) at or beyond which a Gaussian is culled
+            (z >= far).
         sh_rest: None, or (N, K - 1, 3) float: the SH bands above the DC one, with `sh` then only
             the DC band (N, 1, 3) — the model's sh0 / shN as they are stored. Same result as
             passing their concatenation as `sh`; the CPU backends then read both in place (no

@@ -84,6 +84,34 @@ def compute_extent(centers: np.ndarray) -> float:
 
 @dataclass
 class Scene:
+    """A scene on disk: its images, its COLMAP model (cameras and SfM points), text masks, known text and split.
+
+    Build it with `Scene.load(folder)`. The folder holds `images/` and a COLMAP model (`sparse/0/` or
+    `sparse/`, binary or text); optionally `masks/` (one text mask per view, named by the image's stem),
+    `annotations.json` (the known text of synthetic scenes), `split.json` ({"test": [names], "train": [names]})
+    and downscaled copies `images_2/`, `images_4/`. Views are indexed 0..num_views-1 in the model's image order.
+
+    Attributes:
+        root: the scene folder.
+        name: the scene's name in tables (default: the folder's name).
+        model: the COLMAP model: `model.cameras` (one `Camera` per view), `model.xyz` (P, 3) float SfM points in
+            world units, `model.rgb` (P, 3) uint8 their colours.
+        images_dir: the full-resolution images.
+        masks_dir: the text masks, or None.
+        known_text: image name -> the `KnownWord`s it shows, or None when the text is not known.
+        train_idx: the training views' indices.
+        test_idx: the test views' indices (split.json's, else every 8th view, as in 3DGS).
+        settings: per-scene settings from a dataset card (e.g. STRinGS' n_max).
+
+    Example:
+        >>> from strings_bench.bench.check import tiny_scene
+        >>> scene = Scene.load(tiny_scene())
+        >>> scene.num_views, len(scene.train_idx) + len(scene.test_idx) == scene.num_views
+        (8, True)
+        >>> scene.load_image(scene.test_idx[0]).shape, scene.camera(0).width
+        ((72, 96, 3), 96)
+    """
+
     root: Path
     name: str
     model: ColmapModel
@@ -98,6 +126,20 @@ class Scene:
     @classmethod
     def load(cls, root: str | Path, name: str | None = None, images: str = "images", masks: str = "masks",
              settings: dict | None = None) -> "Scene":
+        """Read the scene in folder `root` (nothing is decoded yet; images load on first use).
+
+        Args:
+            root: the scene folder.
+            name: its name in tables (default: the folder's name).
+            images: the images' sub-folder.
+            masks: the text masks' sub-folder (absent: no masks).
+            settings: per-scene settings (a dataset card's), kept in `settings`.
+        Returns:
+            the scene, with its train/test split.
+        Raises:
+            DatasetError: the folder, its images or its COLMAP model are missing, the model names an image that
+                is not there, or split.json is malformed (each message says which, and how to fix it).
+        """
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"scene folder {root} does not exist", hint="check the path, or `strings-bench datasets list`")
@@ -168,13 +210,17 @@ class Scene:
     # ---- geometry -------------------------------------------------------------------------
     @property
     def num_views(self) -> int:
+        """Views (registered images) in the model."""
         return len(self.model.cameras)
 
     @property
     def names(self) -> list[str]:
+        """The views' image names, by view index."""
         return self.model.names
 
     def camera(self, i: int, downscale: float = 1) -> Camera:
+        """View `i`'s pinhole camera (intrinsics in pixels, world -> camera pose) at the image size for
+        `downscale` (2 = half width and height)."""
         cam = self.model.cameras[i]
         if downscale == 1:
             return cam
@@ -183,6 +229,8 @@ class Scene:
 
     @property
     def extent(self) -> float:
+        """The scene's size in world units: 1.1 x the largest distance of a training camera from their mean
+        (3DGS' `cameras_extent`); learning rates and size thresholds are multiples of it."""
         idx = self.train_idx or list(range(self.num_views))
         return compute_extent(np.stack([self.model.cameras[i].center for i in idx]))
 
@@ -192,6 +240,7 @@ class Scene:
         return max(1, int(round(cam.width / downscale))), max(1, int(round(cam.height / downscale)))
 
     def image_path(self, i: int, downscale: float = 1) -> Path:
+        """The file view `i` is read from: the `images_<downscale>/` copy when there is one, else the original."""
         name = self.model.cameras[i].name
         if downscale != 1 and float(downscale).is_integer():
             pre = self.root / f"{self.images_dir.name}_{int(downscale)}" / name
@@ -204,6 +253,7 @@ class Scene:
         return _load_rgb(str(self.image_path(i, downscale)), self._image_size(i, downscale))
 
     def mask_path(self, i: int) -> Path | None:
+        """View `i`'s text mask file (masks/<stem>.png or .jpg), or None."""
         if self.masks_dir is None:
             return None
         stem = Path(self.model.cameras[i].name).stem

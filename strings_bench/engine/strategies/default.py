@@ -94,7 +94,9 @@ class DefaultStrategy(Strategy):
         """Keep the gradient of `info["means2d"]` (when it is in the graph) for `_update_state`.
 
         Args:
-            model, optimizer, state: unused.
+            model: unused.
+            optimizer: unused.
+            state: unused.
             step: unused.
             info: this step's info dict.
         """
@@ -255,6 +257,8 @@ class DefaultStrategy(Strategy):
         state["last_prune"] = int(prune.sum())
 
     def _reset_opacity(self, model: GaussianModel, optimizer: GaussianAdam, state: dict) -> None:
+        """Every `reset_every` steps before refine_stop_iter: opacity <- min(opacity, reset_value) (Adam's moments of
+        the opacities are zeroed with it)."""
         ops.reset_opacity(model, optimizer, self.reset_value)
 
 

@@ -167,11 +167,19 @@ class BackendStatus:
 
 
 class OCRBackend:
-    """Base class of the OCR backends.
+    """Base class of the OCR engines: subclass it for an engine of your own.
 
-    Subclasses set `name`, fill `self.settings` (everything that changes the result, JSON-serialisable,
-    never a secret) and implement `_recognize(rgb) -> list[Word]` plus `version` and `status()`.
-    `read` handles loading, masking and the on-disk cache.
+    A subclass sets `name`, passes `settings` (everything that changes the result, JSON-serialisable,
+    never a secret) to `__init__`, and implements `_recognize(rgb) -> list[Word]` plus `version` and `status()`.
+    `read` does the rest: loading, masking, the on-disk cache (keyed by `describe()` and the pixels) and turning an
+    engine's exception into an `OCRError`. An engine object is accepted wherever an engine name is: `run(...,
+    ocr_backend=engine)`, `EvaluateOptions(ocr=engine)`.
+
+    Args:
+        settings: the engine's settings (JSON-serialisable; stored with every result).
+        cache: an `OCRCache` (results on disk), or None for none.
+    Raises:
+        TypeError: `settings` is not JSON-serialisable.
     """
 
     name: ClassVar[str] = "base"
@@ -187,10 +195,12 @@ class OCRBackend:
 
     @property
     def version(self) -> str:  # pragma: no cover - overridden
+        """The engine's version (its models' too, where they change the result): part of the cache key."""
         raise NotImplementedError
 
     @classmethod
     def status(cls) -> BackendStatus:  # pragma: no cover - overridden
+        """Whether the engine can run on this machine, without building it (`strings-bench ocr check`)."""
         raise NotImplementedError
 
     def describe(self) -> dict[str, Any]:
@@ -230,9 +240,16 @@ class OCRBackend:
         return "default models"
 
     def read(self, image: np.ndarray | str | os.PathLike, mask: np.ndarray | str | os.PathLike | None = None) -> list[Word]:
-        """Words found in `image` (RGB HxWx3 uint8 array or file), after `image * mask` when a mask is given.
+        """The words in `image`, read after `image * mask` when a mask is given.
 
-        Raises OCRError when the backend fails; failures are never cached.
+        Args:
+            image: (H, W, 3) uint8 RGB array, or an image file.
+            mask: (H, W) text mask (bool, or uint8 > 127 = text; resized to the image when its size differs), a
+                mask file, or None to read the whole image.
+        Returns:
+            the engine's `Word`s (from the cache when these pixels were read before with these settings).
+        Raises:
+            OCRError: the engine failed; failures are never cached.
         """
         rgb = load_image(image)
         mask_arr = None if mask is None else load_mask(mask, rgb.shape[:2])
@@ -259,6 +276,16 @@ class OCRBackend:
         return words
 
     def _recognize(self, rgb: np.ndarray) -> list[Word]:  # pragma: no cover - overridden
+        """The engine itself: the words in one image. Called by `read` on a cache miss, after masking.
+
+        Args:
+            rgb: (H, W, 3) uint8 RGB, already multiplied by the text mask when one was given.
+        Returns:
+            the words found, each with its text, its box (polygon in pixels of `rgb`) and a confidence in [0, 1];
+            [] when there is none.
+        Raises:
+            OCRError: the engine failed (any other exception is turned into one by `read`).
+        """
         raise NotImplementedError
 
     def default_workers(self) -> int:
