@@ -24,8 +24,8 @@ SCRIPT = ROOT / "scripts" / "gpu_campaign.sh"
 ROUND_DATE = "2026-12-02"
 
 
-def campaign(*args, timeout=600):
-    env = {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT)}
+def campaign(*args, timeout=600, env=None):
+    env = {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT), **(env or {})}
     dated = args if "--date" in args else ("--date", ROUND_DATE, *args)
     return subprocess.run(["bash", str(SCRIPT), *map(str, dated)], capture_output=True, text=True, timeout=timeout,
                           env=env)
@@ -246,3 +246,24 @@ def test_x1_rooms_320_builds_the_registered_cpu_rooms_and_1280_scales_their_text
             assert (settings.width, settings.height, settings.text_px) == (w, h, (10.0 * scale, 16.0 * scale))
             if scale == 1:
                 assert settings == registered
+
+
+# The capture's scene is built in the dry run (SfM and OCR masks of 9 photos: about two minutes on 2 cores), so
+# opt-in; CI runs it in a step of its own (.ci/run).
+@pytest.mark.slow
+def test_captures_7k_dry_run_banks_each_cell_then_skips_it(tmp_path):
+    out = tmp_path / "gpu"
+    env_cache = {"STRINGS_BENCH_CACHE": str(tmp_path / "cache")}
+    done = campaign("--dry-run", "--budget", "1200", out, "captures-7k", timeout=1500, env=env_cache)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    (steps_csv,) = out.glob(f"{ROUND_DATE}_captures-7k_cpu-dry-run.csv")
+    steps = rows(steps_csv)
+    assert [r["step"] for r in steps] == ["versions", "compile", "build_bundler_et", "bundler_et_3dgs_7k"]
+    assert all(r["status"] == "ok" for r in steps), steps
+    (cell,) = rows(next(out.glob("*_captures-7k_bundler_et_3dgs_7k_cpu-dry-run.csv")))
+    assert cell["method"] == "3dgs" and cell["label"] == "7K" and float(cell["peak_memory_mb"]) > 0
+    again = campaign("--dry-run", "--force", "--date", "2026-12-03", out, "captures-7k", timeout=600, env=env_cache)
+    assert again.returncode == 0, again.stdout[-3000:]
+    later = {r["step"]: r for r in rows(out / "2026-12-03_captures-7k_cpu-dry-run.csv")}
+    assert "build_bundler_et" not in later  # every cell banked: the scene is not even looked for
+    assert later["bundler_et_3dgs_7k"]["detail"].startswith(f"banked in {ROUND_DATE}_")
