@@ -164,3 +164,14 @@ def test_the_blas_rule_sees_each_kind_of_call(tmp_path):
                        "g = np.linalg.norm(b)\nh = np.matmul(b, c)\nok = vec3.dot(b, c)\n")
     assert [h.split(": ", 1)[1] for h in blas_calls(planted)] == ["@", ".dot()", ".dot()", ".einsum()", "linalg.norm()",
                                                                   ".matmul()"]
+
+
+def test_datasets_show_prints_the_content_hash(scene_dir, capsys):
+    from strings_bench.cli import main
+
+    assert main(["datasets", "add", "hashed-room", str(scene_dir)]) == 0
+    capsys.readouterr()
+    assert main(["datasets", "show", "hashed-room"]) == 0
+    out = capsys.readouterr().out
+    content = scene_content_hash(scene_dir)
+    assert f"content hash {content['hash']} (images {content['parts']['images']}, masks" in out

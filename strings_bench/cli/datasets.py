@@ -241,7 +241,8 @@ def _setup_add(p: argparse.ArgumentParser) -> None:
 
 def _setup_show(p: argparse.ArgumentParser) -> None:
     p.description = ("Print a scene's record: where it is, views and test views, photos left out by SfM, the GT "
-                     "characters OCR reads on the test views (captures), and rho (docs/difficulty.md). A scene that "
+                     "characters OCR reads on the test views (captures), rho (docs/difficulty.md) and the content hash "
+                     "of its images, masks, cameras, points and text (docs/reproducibility.md). A scene that "
                      "is not built yet is only reported as such; --build builds it (SfM for a capture, the generator "
                      "for a synthetic room).")
     p.add_argument("spec", metavar="NAME[/SCENE]", help="a dataset id (every scene) or DATASET/SCENE, e.g. "
