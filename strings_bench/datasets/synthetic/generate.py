@@ -375,14 +375,15 @@ def _write_pairs(path: Path, names: list[str], overlap: int) -> int:
 
 def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Camera], settings: SyntheticSettings,
                                  relaxed: bool = False, threads: int | None = None) -> tuple[ColmapModel, dict]:
-    """SIFT features + matching on the rendered images on `threads` threads (default: the usable cores),
-    then pycolmap.triangulate_points with the known cameras on one thread. Returns the triangulated model, its
-    tracks and points in canonical order (scene/colmap.py, in_canonical_order), and stage timings.
+    """SIFT features on one thread, matching on `threads` threads (default: the usable cores), then
+    pycolmap.triangulate_points with the known cameras on one thread. Returns the triangulated model, its tracks
+    and points in canonical order (scene/colmap.py, in_canonical_order), and stage timings.
 
-    Features and matches are computed per image and per pair, the same at any thread count. The triangulation's
-    bundle adjustment is not: on several threads the order of a track's observations and the last bits of
-    coordinates (~5e-16) varied from run to run, so it runs on one, and the canonical order removes what is
-    left of the threads' order; the thread count stays out of the cache key."""
+    Only the matching runs on several threads: with the features extracted on two, or the triangulation run on
+    two, the default run's room (3 304 points) came out with the same tracks but other last bits of coordinates
+    (up to 7e-15, in 51 points) from build to build, and the order of a track's observations varied; on one
+    thread each, three builds under two OpenBLAS core types gave the same bytes. The canonical order removes
+    what is left of the threads' order; the thread count stays out of the cache key."""
     from strings_bench.core.cpus import usable_cores
 
     import pycolmap
@@ -400,7 +401,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
         reader.camera_model = "PINHOLE"
         reader.camera_params = f"{cam0.fx},{cam0.fy},{cam0.cx},{cam0.cy}"
         extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = threads
+        extraction.num_threads = 1  # see above: on two threads the points' last bits varied from build to build
         extraction.sift.max_num_features = settings.max_features * (2 if relaxed else 1)
         pycolmap.extract_features(db, images_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                                   reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
