@@ -382,7 +382,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
     Only the matching runs on several threads: with the features extracted on two, or the triangulation run on
     two, the default run's room (3 304 points) came out with the same tracks but other last bits of coordinates
     (up to 7e-15, in 51 points) from build to build, and the order of a track's observations varied; on one
-    thread each, three builds under two OpenBLAS core types gave the same bytes. The canonical order removes
+    thread each, three triangulations under two OpenBLAS core types gave the same points. The canonical order removes
     what is left of the threads' order; the thread count stays out of the cache key."""
     from strings_bench.core.cpus import usable_cores
 
