@@ -35,8 +35,9 @@ BUILD_AND_TRAIN = textwrap.dedent("""
     import numpy as np
     import strings_bench  # first, as the command line does: it pins torch's kernel set
     import torch
-    from strings_bench.datasets.synthetic import build_scene
-    from strings_bench.datasets.synthetic.generate import read_meta, settings_with
+    from dataclasses import replace
+    from strings_bench.datasets.synthetic import build_scene, default_settings
+    from strings_bench.datasets.synthetic.generate import read_meta
     from strings_bench.engine.trainer import Trainer
     from strings_bench.methods.registry import get_method
     from strings_bench.scene.scene import Scene
@@ -45,11 +46,12 @@ BUILD_AND_TRAIN = textwrap.dedent("""
         return hashlib.sha256(data).hexdigest()
 
     room, room_settings, methods = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3])
-    folder = build_scene(room, settings_with(**room_settings), progress=False)  # a fresh cache: built here
+    settings = replace(default_settings(room, "synthetic360-cpu"), **room_settings)
+    folder = build_scene(room, settings, progress=False)  # a fresh cache: built here
     out = {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
            "scene files": {str(p.relative_to(folder)): sha(p.read_bytes()) for p in sorted(folder.rglob("*"))
                            if p.is_file() and p.name != "scene_meta.json"}}
-    meta = read_meta(folder / "scene_meta.json")  # its timings and the machine's core count aside
+    meta = read_meta(folder)  # its timings and the machine's core count aside
     meta["sfm_attempts"] = [{k: v for k, v in a.items() if not k.endswith("_s")} for a in meta["sfm_attempts"]]
     out["scene record"] = {k: v for k, v in meta.items() if k not in ("timings_s", "cpu_count")}
     scene = Scene.load(folder)
@@ -68,8 +70,8 @@ BUILD_AND_TRAIN = textwrap.dedent("""
     out["threading_layer"] = numba.threading_layer()
     print("RESULT " + json.dumps(out))
 """)
-# The room: the default run's storeroom, small (SfM still triangulates it: no fallback to depth samples).
-ROOM = ("storeroom", {"width": 96, "height": 72, "n_views": 16, "room_scale": 0.6})
+# The room: the default run's (synthetic360-cpu/storeroom) at 160x120 with 20 views, which SfM still triangulates
+ROOM = ("storeroom", {"width": 160, "height": 120, "n_views": 20})
 # 240 steps: densification from step 10, every 50 steps (the schedule's floor); STRinGS' phase 1 is 60 steps
 SETTINGS = {"3dgs": dict(steps_scale=0.02, sh_degree=3),
             "strings": dict(steps_scale=0.02, sh_degree=3, mask_dilation_fraction=0.0, n_max=3)}
