@@ -37,11 +37,13 @@ SSIM_STRIP_ROWS = 32
 
 @contextmanager
 def one_torch_thread():
-    """torch on one thread inside the block (restored after). SSIM's and PSNR's float64 operations on
+    """torch on one thread inside the block (restored after). The SSIM map's float64 operations on
     32-row strips are too small to share between threads: with torch's two threads (2 cores) the SSIM
     of a 320x240 view took 7.9-9.9 s on a loaded 2-core AMD EPYC against 0.27-0.31 s on one (the
-    threads wait for each other at every operation), with the same bits (tests/test_eval_speed.py).
-    Each output of these operations is computed by one thread, so the count does not change a value."""
+    threads wait for each other at every operation). Only operations whose every output is computed
+    by one thread (the map's convolutions and element-wise arithmetic) run inside it; a sum or a mean
+    splits its terms between threads above torch's grain size, and the thread count then changes its
+    last bits, so the sums stay outside, on the caller's threads (tests/test_eval_speed.py)."""
     n = torch.get_num_threads()
     if n == 1:
         yield
@@ -214,7 +216,8 @@ def ssim_and_masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | Non
     with torch.no_grad():
         for r0 in range(0, h, strip_rows):
             r1 = min(h, r0 + strip_rows)
-            smap = image_quality.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")
+            with one_torch_thread():  # the map on one thread; its sums below on the caller's, as in `ssim`
+                smap = image_quality.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")
             total += float(smap.sum())
             if mt is not None:
                 rows = mt[r0:r1]
@@ -229,11 +232,10 @@ def view_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_
                  gt_reference=None, device: str = "cpu") -> dict[str, float]:
     """`image_metrics` and `text_region_metrics` of one view in one pass (the same keys, in the same order,
     and the same values to the bit): the images are converted once, the SSIM map is made once for
-    both SSIMs (`ssim_and_masked_ssim`), and SSIM and PSNR run on one torch thread (`one_torch_thread`)."""
+    both SSIMs (`ssim_and_masked_ssim`), and the SSIM map runs on one torch thread (`one_torch_thread`)."""
     a, b = _check_pair(img, gt)
-    with one_torch_thread():
-        out = {"psnr": image_quality.psnr(torch.from_numpy(a), torch.from_numpy(b))}
-        out["ssim"], text_ssim = ssim_and_masked_ssim(a, b, mask)
+    out = {"psnr": image_quality.psnr(torch.from_numpy(a), torch.from_numpy(b))}
+    out["ssim"], text_ssim = ssim_and_masked_ssim(a, b, mask)
     out["lpips"] = lpips(img, gt, gt_reference, device=device) if with_lpips else math.nan
     if mask is None:
         out.update({k: math.nan for k in TEXT_METRICS})
