@@ -20,6 +20,11 @@ side by side in one run, as ratios new / reference, and the check that the figur
 The demo and the tests run the committed code of each version (a clone of its commit); the runs of 1. run
 the checkouts' files as they are (--new-dir: another checkout, e.g. a worktree of the commit to time).
 
+    python benchmarks/default_run_speed.py --summarize BANKED.csv [--table TABLE.csv]
+
+reads a banked pair (BANKED.csv, this checkout's results.csv, and BANKED.ref.csv beside it) again: the
+evaluation and training sums, their ratios and the column check, written as a table CSV for the docs (--table).
+
 The reference is a `git worktree` of --ref (made under the system's temporary folder unless --ref-dir
 names one; a folder that exists is used as it is). --bank CSV copies this checkout's results.csv there,
 with the reference's beside it (<name>.ref.csv).
@@ -111,6 +116,27 @@ def demo(src_repo: Path, commit: str, work: Path) -> tuple[float, float | None, 
     return wall, (float(m.group(1)) if m else None), (float(m.group(2)) if m else None)
 
 
+def summarize(banked: Path, table: Path | None) -> int:
+    rows = {"reference": read_csv(banked.with_suffix(".ref.csv")), "new": read_csv(banked)}
+    diffs = compare(rows["reference"], rows["new"])
+    out = [("measure", "reference", "new", "new / reference")]
+    for col, what in (("eval_seconds", "evaluation"), ("train_seconds", "training")):
+        r, n = column_sum(rows["reference"], col), column_sum(rows["new"], col)
+        out.append((f"{what}, sum of `{col}` over the {len(rows['new'])} checkpoints", f"{r:.1f} s", f"{n:.1f} s",
+                    f"{n / r:.2f}x"))
+    same = ("every column but `*_seconds` and `peak_memory_mb`", "", "",
+            "the same in every cell" if not diffs else f"{len(diffs)} difference(s)")
+    out.append(same)
+    for line in out:
+        print(" | ".join(line))
+    for d in diffs[:40]:
+        print("  " + d)
+    if table:
+        with open(table, "w", newline="", encoding="utf-8") as fh:
+            csv.writer(fh).writerows(out)
+    return 1 if diffs else 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref", default="f2de671", help="the reference commit (default f2de671)")
@@ -123,8 +149,12 @@ def main() -> int:
     ap.add_argument("--sequential", action="store_true", help="the reference's run first, then this checkout's")
     ap.add_argument("--demo", action="store_true", help="also time scripts/demo.sh from a fresh clone of each")
     ap.add_argument("--tests", action="store_true", help="also time scripts/test.sh of each (an idle machine only)")
+    ap.add_argument("--summarize", type=Path, help="only read a banked pair (BANKED.csv and BANKED.ref.csv) again")
+    ap.add_argument("--table", type=Path, help="with --summarize: write the table as CSV here")
     ap.add_argument("--bank", type=Path, help="copy this checkout's results.csv here (the reference's beside it)")
     args = ap.parse_args()
+    if args.summarize:
+        return summarize(args.summarize, args.table)
 
     ref_src = ref_checkout(args.ref, args.ref_dir)
     work = args.out or Path(tempfile.mkdtemp(prefix="default-run-speed-"))
