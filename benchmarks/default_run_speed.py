@@ -103,6 +103,35 @@ def compare(ref_rows: list[dict], new_rows: list[dict]) -> list[str]:
     return out
 
 
+CELL_VARYING = ("timings", "config", "extra", "peak_memory_mb")  # times, paths, versions; the figures are the rest
+
+
+def compare_cells(ref_run: Path, new_run: Path) -> tuple[int, list[str]]:
+    """(cells compared, differences) of the result.json of every cell both run folders hold: every key but
+    CELL_VARYING and the readability's `seconds`, i.e. every per-view metric, OCR word and word-crop record."""
+    import json
+
+    def figures(path: Path) -> dict:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+        for k in CELL_VARYING:
+            rec.pop(k, None)
+        if isinstance(rec.get("readability"), dict):
+            rec["readability"].pop("seconds", None)
+        return rec
+
+    out, n = [], 0
+    for path in sorted(new_run.glob("cells/*/*/*/*/result.json")):
+        other = ref_run / path.relative_to(new_run)
+        if not other.exists():
+            continue
+        n += 1
+        a, b = figures(other), figures(path)
+        for k in sorted(set(a) | set(b)):
+            if a.get(k) != b.get(k):
+                out.append(f"{path.parent.relative_to(new_run)}: result.json key {k!r} differs")
+    return n, out
+
+
 def demo(src_repo: Path, commit: str, work: Path) -> tuple[float, float | None, float | None]:
     """(wall seconds, set-up s, run s) of scripts/demo.sh in a fresh clone of `commit`."""
     clone = work / f"clone-{commit[:10]}"
@@ -149,12 +178,29 @@ def main() -> int:
     ap.add_argument("--sequential", action="store_true", help="the reference's run first, then this checkout's")
     ap.add_argument("--demo", action="store_true", help="also time scripts/demo.sh from a fresh clone of each")
     ap.add_argument("--tests", action="store_true", help="also time scripts/test.sh of each (an idle machine only)")
+    ap.add_argument("--compare-runs", type=Path, nargs=2, metavar=("REF_RUN", "NEW_RUN"),
+                    help="only compare two run folders: results.csv's common cells and every cell's result.json")
     ap.add_argument("--summarize", type=Path, help="only read a banked pair (BANKED.csv and BANKED.ref.csv) again")
     ap.add_argument("--table", type=Path, help="with --summarize: write the table as CSV here")
     ap.add_argument("--bank", type=Path, help="copy this checkout's results.csv here (the reference's beside it)")
     args = ap.parse_args()
     if args.summarize:
         return summarize(args.summarize, args.table)
+    if args.compare_runs:
+        ref_run, new_run = args.compare_runs
+        r, n = read_csv(ref_run / "results.csv"), read_csv(new_run / "results.csv")
+        keys = {(x["method"], x["iteration"]) for x in r} & {(x["method"], x["iteration"]) for x in n}
+        r = [x for x in r if (x["method"], x["iteration"]) in keys]
+        n = [x for x in n if (x["method"], x["iteration"]) in keys]
+        diffs = compare(r, n)
+        cells, cell_diffs = compare_cells(ref_run, new_run)
+        print(f"results.csv, {len(keys)} common cell(s): " + ("every column but the times the same" if not diffs
+                                                            else f"{len(diffs)} difference(s)"))
+        print(f"result.json, {cells} cell(s): " + ("every figure the same" if not cell_diffs
+                                                   else f"{len(cell_diffs)} difference(s)"))
+        for d in (diffs + cell_diffs)[:40]:
+            print("  " + d)
+        return 1 if diffs or cell_diffs else 0
 
     ref_src = ref_checkout(args.ref, args.ref_dir)
     work = args.out or Path(tempfile.mkdtemp(prefix="default-run-speed-"))
@@ -219,6 +265,12 @@ def main() -> int:
         print(f"| test suite (scripts/test.sh) | {secs['reference']:.0f} s | {secs['new']:.0f} s | "
               f"{secs['new'] / secs['reference']:.2f}x | <= 480 s |")
     diffs = compare(rows["reference"], rows["new"])
+    n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
+    print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
+                                                   if not cell_diffs else f"{len(cell_diffs)} difference(s)"))
+    for d in cell_diffs[:20]:
+        print("  " + d)
+    diffs += cell_diffs
     if diffs:
         print(f"\nresults.csv: {len(diffs)} difference(s) outside the time columns:")
         for d in diffs[:40]:

@@ -100,6 +100,7 @@ def main() -> int:
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--out", type=Path)
     ap.add_argument("--lpips", action="store_true")
+    ap.add_argument("--table", type=Path, help="also write the table as CSV here (for the docs)")
     args = ap.parse_args()
     size = tuple(int(v) for v in args.size.lower().split("x"))
     ref_src = args.ref_dir or Path(tempfile.gettempdir()) / f"strings-bench-ref-{args.ref}"
@@ -127,11 +128,17 @@ def main() -> int:
                 results.setdefault((phase, name), []).append(rec)
                 print(f"  rep {rep} {phase:9s} {name:9s}: evaluate {rec['evaluate_s']:.1f} s "
                       f"({args.views / rec['evaluate_s']:.3f} views/s), load {rec['load']:.1f}", flush=True)
-    print("\n| GT OCR | reference: s (views/s) | new: s (views/s) | new / reference |\n|---|---|---|---|")
+    table = [(f"GT OCR ({args.views} views at {size[0]}x{size[1]})", "reference: s (views/s)", "new: s (views/s)",
+              "new / reference")]
     for phase in ("cold", "GT cached"):
         r = statistics.median(x["evaluate_s"] for x in results[(phase, "reference")])
         n = statistics.median(x["evaluate_s"] for x in results[(phase, "new")])
-        print(f"| {phase} | {r:.1f} ({args.views / r:.3f}) | {n:.1f} ({args.views / n:.3f}) | {n / r:.2f}x |")
+        table.append((phase, f"{r:.1f} ({args.views / r:.3f})", f"{n:.1f} ({args.views / n:.3f})", f"{n / r:.2f}x"))
+    print("\n" + "\n".join("| " + " | ".join(row) + " |" for row in table[:1]) + "\n|---|---|---|---|")
+    print("\n".join("| " + " | ".join(row) + " |" for row in table[1:]))
+    if args.table:
+        with open(args.table, "w", newline="", encoding="utf-8") as fh:
+            csv.writer(fh).writerows(table)
     same = True
     for phase in ("cold", "GT cached"):
         for a, b in zip(results[(phase, "reference")], results[(phase, "new")]):
