@@ -8,4 +8,5 @@ bash scripts/bootstrap.sh
 setup=$((SECONDS - start))
 echo "demo: set-up took ${setup} s"
 .venv/bin/strings-bench run --methods strings,3dgs "$@"
-echo "demo: set-up ${setup} s, run $((SECONDS - start - setup)) s (each method's training time: train_seconds in the run's results.csv)"
+run=$((SECONDS - start - setup))
+echo "demo: set-up ${setup} s, run ${run} s, $((setup + run)) s in all (each method's training time: train_seconds in the run's results.csv)"

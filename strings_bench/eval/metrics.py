@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -32,6 +33,26 @@ log = logging.getLogger(__name__)
 # its input (11x the image), which runs out of cache on large views: at 1080x1620 the whole image took
 # 3.4 s against 0.35 s in 32-row strips (one thread, CPU time; the SciPy code this replaced: 0.32 s).
 SSIM_STRIP_ROWS = 32
+
+
+@contextmanager
+def one_torch_thread():
+    """torch on one thread inside the block (restored after). The SSIM map's float64 operations on
+    32-row strips are too small to share between threads: with torch's two threads (2 cores) the SSIM
+    of a 320x240 view took 7.9-9.9 s on a loaded 2-core AMD EPYC against 0.27-0.31 s on one (the
+    threads wait for each other at every operation). Only operations whose every output is computed
+    by one thread (the map's convolutions and element-wise arithmetic) run inside it; a sum or a mean
+    splits its terms between threads above torch's grain size, and the thread count then changes its
+    last bits, so the sums stay outside, on the caller's threads (tests/test_eval_speed.py)."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
 
 
 def _check_pair(img: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,6 +192,58 @@ def masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, strip_rows: i
             smap = image_quality.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")[0]
             total += float(smap[:, rows].sum())
     return total / (3 * int(m.sum()))
+
+
+def ssim_and_masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None,
+                         strip_rows: int = SSIM_STRIP_ROWS) -> tuple[float, float]:
+    """(`ssim`, `masked_ssim`) from one SSIM map: each strip of the map is computed once and summed twice,
+    over all its pixels and over the mask's; the strips, and the order of the sums, are those of the two
+    functions, so both values are theirs to the bit (tests/test_eval_speed.py). masked_ssim is NaN for no
+    mask or an empty one."""
+    a, b = _check_pair(img, gt)
+    m = None if mask is None else _check_mask(mask, a.shape)
+    if m is not None and not m.any():
+        m = None
+    masked = math.nan
+    if strip_rows < 1:
+        raise StringsBenchError(f"strip_rows must be at least 1, not {strip_rows}", hint="use the default")
+    h = a.shape[0]
+    half = SSIM_WINDOW // 2
+    x = F.pad(torch.from_numpy(a).permute(2, 0, 1)[None], (half, half, half, half))
+    y = F.pad(torch.from_numpy(b).permute(2, 0, 1)[None], (half, half, half, half))
+    mt = None if m is None else torch.from_numpy(m)
+    total = masked_total = 0.0
+    with torch.no_grad():
+        for r0 in range(0, h, strip_rows):
+            r1 = min(h, r0 + strip_rows)
+            with one_torch_thread():  # the map on one thread; its sums below on the caller's, as in `ssim`
+                smap = image_quality.ssim_map(x[:, :, r0:r1 + 2 * half], y[:, :, r0:r1 + 2 * half], padding="valid")
+            total += float(smap.sum())
+            if mt is not None:
+                rows = mt[r0:r1]
+                if bool(rows.any()):
+                    masked_total += float(smap[0][:, rows].sum())
+    if m is not None:
+        masked = masked_total / (3 * int(m.sum()))
+    return total / a.size, masked
+
+
+def view_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_lpips: bool = True,
+                 gt_reference=None, device: str = "cpu") -> dict[str, float]:
+    """`image_metrics` and `text_region_metrics` of one view in one pass (the same keys, in the same order,
+    and the same values to the bit): the images are converted once, the SSIM map is made once for
+    both SSIMs (`ssim_and_masked_ssim`), and the SSIM map runs on one torch thread (`one_torch_thread`)."""
+    a, b = _check_pair(img, gt)
+    out = {"psnr": image_quality.psnr(torch.from_numpy(a), torch.from_numpy(b))}
+    out["ssim"], text_ssim = ssim_and_masked_ssim(a, b, mask)
+    out["lpips"] = lpips(img, gt, gt_reference, device=device) if with_lpips else math.nan
+    if mask is None:
+        out.update({k: math.nan for k in TEXT_METRICS})
+        return out
+    out["text_psnr"] = masked_psnr(a, b, mask)
+    out["text_ssim"] = text_ssim
+    out["text_lpips"] = masked_lpips(img, gt, mask, device=device) if with_lpips else math.nan
+    return out
 
 
 def mask_bbox(mask: np.ndarray, min_side: int = 0) -> tuple[int, int, int, int] | None:

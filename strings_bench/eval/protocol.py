@@ -319,11 +319,10 @@ class Evaluator:
             view, gt = self.views[name], self.gt(name)
             r = scored.get(name)
             if r is not None:
-                per_view[name] = metrics.image_metrics(r, gt, with_lpips=with_lpips,
-                                                       gt_reference=self.lpips_ref(name) if with_lpips else None,
-                                                       device=self.device)
-                per_view[name].update(metrics.text_region_metrics(r, gt, view.mask, with_lpips=with_lpips,
-                                                                  device=self.device))
+                # image_metrics + text_region_metrics in one pass (the same values: tests/test_eval_speed.py)
+                per_view[name] = metrics.view_metrics(r, gt, view.mask, with_lpips=with_lpips,
+                                                      gt_reference=self.lpips_ref(name) if with_lpips else None,
+                                                      device=self.device)
             gt_words = self.gt_words(name)
             render_words, render_err = render_reads.get(name, ([], None))  # a missing render reads nothing
             pairs[name] = (gt_words, render_words)
@@ -380,8 +379,7 @@ class Evaluator:
             if name in missing:
                 continue
             view, gt, r = self.views[name], self.gt(name), scored_image(renders[name])
-            per_view[name] = metrics.image_metrics(r, gt, with_lpips=False, device=self.device)
-            per_view[name].update(metrics.text_region_metrics(r, gt, view.mask, with_lpips=False, device=self.device))
+            per_view[name] = metrics.view_metrics(r, gt, view.mask, with_lpips=False, device=self.device)
             known = None if view.known_words is None else list(view.known_words)
             read_views[name] = (r, gt, known, self.gt_words(name))
 

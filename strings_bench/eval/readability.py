@@ -142,9 +142,13 @@ class FoldedAlphabet:
         kept, oov = self.encode(text)
         if not kept:
             return math.nan, 0, oov
-        p = np.asarray(probs, dtype=np.float64)
+        p = np.asarray(probs)
         uniq = list(dict.fromkeys(kept))
-        cols = [p[:, self.blank_group].sum(axis=1)] + [p[:, self.groups[c]].sum(axis=1) for c in uniq]
+
+        def folded(idx: list[int]) -> np.ndarray:  # the columns taken first, then float64: the same sums
+            return p[:, idx].astype(np.float64, copy=False).sum(axis=1)
+
+        cols = [folded(self.blank_group)] + [folded(self.groups[c]) for c in uniq]
         lp = np.log(np.maximum(np.stack(cols, axis=1), PROB_FLOOR))
         labels = [uniq.index(c) + 1 for c in kept]
         if ctc_min_columns(labels) > lp.shape[0]:
@@ -313,7 +317,8 @@ def read_crops(recognizer, alphabet: FoldedAlphabet, crops: list[np.ndarray], te
     """Recognise rectified crops (one batch) and score each against its reference text."""
     if not crops:
         return []
-    probs = recognizer.probabilities(crops)
+    # float32, as the model gives them: score() converts only the columns it reads (the same values)
+    probs = recognizer.probabilities(crops, dtype=np.float32)
     return [score(p, recognizer.characters, alphabet, t) for p, t in zip(probs, texts)]
 
 
