@@ -437,11 +437,8 @@ def stage_captures_7k(s: Round) -> None:
     for capture in captures:
         todo = [m for m in methods if not banked_run(s.out, s.stage, f"{capture}_{m}_7k", [m], "7K", s.dry_run)]
         if todo:  # the scene is needed: found in the cache, or built here
-            code = ("import sys
-from strings_bench.datasets.captures import build_capture
-"
-                    f"print(build_capture({capture!r}, progress=False))
-")
+            code = ("from strings_bench.datasets.captures import build_capture\n"
+                    f"print(build_capture({capture!r}, progress=False))\n")
             if s.step(f"build_{capture}", [s.py, "-c", code], 900) != "ok":
                 continue
         for method in methods:
