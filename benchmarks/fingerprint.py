@@ -98,9 +98,9 @@ def first_difference(mine: dict, theirs: dict) -> dict:
     stage of the run), "compared": run entries both files hold that agree before the first difference,
     "first": (path, mine, theirs) of the first run entry that differs or None, "differ": every run entry both hold
     that differs, "one_side": run entries only one
-    file holds (e.g. a shorter --steps)}. The machine's own entries are not compared."""
-    def split(f):
-        items = [(k, v) for k, v in entries(f) if not k.startswith("machine / ")]
+    file holds (e.g. a shorter --steps)}. The machine's own entries and the scene's folder name are not compared."""
+    def split(f):  # the scene's folder is a name (the cache key, which names the generator version), not content
+        items = [(k, v) for k, v in entries(f) if not k.startswith("machine / ") and k != "scene / folder"]
         return ({k: v for k, v in items if k.startswith("probes / ")},
                 [(k, v) for k, v in items if not k.startswith("probes / ")])
 
