@@ -314,18 +314,19 @@ def test_fused_densification_statistics_match_torch_bit_for_bit(scale, monkeypat
 
 
 def test_default_strategy_schedule_scales_with_steps():
-    strat = DefaultStrategy()
-    state = strat.initialize_state(1.0, steps_scale=0.1)
+    from strings_bench.engine.strategies import StrategyContext
+
+    strat = DefaultStrategy(context=StrategyContext(steps_scale=0.1))
     # intervals shorter than MIN_SCALED_INTERVAL (50) are held at 50 in scaled runs; starts/stops scale freely
-    assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 50
-    assert strat.every(state, strat.reset_every) == 300 and strat.at(state, strat.refine_stop_iter) == 1500
-    assert strat.every(state, 20) == 20  # a nominal interval below the floor is kept as given
+    assert strat.at(strat.refine_start_iter) == 50 and strat.every(strat.refine_every) == 50
+    assert strat.every(strat.reset_every) == 300 and strat.at(strat.refine_stop_iter) == 1500
+    assert strat.every(20) == 20  # a nominal interval below the floor is kept as given
     # opacity resets: at least MIN_SCALED_RESET_INTERVAL (200) steps apart in scaled runs
-    assert strat.reset_interval(state, strat.reset_every) == 300
-    quick = strat.initialize_state(1.0, steps_scale=0.01)
-    assert strat.reset_interval(quick, strat.reset_every) == 200 and strat.every(quick, strat.reset_every) == 50
-    full = strat.initialize_state(1.0, steps_scale=1.0)
-    assert strat.every(full, strat.refine_every) == 100 and strat.every(full, 1) == 1
+    assert strat.reset_interval(strat.reset_every) == 300
+    quick = DefaultStrategy(context=StrategyContext(steps_scale=0.01))
+    assert quick.reset_interval(quick.reset_every) == 200 and quick.every(quick.reset_every) == 50
+    full = DefaultStrategy(context=StrategyContext(steps_scale=1.0))
+    assert full.every(full.refine_every) == 100 and full.every(1) == 1
 
 
 # ---- trainer -----------------------------------------------------------------------------------
@@ -473,12 +474,13 @@ def test_motion_log_sums_adams_position_steps(tiny_scene):
 
 
 def test_gs3d_method_registered_and_trains(tiny_scene):
+    from strings_bench.bench.plan import takes_steps_scale
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.methods.registry import get_method
 
     spec = get_method("3dgs")
-    assert spec.takes_steps_scale() and not spec.presets  # the run's schedule scales it (build(default_steps_scale=...))
-    method = spec.build(default_steps_scale=get_schedule("quick").steps_scale, sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
+    assert takes_steps_scale(spec) and not spec.presets  # the run's schedule scales it (build(steps_scale=...))
+    method = spec.build(steps_scale=get_schedule("quick").steps_scale, sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
     assert method.config.lrs.opacity_logits == 0.025 and method.strategy.grow_grad2d == 3e-4
     assert method.config.steps_scale == 0.01
     results = train(method, tiny_scene, [10, 20])

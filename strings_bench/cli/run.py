@@ -29,9 +29,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="comma-separated dataset ids (synthetic, synthetic/books, strings360/globe) or scene folders "
                         "(default: the schedule's scenes: " + "; ".join(
                             f"{n}: {','.join(pr.default_datasets())}" for n, pr in SCHEDULES.items()) + ")")
-    p.add_argument("--schedule", "--preset", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
-                   help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}; "
-                        "--preset is the former name): " + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
+    p.add_argument("--schedule", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
+                   help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}): "
+                        + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
+    # the schedule's former name, refused by name (argparse would otherwise take it for an abbreviated --presets)
+    p.add_argument("--preset", dest="former_preset", default=None, help=argparse.SUPPRESS)
     p.add_argument("--presets", dest="method_presets", action="append", default=[], metavar="METHOD=PRESET[+PRESET]",
                    help="a named variant of one method's settings, e.g. --presets strings=release (the authors' release "
                         "where it differs from the paper); repeatable; `strings-bench methods show METHOD` lists them. "
@@ -132,6 +134,10 @@ def run_config(args: argparse.Namespace):
     """The run the command line asks for, as one RunConfig (bench/plan.py)."""
     from strings_bench.bench.plan import RunConfig
 
+    if getattr(args, "former_preset", None) is not None:
+        raise StringsBenchError(f"--preset {args.former_preset} is no option: the schedule is --schedule",
+                                hint=f"--schedule {args.former_preset}; --presets METHOD=PRESET chooses a method's "
+                                     "named settings")
     checkpoints, dense_every = split_checkpoints(args.checkpoints)
     return RunConfig(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None,
                      run_dir=args.out, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,
