@@ -40,8 +40,8 @@ def _reset_calls():
     rf.register_fakes()
 
 
-def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, **kw):
-    return bench.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
+def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, ocr_list="fake", **kw):
+    return bench.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr=ocr_list,
                       ocr_backend=ocr or rf.FakeOCR(), with_lpips=kw.pop("with_lpips", False), progress=False, **kw)
 
 
@@ -602,3 +602,26 @@ def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
     rec = read_cell(tmp_path / "run", CellKey("bare-3dgs", job.dataset, job.scene, 35))
     assert rec["extra"]["steps_scale"] == 0.005 and rec["extra"]["paper_iteration"] == 7000
     assert rec["config"]["method"]["settings"]["steps_scale"] == 0.005
+
+
+def test_a_resumed_run_with_a_changed_plan_is_refused_and_run_json_is_no_configuration(tmp_path, scene_dir):
+    """run.json is the plan's record: a re-run whose new plan differs (here the OCR engine list, the CER profile)
+    is refused with an error naming the folder, both values and the way out, and nothing is trained or written;
+    an edited value run.json records but the plan does not compare (the device asked for) configures nothing."""
+    out = tmp_path / "run"
+    _run(out, scene_dir, methods=["fake-a"], write_report=False)
+    cells = sorted(p.stat().st_mtime_ns for p in out.rglob("result.json"))
+    n_train = len(rf.CALLS["train"])
+    with pytest.raises(StringsBenchError, match="profile 'paper'; this run asks for 'robust'") as err:
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, cer_profile="robust")
+    assert str(out) in err.value.message and "--out" in err.value.hint
+    with pytest.raises(StringsBenchError, match="--ocr engine list 'fake'; this run asks for 'fake,tesseract'"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, ocr_list="fake,tesseract")
+    assert len(rf.CALLS["train"]) == n_train and sorted(p.stat().st_mtime_ns for p in out.rglob("result.json")) == cells
+    record = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**record, "device": "cuda:7"}))
+    plan = plan_run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+                    with_lpips=False)
+    assert {j.device for j in plan.jobs} == {plan.device} and plan.device in ("cpu", "cuda")
+    runner.execute(plan, ocr=rf.FakeOCR(), progress=False, write_report=False)  # resumes: nothing left to do
+    assert json.loads((out / "run.json").read_text())["device"] == "auto"  # the plan's record, written again

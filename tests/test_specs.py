@@ -144,3 +144,39 @@ def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
         t = ablation_table(pd.DataFrame(rows))
     assert t.methods == ["3dgs", "3dgs-no-reset"]
     assert t.rows == [("Effect of the opacity reset", "3dgs-no-reset", "30K", [(0.7, 0.5)])]
+
+
+def test_each_builtin_spec_is_found_beside_its_method():
+    """Every built-in spec lives in a spec module beside its implementation's module (nerfbaselines' *_spec.py):
+    `gs3d_spec.py` next to `gs3d.py`, STRinGS' `strings/spec.py` inside its package; methods/registry.py and
+    methods/spec.py hold no spec of their own."""
+    import importlib
+    from pathlib import Path
+
+    import strings_bench.methods.registry as registry
+    import strings_bench.methods.spec as machinery
+    from strings_bench.methods.registry import BUILTIN_SPEC_MODULES
+
+    seen = []
+    for module_name in BUILTIN_SPEC_MODULES:
+        module = importlib.import_module(module_name)
+        specs = getattr(module, "SPECS", None) or [module.SPEC]
+        for spec in specs:
+            impl_module = spec.implementation.partition(":")[0]
+            impl_file = Path(importlib.util.find_spec(impl_module).origin)
+            assert Path(module.__file__).parent == impl_file.parent, (spec.name, module_name, impl_module)
+            stem = Path(module.__file__).stem
+            assert stem == "spec" or stem == impl_file.stem + "_spec", (spec.name, module_name)
+            seen.append(spec.name)
+    assert seen == [s.name for s in builtin_specs()] and len(seen) == len(set(seen)) == 13
+    for holder in (registry, machinery):
+        assert "MethodSpec(\n" not in Path(holder.__file__).read_text() and "MethodSpec(name=" not in \
+            Path(holder.__file__).read_text(), holder.__name__
+
+
+def test_paper_figures_are_keyed_by_dataset_metric_and_iteration():
+    from strings_bench.methods.spec import PaperFigures
+
+    f = get_method("3dgs").paper_figures
+    assert isinstance(f, PaperFigures) and f.get("dl3dv", "cer", 30000) == 0.157 and f.get("dl3dv", "cer", 3000) is None
+    assert f.get("strings360", "minutes", 7000) == 2.5 and set(f.by_dataset()) == {"tandt", "dl3dv", "strings360"}

@@ -613,6 +613,27 @@ def test_phase2_starts_from_phase1_before_the_refinement_at_t1(tiny_text_scene):
     assert got.max() <= 0.01 + 1e-6 < before.max()
 
 
+def test_the_phase_switch_hook_is_called_and_skips_the_refinement_at_t1(tiny_text_scene, monkeypatch):
+    """`refine` asks the named hook `skips_refinement` at every step; STRinGS answers True at T1 only (handoff
+    before_refine), and the strategy's round is then not run, no private field of the base class written."""
+    method = _setup(StringsMethod(**FAST), tiny_text_scene)
+    asked, rounds = [], []
+    hook = type(method).skips_refinement
+    monkeypatch.setattr(type(method), "skips_refinement",
+                        lambda self, step: asked.append((step, hook(self, step))) or asked[-1][1])
+    post = method.strategy.step_post_backward
+    monkeypatch.setattr(method.strategy, "step_post_backward",
+                        lambda model, opt, state, step, info: rounds.append(step) or post(model, opt, state, step, info))
+    for step in range(1, method.t1 + 1):
+        method.train_step(step)
+        method.refine(step)
+    assert [a for a, _ in asked] == list(range(1, method.t1 + 1))
+    assert [a for a, skip in asked if skip] == [method.t1]
+    assert rounds == list(range(1, method.t1))  # every step's round ran but T1's
+    after = _setup(StringsMethod(**FAST, handoff="after_refine"), tiny_text_scene)
+    assert not any(after.skips_refinement(step) for step in range(1, after.t1 + 2))
+
+
 def test_clamp_render_before_the_loss(tiny_text_scene):
     mask = np.ones((2, 2), bool)
     gt = torch.full((2, 2, 3), 0.9)

@@ -185,7 +185,7 @@ class GaussianSplatting(Method):
     """
 
     name = "3dgs"
-    paper = ""  # the citation is the method spec's (methods/registry.py); MethodSpec.build sets it
+    paper = ""  # the citation is the method spec's (its *_spec.py beside the method); MethodSpec.instantiate sets it
     strategy_cls: type[Strategy] = DefaultStrategy
     # A subclass's own settings dataclass (e.g. STRinGS' t1, alpha, beta, gamma); its instance is
     # `self.method_settings`.

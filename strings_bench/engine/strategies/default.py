@@ -62,11 +62,7 @@ class DefaultStrategy(Strategy):
     grow_grad2d: float = 2e-4  # densify when the mean screen-space gradient norm (NDC) exceeds this
     grow_scale3d: float = 0.01  # clone if largest scale <= this x extent, else split
     prune_scale3d: float = 0.1  # after screen_prune_after, prune world scale > this x extent
-    # docs/sources.md §1 states a 20 px screen-radius prune after 3K, but the authors' code zeroes its
-    # max-radius buffer whenever it clones/splits, just before that test, so the rule never fires
-    # there (gsplat disables it too). At our 320x240 it would fire: on synthetic/books it pruned
-    # 3.4k -> 1.1k Gaussians at the first refinement after 3K (PSNR 15.7 -> 9.2 dB). Off by
-    # default (inf, as in practice); set 20 to apply the rule as written.
+    # off by default: the authors' code never applies the paper's 20 px rule (why: docs/engine.md, "DefaultStrategy")
     prune_screen_px: float = math.inf  # prune screen radius > this px after 3K (inf = off: the reference never applies it)
     refine_start_iter: int = 500  # first densification step (nominal)
     refine_stop_iter: int = 15_000  # last densification step (nominal)

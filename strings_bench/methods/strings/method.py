@@ -126,7 +126,7 @@ def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> floa
 def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
     from strings_bench.methods.strings.densify import DEFAULT_N_MAX
 
-    # The per-dataset values are the spec's @apply presets (methods/registry.py); scenes carry none.
+    # The per-dataset values are the spec's @apply presets (methods/strings/spec.py); scenes carry none.
     return int(st.n_max) if st.n_max is not None else DEFAULT_N_MAX
 
 
