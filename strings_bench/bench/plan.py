@@ -144,21 +144,11 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     from strings_bench.datasets.registry import resolve_scenes
     from strings_bench.methods.registry import get_method
 
-    from strings_bench.bench.executors import executor_factory
-
     c = RunConfig.of(config, datasets, **given)
-    factory = executor_factory(c.executor)
-    # jobs run here: the device is resolved now (a missing GPU refused before any scene is built); elsewhere each
-    # worker resolves its own. e.g. Ray not installed, --device cuda:1, or options the executor does not take.
-    device = _resolve_device(c.device, in_process=factory.in_process)
-    factory.check_options(device=c.device, **(c.executor_options or {}))
+    device, in_process = _resolve_device(c)
     if not c.methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
     p = schedule(c.schedule, c.steps_scale, c.checkpoints, c.dense_every, c.miniature)
-    if c.dense_eval not in DENSE_EVAL:
-        raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
-    if c.lpips_at not in LPIPS_AT:
-        raise StringsBenchError(f"unknown LPIPS policy {c.lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
     datasets = list(c.datasets) if c.datasets else p.default_datasets()
     ocr, save_every = _check_options(c)
     specs = {m: get_method(m) for m in c.methods}  # fails early on an unknown name
@@ -191,19 +181,25 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         # absent without a cap, so that folders made before caps existed keep resuming
         **(cap.manifest() if cap is not None else {}),
     }
-    return RunPlan(run_dir=Path(c.run_dir), jobs=jobs, manifest=manifest, device=device,
-                   in_process=factory.in_process)
+    return RunPlan(run_dir=Path(c.run_dir), jobs=jobs, manifest=manifest, device=device, in_process=in_process)
 
 
-def _resolve_device(asked: str, in_process: bool) -> str:
-    """The device jobs train on: resolved here for jobs run in this process ('auto' -> 'cuda' or 'cpu'; a GPU
-    torch cannot see is refused), else the checked name a worker resolves."""
+def _resolve_device(c: RunConfig) -> tuple[str, bool]:
+    """(the device jobs train on, whether they run in this process). In-process jobs' device is resolved here
+    ('auto' -> 'cuda' or 'cpu'; a GPU torch cannot see is refused before any scene is built); a distributed
+    executor's jobs get the checked name, which each worker resolves. The executor's options are checked too
+    (Ray not installed, --device cuda:1 on Ray, an option it does not take)."""
+    from strings_bench.bench.executors import executor_factory
     from strings_bench.engine.trainer import check_device_name, resolve_device
 
-    if in_process:
-        return resolve_device(asked)
-    check_device_name(asked)
-    return "auto" if asked in (None, "") else str(asked)
+    factory = executor_factory(c.executor)
+    if factory.in_process:
+        device = resolve_device(c.device)
+    else:
+        check_device_name(c.device)
+        device = "auto" if c.device in (None, "") else str(c.device)
+    factory.check_options(device=c.device, **(c.executor_options or {}))
+    return device, factory.in_process
 
 
 def _check_names(c: RunConfig) -> None:
@@ -217,13 +213,17 @@ def _check_names(c: RunConfig) -> None:
 
 
 def _check_options(c: RunConfig) -> tuple[str, "SaveEvery"]:
-    """Check the CER profile; returns the OCR engine list in canonical names ("rapid,tess" = "rapidocr,tesseract"),
-    so that a resumed run compares like with like, and `--save-every` parsed."""
+    """Check the CER profile, `--dense-eval` and `--lpips-at`; returns the OCR engine list in canonical names
+    ("rapid,tess" = "rapidocr,tesseract"), so that a resumed run compares like with like, and `--save-every` parsed."""
     from strings_bench.engine.trainer import SaveEvery
     from strings_bench.eval.cer import get_profile
     from strings_bench.eval.ocr import parse_engines
 
     get_profile(c.cer_profile)  # fails early on an unknown name
+    if c.dense_eval not in DENSE_EVAL:
+        raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
+    if c.lpips_at not in LPIPS_AT:
+        raise StringsBenchError(f"unknown LPIPS policy {c.lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
     save_every = SaveEvery.parse(c.save_every)
     if not isinstance(c.ocr, str):
         return c.ocr, save_every

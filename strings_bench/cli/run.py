@@ -17,7 +17,7 @@ def _split(s: str) -> list[str]:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from strings_bench.bench.executors import EXECUTORS
-    from strings_bench.bench.plan import DEFAULT_RUN_DIR
+    from strings_bench.bench.plan import DEFAULT_RUN_DIR, DENSE_EVAL, LPIPS_AT
     from strings_bench.core.schedules import DEFAULT_SCHEDULE, MINIATURES, SCHEDULES
 
     p = subparsers.add_parser("run", help=command_help("run"),
@@ -50,7 +50,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "(e.g. every:500, or 3K,7K,every:500), for time to legibility (docs/readability.md); the "
                         "checkpoints only every:N adds get the word-crop metrics only (see --dense-eval); recorded "
                         "in run.json")
-    p.add_argument("--dense-eval", choices=("words", "full"), default="words",
+    p.add_argument("--dense-eval", choices=DENSE_EVAL, default=DENSE_EVAL[0],
                    help="how the checkpoints that only --checkpoints every:N adds are evaluated: words (default: "
                         "word-crop readability and PSNR/SSIM; no OCR of the renders, no LPIPS; GT reads are made once "
                         "per scene) or full (OCR-CER and every metric, as the other checkpoints)")
@@ -91,7 +91,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "there uncapped, same schedule and image scale) instead of training METHOD in this run, e.g. "
                         "other seeds at the count 3DGS reached at seed 0")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
-    p.add_argument("--lpips-at", default="last", choices=["last", "all"],
+    p.add_argument("--lpips-at", default=LPIPS_AT[0], choices=LPIPS_AT,
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--device", default="auto",
