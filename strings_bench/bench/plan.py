@@ -4,7 +4,7 @@ and its record (`RunPlan.manifest`, written to run.json).
 `plan_run(config)` parses, checks and resolves every value of a run once, before any scene is built or method
 trained: method names, `--set` keys, `--presets` names, the OCR engines and profile, the device (resolved here
 when jobs run in this process; a distributed executor's workers resolve their own), `--save-every`, the executor's
-options, the equal Gaussian cap (bench/budget.py) and the LPIPS checkpoints; then it resolves the scenes and makes
+options, the equal Gaussian cap and the LPIPS checkpoints; then it resolves the scenes and makes
 one frozen `Job` per (method, scene) holding the method's final settings. The runner and the trainer take a job
 as it is. run.json is the plan's record, never read back as configuration: a resumed run compares it with its
 new plan and refuses a mismatch (store/manifest.py, `check_manifest`).
@@ -302,10 +302,10 @@ def _scene_ocr(ocr, ref) -> tuple[str, ...]:
     return tuple(engines.split(","))
 
 
-def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale: float, cap: Budget | None,
+def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale: float, cap,
          device: str, save_every) -> Job:
     """The job of one method on one scene. Its presets: those that apply to the scene by themselves, then the
-    chosen ones; its settings final (a `--budget N` cap included); its checkpoints follow from its steps scale, or
+    chosen ones; its settings final (a cap of a count included); its checkpoints follow from its steps scale, or
     from the method (e.g. the ply adapter: the model's own iteration). The method is built once, by the job
     (bench/runner.py)."""
     presets = tuple(spec.presets_for(ref.dataset, ref.scene)) + mp.presets
@@ -313,7 +313,7 @@ def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale
     fixed = spec.fixed_checkpoints(settings)
     steps = tuple(fixed or p.checkpoints(mp.steps_scale))
     dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(mp.steps_scale))
-    count = None if cap is None or cap.is_reference(mp.name) else cap.count  # None under --budget METHOD: read at run
+    count = None if cap is None or cap.is_reference(mp.name) else cap.count  # a reference's count: read where the job runs
     if count is not None:
         settings = {**settings, CAP_SETTING: count}
     lpips = () if not c.with_lpips else steps if c.lpips_at == "all" else (max(steps),)

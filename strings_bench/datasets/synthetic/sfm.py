@@ -9,7 +9,6 @@ import logging
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,8 +16,8 @@ from strings_bench.core.errors import DatasetError
 from strings_bench.scene.camera import Camera
 from strings_bench.scene.colmap import ColmapModel, read_model
 
-if TYPE_CHECKING:
-    from strings_bench.datasets.synthetic.generate import SyntheticSettings
+# `settings` below is generate.py's SyntheticSettings (its SfM fields: max_features, match_overlap, seed, ...),
+# named in annotations only: generate.py imports this module.
 
 log = logging.getLogger(__name__)
 
