@@ -80,8 +80,7 @@ def _describe(parser: argparse.ArgumentParser, title: str, summary: str, level: 
     if text:
         out += [text, ""]
     args = [a for a in parser._actions
-            if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction, argparse._VersionAction))
-            and a.help is not argparse.SUPPRESS]  # a hidden option (a former name refused by name) is no option
+            if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction, argparse._VersionAction))]
     positionals = [a for a in args if not a.option_strings]
     options = [a for a in args if a.option_strings]
     if positionals:

@@ -32,8 +32,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--schedule", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
                    help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}): "
                         + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
-    # the schedule's former name, refused by name (argparse would otherwise take it for an abbreviated --presets)
-    p.add_argument("--preset", dest="former_preset", default=None, help=argparse.SUPPRESS)
+    # refused by name: argparse would otherwise take it for an abbreviated --presets
+    p.add_argument("--preset", dest="former_preset", default=None, metavar="NAME",
+                   help="refused: the former name of --schedule (the error names the --schedule to give)")
     p.add_argument("--presets", dest="method_presets", action="append", default=[], metavar="METHOD=PRESET[+PRESET]",
                    help="a named variant of one method's settings, e.g. --presets strings=release (the authors' release "
                         "where it differs from the paper); repeatable; `strings-bench methods show METHOD` lists them. "

@@ -327,25 +327,47 @@ class Strategy:
     # ---- the Gaussian cap ------------------------------------------------------------------------
     def room(self, model: GaussianModel) -> int | None:
         """How many Gaussians may still be added (>= 0) under the cap in force
-        (`StrategyContext.cap_in_force`), or None without a cap."""
+        (`StrategyContext.cap_in_force`), or None without a cap.
+
+        Args:
+            model: the model (its current size is read).
+        """
         cap = self.context.cap_in_force()
         return None if cap is None else max(0, cap - len(model))
 
     def cap_holds(self, model: GaussianModel) -> bool:
         """Whether the cap has held the model back: it is at the cap in force (a strategy that drops
-        candidates for the cap says so too: `DefaultStrategy`). False without a cap."""
+        candidates for the cap says so too: `DefaultStrategy`). False without a cap.
+
+        Args:
+            model: the model (its current size is read).
+        """
         cap = self.context.cap_in_force()
         return cap is not None and len(model) >= cap
 
     # ---- the schedule (the context's) -----------------------------------------------------------
     def at(self, nominal: float) -> int:
-        """The step of nominal iteration `nominal` (`StrategyContext.at`)."""
+        """The step of nominal iteration `nominal` (`StrategyContext.at`).
+
+        Args:
+            nominal: an iteration number of the paper's 30 000-step schedule.
+        """
         return self.context.at(nominal)
 
     def every(self, nominal: float, floor: int = MIN_SCALED_INTERVAL) -> int:
-        """The interval, in steps, of nominal interval `nominal` (`StrategyContext.every`)."""
+        """The interval, in steps, of nominal interval `nominal` (`StrategyContext.every`).
+
+        Args:
+            nominal: an interval of the paper's schedule (e.g. refine every 100).
+            floor: the shortest interval in a scaled-down run (MIN_SCALED_INTERVAL = 50; the run's
+                interval_floor lowers it).
+        """
         return self.context.every(nominal, floor)
 
     def reset_interval(self, nominal: float) -> int:
-        """An opacity-reset interval, in steps (`StrategyContext.reset_interval`)."""
+        """An opacity-reset interval, in steps (`StrategyContext.reset_interval`: at least 200 in a scaled-down run).
+
+        Args:
+            nominal: the nominal reset interval (3DGS: 3 000).
+        """
         return self.context.reset_interval(nominal)

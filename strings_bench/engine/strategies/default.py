@@ -87,7 +87,11 @@ class DefaultStrategy(Strategy):
         return state
 
     def cap_holds(self, model: GaussianModel) -> bool:
-        """At the cap in force, or growth already cut by it (a round that prunes too may end a little under it)."""
+        """At the cap in force, or growth already cut by it (a round that prunes too may end a little under it).
+
+        Args:
+            model: the model (its current size is read).
+        """
         return super().cap_holds(model) or (self.context.cap is not None and self.dropped_for_cap > 0)
 
     # ---- hooks ------------------------------------------------------------------------------
