@@ -371,8 +371,8 @@ class GaussianSplatting(Method):
         self.model = model
         self.optimizer = self.make_optimizer(model)
         self.strategy_state = self.strategy.initialize_state(self.extent, [self.camera(i) for i in self.train_views()])
-        cap_now = self.context.cap_in_force()  # the cap less what the method keeps free
-        if cap_now is not None and len(model) > cap_now:
+        in_force = self.context.cap_in_force()  # the cap less what the method keeps free
+        if in_force is not None and len(model) > in_force:
             cap, reserved = self.context.cap, self.reserved_gaussians()
             more = f" and {reserved} it adds later" if reserved else ""
             raise StringsBenchError(
