@@ -176,6 +176,8 @@ def _grid_model(n=20, opacity=0.5):
 
 
 def test_round_splits_up_to_the_budget_and_max_gaussians():
+    from strings_bench.engine.strategies import StrategyContext
+
     model, opt = _grid_model()
     strategy = _attached(ImprovedGSStrategy(context=StrategyContext(cap=26)), model)
     state = strategy.initialize_state(1.0)
