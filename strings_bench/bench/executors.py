@@ -40,8 +40,10 @@ class Job:
     # the steps scale the method trains at (the schedule's, or the method's --set steps_scale): its checkpoints are
     # scaled by it, and it reaches the method as its `steps_scale` setting where the method takes one
     steps_scale: float
-    # the method's final settings: its spec's defaults, presets, steps scale, --set values and a --budget N cap
-    method_settings: dict = field(default_factory=dict)
+    method_settings: dict = field(default_factory=dict)  # the method's --set values, the all-methods ones included
+    # the method's final settings, built with as they are: its spec's defaults, presets, steps scale, --set values
+    # and a --budget N cap
+    settings: dict = field(default_factory=dict)
     method_presets: tuple[str, ...] = ()  # the method's presets in order (recorded): dataset-conditional, then --presets
     cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
     # the device, resolved by the plan for jobs run in-process ("cpu", "cuda", "cuda:N"); for jobs sent to a
@@ -54,7 +56,7 @@ class Job:
     dense_checkpoints: tuple[int, ...] = ()
     lpips_checkpoints: tuple[int, ...] = ()  # of `checkpoints`, those scored with LPIPS too (--lpips-at)
     budget: Budget | None = None  # the run's equal Gaussian cap rule (bench/budget.py), recorded with each cell
-    # the cap in Gaussians where the plan knows it (--budget N; also in method_settings); None without a cap, for
+    # the cap in Gaussians where the plan knows it (--budget N; also in settings); None without a cap, for
     # the reference method, and under --budget METHOD, whose count is read where the job runs
     cap: int | None = None
 

@@ -320,7 +320,8 @@ def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale
     return Job(run_dir=str(c.run_dir), method=mp.name, dataset=ref.dataset, scene=ref.scene, scene_path=str(ref.path),
                scene_settings=dict(ref.settings), checkpoints=steps,
                labels={it: p.label_of(it, mp.steps_scale) for it in steps}, schedule=p.name, downscale=downscale,
-               ocr=ocr, steps_scale=mp.steps_scale, method_settings=settings, method_presets=presets,
+               ocr=ocr, steps_scale=mp.steps_scale, method_settings=dict(mp.settings), settings=settings,
+               method_presets=presets,
                cer_profile=c.cer_profile, device=device, save_every=save_every, keep_models=bool(c.keep_models),
                dense_checkpoints=dense, lpips_checkpoints=tuple(lpips), budget=cap, cap=count)
 

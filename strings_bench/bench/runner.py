@@ -64,7 +64,7 @@ def build_method(job: Job, cap: int | None = None):
     where the job runs (`--budget METHOD`: the reference's count), added to them."""
     from strings_bench.methods.registry import get_method
 
-    settings = job.method_settings if cap is None else {**job.method_settings, CAP_SETTING: int(cap)}
+    settings = job.settings if cap is None else {**job.settings, CAP_SETTING: int(cap)}
     return get_method(job.method).instantiate(settings)
 
 
