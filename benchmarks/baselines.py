@@ -54,7 +54,7 @@ def build(method: str, schedule: str, paper_checkpoints, **settings):
     with (its schedule's from strings_bench/core/schedules.py, or a given steps_scale)."""
     from strings_bench.methods.registry import get_method
 
-    adapter = get_method(method).build(default_steps_scale=get_schedule(schedule).steps_scale, **settings)
+    adapter = get_method(method).build(**{"steps_scale": get_schedule(schedule).steps_scale, **settings})
     s = float(adapter.settings["steps_scale"])
     return adapter, s, sorted({max(1, round(c * s)) for c in paper_checkpoints})
 

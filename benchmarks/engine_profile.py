@@ -82,7 +82,7 @@ def build_method(schedule: str):
 
     spec = get_method("3dgs")
     try:
-        return spec.build(default_steps_scale=get_schedule(schedule).steps_scale)
+        return spec.build(steps_scale=get_schedule(schedule).steps_scale)
     except StringsBenchError:  # an older commit's arm (engine_ab.py): build(schedule=...) before the redesign
         return spec.build(schedule=schedule)
 

@@ -43,7 +43,7 @@ def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: st
 
     w, h = size
     scene = Scene.load(build_scene("books", settings_with(width=w, height=h), progress=False), name="books")
-    adapter = get_method(method).build(default_steps_scale=get_schedule("paper").steps_scale)  # the paper's schedule; the run is cut at `steps`
+    adapter = get_method(method).build(steps_scale=get_schedule("paper").steps_scale)  # the paper's schedule; the run is cut at `steps`
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
     (result,) = list(Trainer(adapter, scene, [steps], device=device, progress=False).train())

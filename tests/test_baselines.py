@@ -321,12 +321,15 @@ def test_edc_selects_on_absolute_gradient_only_and_recovery_prunes_after_reset()
 
 
 def test_edc_recovery_window_in_scaled_schedules():
-    strategy = EDCStrategy()
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 1.0)) == 300       # paper: reset + 300
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.05)) == 100      # quick: 15 -> 100 steps
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 100      # resets 200 apart (floor)
-    strategy = EDCStrategy(recovery_min_steps=250)
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.02)) == 199      # before the next reset (200)
+    from strings_bench.engine.strategies import StrategyContext
+
+    def at(scale, **kw):
+        return EDCStrategy(context=StrategyContext(steps_scale=scale), **kw)
+
+    assert at(1.0).recovery_step() == 300       # paper: reset + 300
+    assert at(0.05).recovery_step() == 100      # quick: 15 -> 100 steps
+    assert at(0.02).recovery_step() == 100      # resets 200 apart (floor)
+    assert at(0.02, recovery_min_steps=250).recovery_step() == 199      # before the next reset (200)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -465,7 +468,7 @@ def test_baselines_train_without_nan_within_1p5_db_of_3dgs(synthetic_books_small
     gts = {scene.names[i]: scene.load_image(i, 1) for i in scene.test_idx}
     final = {}
     for method in ["3dgs", "absgs", "edc-absgs", "mip-splatting", "mcmc"]:
-        results = eh.train(get_method(method).build(default_steps_scale=get_schedule("standard").steps_scale), scene, [350, 1500])
+        results = eh.train(get_method(method).build(steps_scale=get_schedule("standard").steps_scale), scene, [350, 1500])
         assert [r.iteration for r in results] == [350, 1500]
         last = results[-1]
         for img in last.renders.values():

@@ -18,10 +18,11 @@ import pytest
 import torch
 
 from strings_bench.core.errors import StringsBenchError
-from strings_bench.engine.strategies.base import keep_within_budget
+from strings_bench.engine.strategies import StrategyContext
+from strings_bench.engine.strategies.base import keep_within_cap
 
 
-# ---- keep_within_budget against brute force --------------------------------------------------------------------
+# ---- keep_within_cap against brute force --------------------------------------------------------------------
 def _by_hand(candidates, scores, cost, room):
     order = sorted((i for i, c in enumerate(candidates) if c), key=lambda i: (-scores[i], i))
     kept, used = set(), 0
@@ -34,31 +35,31 @@ def _by_hand(candidates, scores, cost, room):
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_keep_within_budget_matches_a_by_hand_greedy(seed):
+def test_keep_within_cap_matches_a_by_hand_greedy(seed):
     rng = np.random.default_rng(seed)
     n = 40
     cand = rng.random(n) < 0.6
     scores = np.round(rng.random(n), 1)  # ties on purpose: the lower index first
     cost = rng.integers(1, 3, n)
     room = int(rng.integers(0, 30))
-    got = keep_within_budget(torch.from_numpy(cand), torch.from_numpy(scores), torch.from_numpy(cost), room)
+    got = keep_within_cap(torch.from_numpy(cand), torch.from_numpy(scores), torch.from_numpy(cost), room)
     assert got.tolist() == _by_hand(cand.tolist(), scores.tolist(), cost.tolist(), room)
     assert int((torch.from_numpy(cost) * got).sum()) <= room
 
 
-def test_keep_within_budget_without_budget_or_with_room_keeps_every_candidate():
+def test_keep_within_cap_without_budget_or_with_room_keeps_every_candidate():
     cand = torch.tensor([True, False, True])
-    assert keep_within_budget(cand, torch.zeros(3), 1, None).tolist() == [True, False, True]
-    assert keep_within_budget(cand, torch.zeros(3), 1, 2).tolist() == [True, False, True]
-    assert keep_within_budget(cand, torch.zeros(3), 1, 0).tolist() == [False, False, False]
+    assert keep_within_cap(cand, torch.zeros(3), 1, None).tolist() == [True, False, True]
+    assert keep_within_cap(cand, torch.zeros(3), 1, 2).tolist() == [True, False, True]
+    assert keep_within_cap(cand, torch.zeros(3), 1, 0).tolist() == [False, False, False]
 
 
 def test_budget_must_be_a_positive_count():
-    from strings_bench.engine.strategies import DefaultStrategy
+    from strings_bench.engine.splatting import TrainConfig
 
     for bad in (0, -5, 2.5):
         with pytest.raises(StringsBenchError, match="max_gaussians must be a positive"):
-            DefaultStrategy(max_gaussians=bad)
+            TrainConfig(max_gaussians=bad)
 
 
 # ---- each strategy's selection under a budget, on constructed statistics ----------------------------------------
@@ -79,14 +80,14 @@ def test_default_strategy_grows_the_largest_mean_gradients_first():
 
     n = 10
     model = _model(n, big=(1, 6))
-    strategy = DefaultStrategy(max_gaussians=n + 3)
+    strategy = DefaultStrategy(context=StrategyContext(cap=n + 3))
     state = strategy.initialize_state(scene_extent=1.0)
     grad = [5, 9, 1, 8, 0.5, 7, 6, 0.1, 4, 3]  # x 1e-4; threshold 2e-4 -> candidates 0,1,3,5,6,8,9
     state.update(grad2d=torch.tensor(grad) * 1e-4 * 2, count=torch.full((n,), 2.0), max_radii=torch.ones(n))
-    clone, split = strategy._fit_budget(model, state, 600, *strategy._select(model, state, 600))
+    clone, split = strategy._fit_cap(model, state, 600, *strategy._select(model, state, 600))
     # by hand: candidates by decreasing mean gradient: 1 (split), 3, 5, 6 (split), ...; room 3, each costs 1
     assert clone.nonzero().squeeze(1).tolist() == [3, 5] and split.nonzero().squeeze(1).tolist() == [1]
-    assert state["budget_dropped"] == 7 - 3
+    assert strategy.dropped_for_cap == 7 - 3
 
 
 def test_absgs_ranks_clones_and_splits_by_their_statistic_over_its_threshold():
@@ -94,13 +95,13 @@ def test_absgs_ranks_clones_and_splits_by_their_statistic_over_its_threshold():
 
     n = 6
     model = _model(n, big=(0, 1, 2))
-    strategy = AbsGSStrategy(max_gaussians=n + 2)
+    strategy = AbsGSStrategy(context=StrategyContext(cap=n + 2))
     state = strategy.initialize_state(scene_extent=1.0)
     # large (0-2) split on |grad| >= 4e-4; small (3-5) clone on grad >= 2e-4
     grad = torch.tensor([0, 0, 0, 3e-4, 5e-4, 2.2e-4])
     absgrad = torch.tensor([9e-4, 5e-4, 4.4e-4, 0, 0, 0])
     state.update(grad2d=grad, grad2d_abs=absgrad, count=torch.ones(n), max_radii=torch.ones(n))
-    clone, split = strategy._fit_budget(model, state, 600, *strategy._select(model, state, 600))
+    clone, split = strategy._fit_cap(model, state, 600, *strategy._select(model, state, 600))
     # over threshold: 0: 2.25, 1: 1.25, 2: 1.1, 3: 1.5, 4: 2.5, 5: 1.1 -> the two best: 4 (clone), 0 (split)
     assert clone.nonzero().squeeze(1).tolist() == [4] and split.nonzero().squeeze(1).tolist() == [0]
 
@@ -111,36 +112,36 @@ def test_edc_ranks_by_the_absolute_gradient_it_selects_on(release):
 
     n = 5
     model = _model(n)
-    strategy = EDCStrategy(max_gaussians=n + 2, release_schedule=release)
+    strategy = EDCStrategy(context=StrategyContext(cap=n + 2), release_schedule=release)
     state = strategy.initialize_state(scene_extent=1.0)
     count = torch.tensor([1.0, 100, 1, 1, 1])
     absgrad = torch.tensor([9e-4, 5e-4, 8e-4, 4e-4, 2e-4]) * count
     state.update(grad2d=torch.zeros(n), grad2d_abs=absgrad, count=count, max_radii=torch.ones(n))
-    clone, split = strategy._fit_budget(model, state, 20_000, *strategy._select(model, state, 20_000))
+    clone, split = strategy._fit_cap(model, state, 20_000, *strategy._select(model, state, 20_000))
     assert not clone.any()
     # mean |grad|: 9, 5, 8, 4, 2 (e-4); the release multiplies the 100-view one by 1.3 -> 6.5 (still below 8)
     assert split.nonzero().squeeze(1).tolist() == [0, 2]
     strategy.grow_grad2d_abs = 1e-5
-    clone, split = strategy._fit_budget(model, state, 20_000, *strategy._select(model, state, 20_000))
+    clone, split = strategy._fit_cap(model, state, 20_000, *strategy._select(model, state, 20_000))
     assert split.nonzero().squeeze(1).tolist() == [0, 2]
 
 
 def test_mcmc_takes_the_budget_as_its_cap():
     from strings_bench.engine.strategies.mcmc import MCMCStrategy
 
-    assert MCMCStrategy(max_gaussians=1234, cap_max=99).initialize_state(1.0)["cap"] == 1234
+    assert MCMCStrategy(context=StrategyContext(cap=1234), cap_max=99).initialize_state(1.0)["cap"] == 1234
     assert MCMCStrategy(cap_max=99).initialize_state(1.0)["cap"] == 99
 
 
 def test_eq1_under_a_budget_densifies_the_least_observed_points_first():
-    from strings_bench.methods.strings.densify import fit_factors_to_budget
+    from strings_bench.methods.strings.densify import fit_factors_to_cap
 
     k = np.array([3, 15, 1, 8, 15, 2])
     # 6 Gaussians, budget 25 -> 19 children to spare: 15 (index 1, +14) then 15 (index 4, +14) does not fit: stop
-    assert fit_factors_to_budget(k, 25).tolist() == [1, 15, 1, 1, 1, 1]
-    assert fit_factors_to_budget(k, 34).tolist() == [1, 15, 1, 1, 15, 1]
-    assert fit_factors_to_budget(k, 1000).tolist() == k.tolist()
-    assert fit_factors_to_budget(k, None).tolist() == k.tolist()
+    assert fit_factors_to_cap(k, 25).tolist() == [1, 15, 1, 1, 1, 1]
+    assert fit_factors_to_cap(k, 34).tolist() == [1, 15, 1, 1, 15, 1]
+    assert fit_factors_to_cap(k, 1000).tolist() == k.tolist()
+    assert fit_factors_to_cap(k, None).tolist() == k.tolist()
 
 
 # ---- every trainable method, every step -------------------------------------------------------------------------
@@ -182,7 +183,7 @@ def _train_capped(name, cap, steps=STEPS):
         counts.append(method.num_gaussians())
         method.refine(step)
         counts.append(method.num_gaussians())
-        method.dropped.append(method.strategy_state.get("budget_dropped", 0))
+        method.dropped.append(getattr(method.strategy, "dropped_for_cap", 0))
     return method, counts
 
 

@@ -314,18 +314,19 @@ def test_fused_densification_statistics_match_torch_bit_for_bit(scale, monkeypat
 
 
 def test_default_strategy_schedule_scales_with_steps():
-    strat = DefaultStrategy()
-    state = strat.initialize_state(1.0, steps_scale=0.1)
+    from strings_bench.engine.strategies import StrategyContext
+
+    strat = DefaultStrategy(context=StrategyContext(steps_scale=0.1))
     # intervals shorter than MIN_SCALED_INTERVAL (50) are held at 50 in scaled runs; starts/stops scale freely
-    assert strat.at(state, strat.refine_start_iter) == 50 and strat.every(state, strat.refine_every) == 50
-    assert strat.every(state, strat.reset_every) == 300 and strat.at(state, strat.refine_stop_iter) == 1500
-    assert strat.every(state, 20) == 20  # a nominal interval below the floor is kept as given
+    assert strat.at(strat.refine_start_iter) == 50 and strat.every(strat.refine_every) == 50
+    assert strat.every(strat.reset_every) == 300 and strat.at(strat.refine_stop_iter) == 1500
+    assert strat.every(20) == 20  # a nominal interval below the floor is kept as given
     # opacity resets: at least MIN_SCALED_RESET_INTERVAL (200) steps apart in scaled runs
-    assert strat.reset_interval(state, strat.reset_every) == 300
-    quick = strat.initialize_state(1.0, steps_scale=0.01)
-    assert strat.reset_interval(quick, strat.reset_every) == 200 and strat.every(quick, strat.reset_every) == 50
-    full = strat.initialize_state(1.0, steps_scale=1.0)
-    assert strat.every(full, strat.refine_every) == 100 and strat.every(full, 1) == 1
+    assert strat.reset_interval(strat.reset_every) == 300
+    quick = DefaultStrategy(context=StrategyContext(steps_scale=0.01))
+    assert quick.reset_interval(quick.reset_every) == 200 and quick.every(quick.reset_every) == 50
+    full = DefaultStrategy(context=StrategyContext(steps_scale=1.0))
+    assert full.every(full.refine_every) == 100 and full.every(1) == 1
 
 
 # ---- trainer -----------------------------------------------------------------------------------
@@ -473,12 +474,13 @@ def test_motion_log_sums_adams_position_steps(tiny_scene):
 
 
 def test_gs3d_method_registered_and_trains(tiny_scene):
+    from strings_bench.bench.plan import takes_steps_scale
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.methods.registry import get_method
 
     spec = get_method("3dgs")
-    assert spec.takes_steps_scale() and not spec.presets  # the run's schedule scales it (build(default_steps_scale=...))
-    method = spec.build(default_steps_scale=get_schedule("quick").steps_scale, sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
+    assert takes_steps_scale(spec) and not spec.presets  # the run's schedule scales it (build(steps_scale=...))
+    method = spec.build(steps_scale=get_schedule("quick").steps_scale, sh_degree=0, lr_opacity_logits=0.025, grow_grad2d=3e-4)
     assert method.config.lrs.opacity_logits == 0.025 and method.strategy.grow_grad2d == 3e-4
     assert method.config.steps_scale == 0.01
     results = train(method, tiny_scene, [10, 20])
@@ -635,3 +637,59 @@ def test_rows_then_is_indexing_then_concatenation(shape, dtype):
         assert torch.equal(rows_then(old, index, add), torch.cat([old[index], add]))
         assert torch.equal(rows_then(old, index, n_zero=5), torch.cat([old[index], torch.zeros((5,) + shape[1:], dtype=dtype)]))
         assert torch.equal(rows_then(old, index), old[index])
+
+
+# ---- a strategy's context: given once, never in its state --------------------------------------------------------
+SETTING_KEYS = {"steps_scale", "interval_floor", "reserved_gaussians", "budget_dropped", "max_gaussians", "cap"}
+
+
+def _strategy_classes():
+    from strings_bench.engine.strategies.absgs import AbsGSStrategy
+    from strings_bench.engine.strategies.edc import EDCStrategy
+    from strings_bench.engine.strategies.improved import ImprovedGSStrategy
+    from strings_bench.engine.strategies.mcmc import MCMCStrategy
+    from strings_bench.engine.strategies.mip import MipStrategy
+    from strings_bench.engine.strategies.perceptual import PerceptualGSStrategy
+
+    return [DefaultStrategy, AbsGSStrategy, EDCStrategy, MCMCStrategy, MipStrategy, ImprovedGSStrategy,
+            PerceptualGSStrategy]
+
+
+@pytest.mark.parametrize("cls", _strategy_classes(), ids=lambda c: c.__name__)
+def test_a_strategys_state_holds_no_settings(cls):
+    """The run's steps scale, interval floor and cap reach a strategy in its StrategyContext; its fresh state
+    holds none of them, nor any of its own settings (MCMC's "cap" is its own, from cap_max or the context, and
+    is only allowed there)."""
+    import dataclasses
+
+    from strings_bench.engine.strategies import StrategyContext
+    from strings_bench.scene.camera import Camera
+
+    context = StrategyContext(steps_scale=0.05, interval_floor=7, cap=1234, reserved=lambda: 34)
+    strategy = cls(context=context)
+    cams = [Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))]
+    state = strategy.initialize_state(2.0, cams)
+    fields = {f.name for f in dataclasses.fields(strategy)}
+    leaked = (set(state) & (SETTING_KEYS | fields)) - ({"cap"} if cls.__name__ == "MCMCStrategy" else set())
+    assert not leaked, leaked
+    assert "context" in fields and strategy.context is context
+    assert strategy.at(1000) == 50 and strategy.every(1000) == 50 and strategy.every(100) == 7
+    assert context.cap_in_force() == 1200
+
+
+def test_the_method_and_its_strategy_share_one_context():
+    """A method built with a steps scale, a floor and a cap tells its strategy once; both scale alike, and a
+    strategy built for another context is refused."""
+    from strings_bench.core.errors import StringsBenchError
+    from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
+    from strings_bench.engine.strategies import StrategyContext
+
+    method = GaussianSplatting(TrainConfig(steps_scale=0.05, interval_floor=10, max_gaussians=50_000))
+    assert method.strategy.context is method.context and method.context.cap == 50_000
+    for nominal in (100, 1000, 3000, 15_000):
+        assert method.at(nominal) == method.strategy.at(nominal)
+    assert method.every(1000) == method.strategy.every(1000) == 50
+    given = DefaultStrategy()
+    assert GaussianSplatting(TrainConfig(steps_scale=0.05), given).strategy is given and given.context.steps_scale == 0.05
+    with pytest.raises(StringsBenchError, match="scale alike|built for"):
+        GaussianSplatting(TrainConfig(steps_scale=0.05), DefaultStrategy(context=StrategyContext(steps_scale=0.5)))

@@ -51,7 +51,7 @@ def test_example_setting_changes_the_loss(example):
     losses = []
     for reg in (0.0, 10.0):
         with registered(example.SPEC):
-            method = example.SPEC.build(default_steps_scale=get_schedule("tiny").steps_scale, opacity_reg=reg)
+            method = example.SPEC.build(steps_scale=get_schedule("tiny").steps_scale, opacity_reg=reg)
         method.setup(scene)
         losses.append(method.loss(SimpleNamespace(color=color), gt, scene.train_idx[0], 1).item())
     assert losses[1] > losses[0]

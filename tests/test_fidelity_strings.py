@@ -54,7 +54,7 @@ QUIET = dict(mask_dilation_fraction=0.0, mask_dilation_px=None, n_max=3, sh_degr
 
 def _strings_trainer(scene, preset, **settings):
     """STRinGS at the paper's schedule, as the paper ("paper") or with the release's preset ("release")."""
-    m = get_method("strings").build(None if preset == "paper" else preset, default_steps_scale=get_schedule("paper").steps_scale, **{**QUIET, **settings})
+    m = get_method("strings").build(None if preset == "paper" else preset, **{"steps_scale": get_schedule("paper").steps_scale, **QUIET, **settings})
     m.progress = False
     m.setup(scene, downscale=1, device="cpu")
     return m
@@ -88,7 +88,7 @@ def test_gamma_full_schedule_both_presets(text_scene, preset):
 def test_release_preset_settings():
     rel = get_method("strings").build("release").settings
     assert rel["gamma"] == 12000 and rel["gamma_counter"] == "phase2"
-    paper = get_method("strings").build(default_steps_scale=get_schedule("paper").steps_scale).settings
+    paper = get_method("strings").build(steps_scale=get_schedule("paper").steps_scale).settings
     assert "gamma_counter" not in paper  # paper preset unchanged: default gamma 15000 on the global counter
     from strings_bench.methods.strings.method import StringsSettings
 
@@ -312,18 +312,18 @@ def test_seed_reaches_mcmc_and_the_trainer(text_scene):
     config, strategy = config_from_settings({"seed": 7}, strategy_cls=MCMCStrategy)
     assert config.seed == 7 and strategy.seed == 7
     over = parse_settings(["mcmc.seed=11"])
-    trainer = get_method("mcmc").build(default_steps_scale=get_schedule("tiny").steps_scale, **over["mcmc"])
+    trainer = get_method("mcmc").build(steps_scale=get_schedule("tiny").steps_scale, **over["mcmc"])
     assert trainer.config.seed == 11 and trainer.strategy.seed == 11
-    state = trainer.strategy.initialize_state(1.0, 0.005)
+    state = trainer.strategy.initialize_state(1.0)
     # made at first use, on the model's device (a CPU generator cannot sample CUDA tensors)
     gen = trainer.strategy.generator(state, torch.device("cpu"))
     assert gen is not None and gen.initial_seed() == 11 and gen.device.type == "cpu"
     assert trainer.strategy.generator(state, torch.device("cpu")) is gen  # one stream for the whole run
     # Without a seed MCMC samples from torch's global RNG (seeded by the trainer's default 0), as documented.
-    plain = get_method("mcmc").build(default_steps_scale=get_schedule("tiny").steps_scale)
+    plain = get_method("mcmc").build(steps_scale=get_schedule("tiny").steps_scale)
     assert plain.config.seed == 0 and plain.strategy.seed is None
     # A seed for a method whose strategy has none still reaches only the trainer.
-    t3 = get_method("3dgs").build(default_steps_scale=get_schedule("tiny").steps_scale, seed=5)
+    t3 = get_method("3dgs").build(steps_scale=get_schedule("tiny").steps_scale, seed=5)
     assert t3.config.seed == 5
 
 
@@ -398,7 +398,7 @@ def test_no_progress_reaches_trainer_and_mask_bar(text_scene, monkeypatch):
 
     for name in ("3dgs", "mcmc", "mip-splatting", "absgs", "edc-absgs", "strings"):
         for progress in (False, True):
-            a = get_method(name).build(default_steps_scale=get_schedule("tiny").steps_scale, **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
+            a = get_method(name).build(steps_scale=get_schedule("tiny").steps_scale, **({"mask_dilation_fraction": 0.0} if name == "strings" else {}))
             next(iter(Trainer(a, text_scene, [2], progress=progress).train()))
             assert a.progress is progress, name  # the loop hands its setting to the method
     assert seen == [False, True]  # STRinGS' mask bar follows it

@@ -238,7 +238,7 @@ def scene_copy(base, case_dir: Path, which: str = "scene") -> Path:
 
 
 def run_argv(scene: Path) -> list[str]:
-    return ["run", "--methods", "fake-a", "--datasets", str(scene), "--preset", "tiny", "--checkpoints", "30000",
+    return ["run", "--methods", "fake-a", "--datasets", str(scene), "--schedule", "tiny", "--checkpoints", "30000",
             "--ocr", "fuzzfake", "--no-lpips", "--no-progress", "--out", "out/run"]
 
 

@@ -226,7 +226,7 @@ def test_a_run_against_the_faulty_server_completes_and_counts_failed_images(serv
                    "503", "429-retry-after",     # render view_00 @35: fails
                    "no-response", "partial-words"]  # render view_08 @35: recovered, one word without a box
     run_dir = tmp_path / "run"
-    argv = ["run", "--methods", "fake-a", "--datasets", str(scene), "--preset", "tiny",
+    argv = ["run", "--methods", "fake-a", "--datasets", str(scene), "--schedule", "tiny",
             "--ocr", "gcv", "--no-lpips", "--no-progress", "--out", str(run_dir)]
     with caplog.at_level(logging.INFO):
         assert main(argv) == 0

@@ -77,12 +77,12 @@ def _trainable_methods() -> list[str]:
 
 @pytest.mark.parametrize("method", _trainable_methods())
 def test_every_method_trains_100_steps_on_cuda(method, tmp_path):
-    """`strings-bench run --device cuda --preset tiny` (x0.005), checkpoint 20K = 100 steps."""
+    """`strings-bench run --device cuda --schedule tiny` (x0.005), checkpoint 20K = 100 steps."""
     _needs_gsplat()
     from strings_bench.cli import main
 
     out = tmp_path / "run"
-    rc = main(["run", "--methods", method, "--datasets", "synthetic/books", "--preset", "tiny", "--checkpoints", "20000",
+    rc = main(["run", "--methods", method, "--datasets", "synthetic/books", "--schedule", "tiny", "--checkpoints", "20000",
                "--device", "cuda", "--out", str(out), "--no-progress", "--no-lpips"])
     assert rc == 0
     (cell,) = list(out.rglob("result.json"))

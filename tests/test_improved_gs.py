@@ -138,12 +138,14 @@ def test_growth_budget_is_the_square_root_ramp():
 
 
 def test_final_budget_sources():
-    state = {"n_initial": 30, "steps_scale": 1.0}
+    from strings_bench.engine.strategies import StrategyContext
+
+    state = {"n_initial": 30}
     assert ImprovedGSStrategy().final_budget(state) == 300  # budget_multiple 10 x initial
     assert ImprovedGSStrategy(budget=120).final_budget(state) == 120  # the release's per-scene --budget
-    assert ImprovedGSStrategy(budget=120, max_gaussians=50).final_budget(state) == 50  # the run's cap wins
+    assert ImprovedGSStrategy(budget=120, context=StrategyContext(cap=50)).final_budget(state) == 50  # the cap wins
     with pytest.raises(Exception, match="max_gaussians"):
-        ImprovedGSStrategy(max_gaussians=0)
+        ImprovedGSStrategy(context=StrategyContext(cap=0))
 
 
 def test_selection_draws_scored_candidates_in_proportion():
@@ -174,8 +176,10 @@ def _grid_model(n=20, opacity=0.5):
 
 
 def test_round_splits_up_to_the_budget_and_max_gaussians():
+    from strings_bench.engine.strategies import StrategyContext
+
     model, opt = _grid_model()
-    strategy = _attached(ImprovedGSStrategy(max_gaussians=26), model)
+    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(cap=26)), model)
     state = strategy.initialize_state(1.0)
     state["n_initial"] = 20
     state.update(grad2d_abs=torch.full((20,), 1e-3), count=torch.ones(20))
@@ -183,7 +187,7 @@ def test_round_splits_up_to_the_budget_and_max_gaussians():
     assert len(model) == 26 and state["n_split"] == 6
     # halfway through the ramp's square root: budget int(sqrt(0.25) x 26) = 13 < N: nothing grows
     model, opt = _grid_model()
-    strategy = _attached(ImprovedGSStrategy(max_gaussians=26), model)
+    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(cap=26)), model)
     state = strategy.initialize_state(1.0)
     state["n_initial"] = 20
     state.update(grad2d_abs=torch.full((20,), 1e-3), count=torch.ones(20))
@@ -246,9 +250,10 @@ def test_schedule_early_prune_reset_and_recovery_pruning():
 
 
 def test_recovery_window_in_scaled_schedules():
-    strategy = ImprovedGSStrategy()
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 1.0)) == 300
-    assert strategy.recovery_step(strategy.initialize_state(1.0, 0.05)) == 100
+    from strings_bench.engine.strategies import StrategyContext
+
+    assert ImprovedGSStrategy(context=StrategyContext(steps_scale=1.0)).recovery_step() == 300
+    assert ImprovedGSStrategy(context=StrategyContext(steps_scale=0.05)).recovery_step() == 100
 
 
 def test_multi_step_adam_takes_one_step_on_the_summed_gradients():

@@ -12,9 +12,9 @@ import torch
 
 import broken_methods
 from strings_bench.bench.check import check_method, first_difference
-from strings_bench.methods.registry import BUILTIN_SPECS, get_method
+from strings_bench.methods.registry import builtin_specs, get_method
 
-BUILTIN = [s.name for s in BUILTIN_SPECS]
+BUILTIN = [s.name for s in builtin_specs()]
 ADAPTERS = {"ply", "external"}
 
 

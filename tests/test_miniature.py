@@ -26,7 +26,7 @@ def _position_lr_sum(scale: float, miniature: str, extent: float = 2.0) -> float
     from strings_bench.methods.registry import get_method
 
     settings = schedule("paper", steps_scale=scale, miniature=miniature).miniature_settings()
-    method = get_method("3dgs").build(default_steps_scale=scale, **settings)
+    method = get_method("3dgs").build(steps_scale=scale, **settings)
     method.extent = extent
     return sum(method.position_lr(step) for step in range(1, round(30_000 * scale) + 1))
 
@@ -100,11 +100,9 @@ def _refinement_rounds(scale: float, miniature: str) -> int:
     from strings_bench.methods.registry import get_method
 
     settings = schedule("paper", steps_scale=scale, miniature=miniature).miniature_settings()
-    method = get_method("3dgs").build(default_steps_scale=scale, **settings)
+    method = get_method("3dgs").build(steps_scale=scale, **settings)
     st = method.strategy
-    state = {"steps_scale": scale, **({"interval_floor": settings["interval_floor"]} if "interval_floor" in settings
-                                      else {})}
-    start, stop, every = st.at(state, st.refine_start_iter), st.at(state, st.refine_stop_iter), st.every(state, st.refine_every)
+    start, stop, every = st.at(st.refine_start_iter), st.at(st.refine_stop_iter), st.every(st.refine_every)
     return sum(1 for step in range(start + 1, stop) if step % every == 0)
 
 
@@ -134,9 +132,9 @@ def test_the_interval_floor_reaches_the_strategy_and_the_sh_schedule(tiny_scene_
     for floor in (50, 1):
         method = GaussianSplatting(TrainConfig(steps_scale=0.05, interval_floor=floor), DefaultStrategy())
         method.setup(Scene.load(tiny_scene_dir), device="cpu")
-        intervals[floor] = (method.strategy.every(method.strategy_state, method.strategy.refine_every),
+        intervals[floor] = (method.strategy.every(method.strategy.refine_every),
                             method.every(method.config.sh_increase_every),
-                            method.strategy.reset_interval(method.strategy_state, method.strategy.reset_every))
+                            method.strategy.reset_interval(method.strategy.reset_every))
     assert intervals == {50: (50, 50, 200), 1: (5, 50, 200)}  # opacity resets keep their own 200-step floor
     with pytest.raises(StringsBenchError, match="interval_floor"):
         TrainConfig(interval_floor=0)

@@ -117,7 +117,7 @@ def test_bce_term_against_the_reference_rasterizer_and_its_adam_step():
     assert state["sens_step"] == 1
     # after sensitivity_until (15 000) the term is off and the 3DGS loss has its full weight
     assert strategy.loss_terms(model, info, step=15_001) == 0.0
-    assert strategy.rgb_weight(1.0, 15_000) == pytest.approx(0.9) and strategy.rgb_weight(1.0, 15_001) == 1.0
+    assert strategy.rgb_weight(15_000) == pytest.approx(0.9) and strategy.rgb_weight(15_001) == 1.0
 
 
 def test_trans_is_the_largest_blend_weight_sum_over_views():

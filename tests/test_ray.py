@@ -79,7 +79,8 @@ def scenes() -> list[Path]:
 
 
 def _plan(out: Path, scenes, methods=METHODS):
-    return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
+    return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(), save_every="4steps",
+                    with_lpips=False, **SCHEDULE)
 
 
 def _rows(out: Path) -> dict[tuple, dict]:
@@ -113,7 +114,7 @@ def _wait_for(pattern: str, folder: Path, count: int = 1, timeout: float = 240) 
 def test_killed_worker_is_retried_and_the_grid_equals_the_local_run(ray_session, scenes, tmp_path):
     local_out, ray_out, pause = tmp_path / "local", tmp_path / "ray", tmp_path / "pause"
     pause.mkdir()
-    runner.execute(_plan(local_out, scenes), ocr=rf.FakeOCR(), executor="local", with_lpips=False, progress=False,
+    runner.execute(_plan(local_out, scenes), ocr=rf.FakeOCR(), executor="local", progress=False,
                    write_report=False)
 
     # The strings job on the first scene stops at step 10 until released; it is SIGKILLed there.
@@ -133,9 +134,9 @@ def test_killed_worker_is_retried_and_the_grid_equals_the_local_run(ray_session,
     killer = threading.Thread(target=kill_the_paused_worker, daemon=True)
     killer.start()
     plan = _plan(ray_out, scenes)
-    job_runner = PausingRunner(ray_out, ocr=rf.FakeOCR(), with_lpips=False, progress=False, results_csv=False,
+    job_runner = PausingRunner(ray_out, ocr=rf.FakeOCR(), progress=False, results_csv=False,
                                pause_dir=str(pause), pause_step=PAUSE_STEP, only=("strings", target.name))
-    runner.execute(plan, executor=RayExecutor(job_runner, max_retries=2), with_lpips=False, progress=False,
+    runner.execute(plan, executor=RayExecutor(job_runner, max_retries=2), progress=False,
                    write_report=False)
     killer.join(timeout=5)
 
@@ -193,7 +194,7 @@ def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, sc
     pause.mkdir()
     plan = _plan(out, scenes, methods=["3dgs"])
     # Both jobs stop when their last cell's renders are written but not its result.json.
-    job_runner = PausingRunner(out, ocr=rf.FakeOCR(), with_lpips=False, progress=False, results_csv=False,
+    job_runner = PausingRunner(out, ocr=rf.FakeOCR(), progress=False, results_csv=False,
                                pause_dir=str(pause), pause_cell=CHECKPOINTS[-1])
     paused: list[Path] = []
 
@@ -203,7 +204,7 @@ def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, sc
 
     threading.Thread(target=interrupt_when_both_jobs_are_paused, daemon=True).start()
     with pytest.raises(KeyboardInterrupt):
-        runner.execute(plan, executor=RayExecutor(job_runner, max_retries=2), with_lpips=False, progress=False,
+        runner.execute(plan, executor=RayExecutor(job_runner, max_retries=2), progress=False,
                        write_report=False)
     pids = [int(p.name.split("-")[1]) for p in paused]
     time.sleep(0.5)

@@ -40,8 +40,8 @@ def _reset_calls():
     rf.register_fakes()
 
 
-def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, **kw):
-    return bench.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake",
+def _run(out, scene_dir, methods=("fake-a", "fake-b"), ocr=None, ocr_list="fake", **kw):
+    return bench.run(list(methods), [str(scene_dir)], run_dir=out, schedule="tiny", ocr=ocr_list,
                       ocr_backend=ocr or rf.FakeOCR(), with_lpips=kw.pop("with_lpips", False), progress=False, **kw)
 
 
@@ -198,8 +198,9 @@ def test_executor_seam(tmp_path, scene_dir):
             submitted.append(json.loads(json.dumps(dataclasses.asdict(job))))  # jobs are plain, serialisable data
             return super().submit(job)
 
-    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake")
-    r = runner.Runner(plan.run_dir, ocr=rf.FakeOCR(), with_lpips=False)
+    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+                    with_lpips=False)
+    r = runner.Runner(plan.run_dir, ocr=rf.FakeOCR())
     runner.execute(plan, ocr=rf.FakeOCR(), executor=Recording(r), progress=False, write_report=False)
     assert [s["method"] for s in submitted] == ["fake-a", "fake-b"]
     assert len(_rows(tmp_path / "run")) == 6
@@ -336,7 +337,7 @@ def test_set_for_all_methods_reaches_every_job(tmp_path, scene_dir):
     from strings_bench.cli.run import parse_settings
 
     over = parse_settings(["floor=0.05", "fake-b.floor=0.1", "fake-b.extra=1"])
-    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    plan = plan_run(["fake-a", "fake-b"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                            method_overrides=over)
     by = {j.method: j for j in plan.jobs}
     assert by["fake-a"].method_settings == {"floor": 0.05}
@@ -360,7 +361,7 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     """`run --steps-scale S --checkpoints ...`: paper iterations, each trained as round(it x S), for every method."""
     register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"blurry": {"steps_scale": 0.005, "floor": 0.2}}))
-    plan = plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake",
+    plan = plan_run(["fake-scaled", "fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                            steps_scale=0.02, checkpoints=[7000, 3000], method_presets={"fake-scaled": ["blurry"]})
     by = {j.method: j for j in plan.jobs}
     # 3000 x 0.02 = 60, 7000 x 0.02 = 140: the schedule's scale wins over a preset's; its other settings stay.
@@ -376,17 +377,17 @@ def test_steps_scale_and_checkpoints_options(tmp_path, scene_dir):
     assert plan.manifest["schedule"]["name"] == "tiny" and plan.manifest["schedule"]["steps_scale"] == 0.02
     assert SCHEDULES["tiny"].steps_scale == 0.005  # nothing global was changed
     # Each option alone; a --set steps_scale for a method wins over --steps-scale.
-    only_scale = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1)
+    only_scale = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(), steps_scale=0.1)
     assert only_scale.jobs[0].checkpoints == (300, 700, 3000)
-    only_its = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", checkpoints=[3000])
+    only_its = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(), checkpoints=[3000])
     assert only_its.jobs[0].checkpoints == (15,) and only_its.jobs[0].labels == {15: "3K"}
-    mine = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", steps_scale=0.1,
+    mine = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(), steps_scale=0.1,
                            method_overrides={"fake-scaled": {"steps_scale": 0.01}})
     assert mine.jobs[0].checkpoints == (30, 70, 300) and mine.jobs[0].steps_scale == 0.01
     assert runner.build_method(mine.jobs[0]).settings["steps_scale"] == 0.01  # built with the --set value
     for bad in ({"steps_scale": 0}, {"steps_scale": float("nan")}, {"checkpoints": []}, {"checkpoints": [0]}):
         with pytest.raises(StringsBenchError):
-            plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", **bad)
+            plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(), **bad)
 
 
 def test_steps_scale_and_checkpoints_recorded_and_kept_on_resume(tmp_path, scene_dir):
@@ -433,7 +434,8 @@ def test_run_cli_schedule_and_set_options(monkeypatch):
     assert main(["run", "--no-progress", "--schedule", "quick", "--presets", "strings=release", "--presets", "a=x+y,b=z"]) == 0
     assert seen["steps_scale"] is None and seen["checkpoints"] is None and seen["method_overrides"] == {}
     assert seen["schedule"] == "quick" and seen["method_presets"] == {"strings": ["release"], "a": ["x", "y"], "b": ["z"]}
-    assert main(["run", "--no-progress", "--preset", "tiny"]) == 0 and seen["schedule"] == "tiny"  # the former name
+    assert main(["run", "--no-progress", "--schedule", "tiny"]) == 0 and seen["schedule"] == "tiny"
+    assert main(["run", "--no-progress", "--preset", "tiny"]) == 1  # the former name: refused, naming --schedule
     with pytest.raises(SystemExit):
         main(["run", "--checkpoints", "7000,x"])
     assert main(["run", "--presets", "strings"]) == 1  # not METHOD=PRESET
@@ -464,10 +466,10 @@ def test_ply_adapter_evaluates_saved_model(tmp_path, scene_dir):
 # ---- end to end (opt-in) ------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_end_to_end_cli_3dgs_on_synthetic_books(tmp_path):
-    """The real pipeline: `strings-bench run --methods 3dgs --datasets synthetic/books --preset tiny`."""
+    """The real pipeline: `strings-bench run --methods 3dgs --datasets synthetic/books --schedule tiny`."""
     from strings_bench.cli import main
     out = tmp_path / "run"
-    rc = main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--preset", "tiny", "--out", str(out),
+    rc = main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--schedule", "tiny", "--out", str(out),
                "--no-progress"])
     assert rc == 0
     rows = _rows(out)
@@ -478,7 +480,7 @@ def test_end_to_end_cli_3dgs_on_synthetic_books(tmp_path):
     assert (out / "report" / "report.md").exists()
     # Re-running the same command does nothing and keeps every cell.
     before = {p: p.stat().st_mtime_ns for p in out.rglob("result.json")}
-    assert main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--preset", "tiny", "--out", str(out),
+    assert main(["run", "--methods", "3dgs", "--datasets", "synthetic/books", "--schedule", "tiny", "--out", str(out),
                  "--no-progress"]) == 0
     assert {p: p.stat().st_mtime_ns for p in out.rglob("result.json")} == before
 
@@ -497,10 +499,10 @@ def test_schedule_scales_every_method_and_never_picks_a_preset(tmp_path, scene_d
     """A schedule and a method preset are different things: a preset named like the schedule is not taken."""
     register_method(MethodSpec(name="fake-scaled", implementation=lambda **s: rf.FakeAdapter(**s), defaults={"steps_scale": 1.0},
                                presets={"quick": {"steps_scale": 0.5, "floor": 0.3}}))
-    tiny = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake")
+    tiny = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR())
     assert tiny.jobs[0].checkpoints == (15, 35, 150) and tiny.jobs[0].steps_scale == 0.005
     assert tiny.jobs[0].method_settings == {}
-    quick = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="quick", ocr="fake")
+    quick = plan_run(["fake-scaled"], [str(scene_dir)], run_dir=tmp_path, schedule="quick", ocr="fake", ocr_backend=rf.FakeOCR())
     assert quick.jobs[0].checkpoints == (70, 300) and quick.jobs[0].method_presets == ()  # x0.01, not the preset's 0.5
     assert quick.jobs[0].labels == {70: "7K", 300: "30K"}
     assert "floor" not in runner.build_method(quick.jobs[0]).settings
@@ -577,13 +579,13 @@ def test_cer_profile_is_chosen_recorded_and_kept_on_resume(tmp_path, scene_dir):
 def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
     """A method spec with no defaults at all (no steps_scale in its defaults) trains the run's scaled number of
     steps, and its internal schedules (densification, SH degree, position LR) are scaled with it."""
-    from strings_bench.engine.strategies.base import Strategy
+    from strings_bench.bench.plan import takes_steps_scale
     from strings_bench.store import read_cell
 
     spec = MethodSpec(name="bare-3dgs", implementation="strings_bench.methods.gs3d:GS3D")
-    assert spec.defaults == {} and spec.takes_steps_scale()
+    assert spec.defaults == {} and takes_steps_scale(spec)
     register_method(spec)
-    plan = plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
+    plan = plan_run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
                            checkpoints=[3000, 7000])
     job = plan.jobs[0]
     assert job.checkpoints == (15, 35) and job.steps_scale == 0.005 and job.method_settings == {}
@@ -593,11 +595,33 @@ def test_schedule_scale_reaches_a_spec_with_no_defaults(tmp_path, scene_dir):
     # steps (the floor of a scaled interval) instead of every 1 000.
     assert method.at(15_000) == 75 and method.every(1_000) == 50
     assert method.sh_degree_for_step(50) == 1 and method.sh_degree_for_step(49) == 0
-    state = method.strategy.initialize_state(1.0, method.config.steps_scale)
-    assert Strategy.at(state, method.strategy.refine_stop_iter) == 75
+    assert method.strategy.at(method.strategy.refine_stop_iter) == 75  # the strategy scales as its method does
     bench.run(["bare-3dgs"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", ocr="fake",
                ocr_backend=rf.FakeOCR(), with_lpips=False, progress=False, write_report=False, checkpoints=[3000, 7000],
                method_overrides={"bare-3dgs": {"sh_degree": 0}})
     rec = read_cell(tmp_path / "run", CellKey("bare-3dgs", job.dataset, job.scene, 35))
     assert rec["extra"]["steps_scale"] == 0.005 and rec["extra"]["paper_iteration"] == 7000
     assert rec["config"]["method"]["settings"]["steps_scale"] == 0.005
+
+
+def test_a_resumed_run_with_a_changed_plan_is_refused_and_run_json_is_no_configuration(tmp_path, scene_dir):
+    """run.json is the plan's record: a re-run whose new plan differs (here the OCR engine list, the CER profile)
+    is refused with an error naming the folder, both values and the way out, and nothing is trained or written;
+    an edited value run.json records but the plan does not compare (the device asked for) configures nothing."""
+    out = tmp_path / "run"
+    _run(out, scene_dir, methods=["fake-a"], write_report=False)
+    cells = sorted(p.stat().st_mtime_ns for p in out.rglob("result.json"))
+    n_train = len(rf.CALLS["train"])
+    with pytest.raises(StringsBenchError, match="profile 'paper'; this run asks for 'robust'") as err:
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, cer_profile="robust")
+    assert str(out) in err.value.message and "--out" in err.value.hint
+    with pytest.raises(StringsBenchError, match="--ocr engine list 'fake'; this run asks for 'fake,tesseract'"):
+        _run(out, scene_dir, methods=["fake-a"], write_report=False, ocr_list="fake,tesseract")
+    assert len(rf.CALLS["train"]) == n_train and sorted(p.stat().st_mtime_ns for p in out.rglob("result.json")) == cells
+    record = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**record, "device": "cuda:7"}))
+    plan = plan_run(["fake-a"], [str(scene_dir)], run_dir=out, schedule="tiny", ocr="fake", ocr_backend=rf.FakeOCR(),
+                    with_lpips=False)
+    assert {j.device for j in plan.jobs} == {plan.device} and plan.device in ("cpu", "cuda")
+    runner.execute(plan, ocr=rf.FakeOCR(), progress=False, write_report=False)  # resumes: nothing left to do
+    assert json.loads((out / "run.json").read_text())["device"] == "auto"  # the plan's record, written again

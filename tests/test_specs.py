@@ -17,24 +17,28 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.optim import LearningRates
 from strings_bench.engine.splatting import TrainConfig
 from strings_bench.engine.strategies.default import DefaultStrategy
-from strings_bench.methods.registry import BUILTIN_SPECS, get_method, show_method
+from strings_bench.bench.plan import with_steps_scale
+from strings_bench.methods.registry import builtin_specs, get_method, show_method
 from strings_bench.methods.strings.method import StringsSettings
 
 
 def test_registry_imports_no_implementation():
-    """Listing methods must not import a method module (implementations are "module:Class" strings)."""
+    """Listing methods must not import a method module (implementations are "module:Class" strings): only the
+    registry, the spec machinery and the specs beside the methods (and the strings package that holds one)."""
     code = ("import sys; from strings_bench.methods.registry import list_methods; list_methods(); "
             "print(sorted(m for m in sys.modules if m.startswith('strings_bench.methods.') "
             "or m.startswith('strings_bench.engine')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "['strings_bench.methods.registry']"
+    loaded = eval(out.strip())
+    allowed = {"strings_bench.methods.registry", "strings_bench.methods.spec", "strings_bench.methods.strings"}
+    assert loaded and all(m in allowed or m.endswith("_spec") or m.endswith(".spec") for m in loaded), loaded
 
 
 def test_every_builtin_implementation_loads_under_its_name():
-    for spec in BUILTIN_SPECS:
+    for spec in builtin_specs():
         impl = spec.load()
         assert isinstance(impl, type), spec.name
-        obj = spec.build(default_steps_scale=get_schedule("tiny").steps_scale)
+        obj = spec.build(**with_steps_scale(spec, get_schedule("tiny").steps_scale))  # as a run builds it
         assert obj.name == spec.name
 
 
@@ -42,7 +46,7 @@ def test_show_lists_every_setting_with_default_and_meaning():
     text = show_method("strings")
     expected = ([f.name for f in dataclasses.fields(TrainConfig) if f.name != "lrs"]
                 + [f"lr_{f.name}" for f in dataclasses.fields(LearningRates)]
-                + [f.name for f in dataclasses.fields(DefaultStrategy)]
+                + [f.name for f in dataclasses.fields(DefaultStrategy) if f.metadata.get("setting", True)]
                 + [f.name for f in dataclasses.fields(StringsSettings)])
     lines = {line.split()[0]: line for line in text.splitlines() if line.startswith("  ")}
     missing = [k for k in expected if k not in lines]
@@ -110,13 +114,14 @@ def test_spec_is_keyword_only_and_its_paper_figures_are_named():
     with pytest.raises(TypeError):
         MethodSpec("x", "strings_bench.methods.gs3d:GS3D")  # positional rows are gone: every field by name
     strings = get_method("strings")
-    assert strings.paper_figures.strings360_cer_30k == 0.106 and strings.paper_figures.tandt_cer_7k == 0.122
+    assert strings.paper_figures.get("strings360", "cer", 30000) == 0.106
+    assert strings.paper_figures.get("tandt", "cer", 7000) == 0.122
     assert strings.paper_results["strings360"] == {"cer": {7000: 0.177, 30000: 0.106}, "minutes": {7000: 1.9, 30000: 12.6}}
     assert get_method("ply").paper_results == {}
     # the name lives on the spec only; a built method carries it
     from strings_bench.methods.mip_splatting import MipSplatting
 
-    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(default_steps_scale=get_schedule("tiny").steps_scale).name == "mip-splatting"
+    assert "name" not in vars(MipSplatting) and get_method("mip-splatting").build(steps_scale=get_schedule("tiny").steps_scale).name == "mip-splatting"
 
 
 def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
@@ -139,3 +144,39 @@ def test_ablations_are_named_by_their_specs_and_read_by_the_tables():
         t = ablation_table(pd.DataFrame(rows))
     assert t.methods == ["3dgs", "3dgs-no-reset"]
     assert t.rows == [("Effect of the opacity reset", "3dgs-no-reset", "30K", [(0.7, 0.5)])]
+
+
+def test_each_builtin_spec_is_found_beside_its_method():
+    """Every built-in spec lives in a spec module beside its implementation's module (nerfbaselines' *_spec.py):
+    `gs3d_spec.py` next to `gs3d.py`, STRinGS' `strings/spec.py` inside its package; methods/registry.py and
+    methods/spec.py hold no spec of their own."""
+    import importlib
+    from pathlib import Path
+
+    import strings_bench.methods.registry as registry
+    import strings_bench.methods.spec as machinery
+    from strings_bench.methods.registry import BUILTIN_SPEC_MODULES
+
+    seen = []
+    for module_name in BUILTIN_SPEC_MODULES:
+        module = importlib.import_module(module_name)
+        specs = getattr(module, "SPECS", None) or [module.SPEC]
+        for spec in specs:
+            impl_module = spec.implementation.partition(":")[0]
+            impl_file = Path(importlib.util.find_spec(impl_module).origin)
+            assert Path(module.__file__).parent == impl_file.parent, (spec.name, module_name, impl_module)
+            stem = Path(module.__file__).stem
+            assert stem == "spec" or stem == impl_file.stem + "_spec", (spec.name, module_name)
+            seen.append(spec.name)
+    assert seen == [s.name for s in builtin_specs()] and len(seen) == len(set(seen)) == 13
+    for holder in (registry, machinery):
+        assert "MethodSpec(\n" not in Path(holder.__file__).read_text() and "MethodSpec(name=" not in \
+            Path(holder.__file__).read_text(), holder.__name__
+
+
+def test_paper_figures_are_keyed_by_dataset_metric_and_iteration():
+    from strings_bench.methods.spec import PaperFigures
+
+    f = get_method("3dgs").paper_figures
+    assert isinstance(f, PaperFigures) and f.get("dl3dv", "cer", 30000) == 0.157 and f.get("dl3dv", "cer", 3000) is None
+    assert f.get("strings360", "minutes", 7000) == 2.5 and set(f.by_dataset()) == {"tandt", "dl3dv", "strings360"}

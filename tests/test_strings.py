@@ -130,7 +130,7 @@ def test_extreme_n_max_finite_and_bounded(n_max):
 
 def test_memory_cap_refuses_clearly():
     with pytest.raises(TrainingError, match="n_max"):
-        densify_text_model(random_model(10), np.full(10, 100), max_gaussians=500)
+        densify_text_model(random_model(10), np.full(10, 100), memory_limit=500)
 
 
 # ---- the method: phases, learning rates, fallback ---------------------------------------------------
@@ -233,7 +233,7 @@ PAPER_LR = [  # (t, eta_opt / extent, text eta_r), float64 values of the express
 def test_paper_preset_position_lr_by_hand(tiny_text_scene):
     scene = tiny_text_scene
     ext = _extent_by_hand(scene)
-    method = get_method("strings").build(default_steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
+    method = get_method("strings").build(steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
     trainer = _setup(method, scene)
     assert trainer.t1 == 3000 and trainer.extent == pytest.approx(ext, rel=1e-12)
     for t in (1, 1500, 3000):  # phase 1: positions locked
@@ -248,7 +248,7 @@ def test_paper_preset_position_lr_by_hand(tiny_text_scene):
         np.testing.assert_allclose(row_lr[is_text].numpy(), eta_opt * ext * eta_text, rtol=1e-6)
         np.testing.assert_allclose(row_lr[~is_text].numpy(), eta_opt * ext * 0.5, rtol=1e-6)
     # Ablation strings-pos-lr: 3DGS' own (unshifted) schedule in phase 1: 1.6e-4 * 100^(-1500/30000).
-    ablation = get_method("strings-pos-lr").build(default_steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
+    ablation = get_method("strings-pos-lr").build(steps_scale=get_schedule("paper").steps_scale, mask_dilation_fraction=0.0)
     assert _setup(ablation, scene).position_lr(1500) == pytest.approx(1.2709251755588504e-4 * ext,
                                                                                        rel=1e-12)
 
@@ -264,13 +264,13 @@ def test_phase1_step_in_strokes_follows_the_scenes_rho(tiny_text_scene):
     assert rho and rho > 1e-4  # the scene's masks give strokes to measure
     paper = get_schedule("paper").steps_scale
     for v, factor in ((rho / 4, 0.25), (rho * 3, 1.0), (0.0, 0.0)):
-        method = get_method("strings").build(default_steps_scale=paper, mask_dilation_fraction=0.0, phase1_step_strokes=v)
+        method = get_method("strings").build(steps_scale=paper, mask_dilation_fraction=0.0, phase1_step_strokes=v)
         trainer = _setup(method, scene)
         assert trainer.position_lr(1500) == pytest.approx(factor * 1.2709251755588504e-4 * ext, rel=1e-9)
         assert trainer.checkpoint_extra(1)["phase1_position_factor"] == pytest.approx(factor)
         assert trainer.position_lr(3001) == pytest.approx(1.5997544097736427e-4 * ext, rel=1e-9)  # phase 2 as the paper
     # a position-LR gain G makes every step G rho strokes: the cap counts the step as taken
-    method = get_method("strings").build(default_steps_scale=paper, mask_dilation_fraction=0.0,
+    method = get_method("strings").build(steps_scale=paper, mask_dilation_fraction=0.0,
                                          phase1_step_strokes=rho, position_lr_gain=4.0)
     trainer = _setup(method, scene)
     assert trainer.checkpoint_extra(1)["phase1_position_factor"] == pytest.approx(0.25)
@@ -613,6 +613,27 @@ def test_phase2_starts_from_phase1_before_the_refinement_at_t1(tiny_text_scene):
     assert got.max() <= 0.01 + 1e-6 < before.max()
 
 
+def test_the_phase_switch_hook_is_called_and_skips_the_refinement_at_t1(tiny_text_scene, monkeypatch):
+    """`refine` asks the named hook `skips_refinement` at every step; STRinGS answers True at T1 only (handoff
+    before_refine), and the strategy's round is then not run, no private field of the base class written."""
+    method = _setup(StringsMethod(**FAST), tiny_text_scene)
+    asked, rounds = [], []
+    hook = type(method).skips_refinement
+    monkeypatch.setattr(type(method), "skips_refinement",
+                        lambda self, step: asked.append((step, hook(self, step))) or asked[-1][1])
+    post = method.strategy.step_post_backward
+    monkeypatch.setattr(method.strategy, "step_post_backward",
+                        lambda model, opt, state, step, info: rounds.append(step) or post(model, opt, state, step, info))
+    for step in range(1, method.t1 + 1):
+        method.train_step(step)
+        method.refine(step)
+    assert [a for a, _ in asked] == list(range(1, method.t1 + 1))
+    assert [a for a, skip in asked if skip] == [method.t1]
+    assert rounds == list(range(1, method.t1))  # every step's round ran but T1's
+    after = _setup(StringsMethod(**FAST, handoff="after_refine"), tiny_text_scene)
+    assert not any(after.skips_refinement(step) for step in range(1, after.t1 + 2))
+
+
 def test_clamp_render_before_the_loss(tiny_text_scene):
     mask = np.ones((2, 2), bool)
     gt = torch.full((2, 2, 3), 0.9)
@@ -683,7 +704,7 @@ def test_default_run_exercises_both_phases(tiny_text_scene, monkeypatch):
     from strings_bench.engine.strategies.default import DefaultStrategy
 
     last = get_schedule(DEFAULT_SCHEDULE).checkpoints()[-1]
-    method = get_method("strings").build(default_steps_scale=get_schedule(DEFAULT_SCHEDULE).steps_scale, mask_dilation_fraction=0.0, sh_degree=0)
+    method = get_method("strings").build(steps_scale=get_schedule(DEFAULT_SCHEDULE).steps_scale, mask_dilation_fraction=0.0, sh_degree=0)
     refined = []
 
     def spy(self, model, optimizer, state, step):

@@ -36,17 +36,6 @@ def run(config=None, datasets=None, **given) -> Path:
     from strings_bench.bench.runner import execute
 
     c = RunConfig.of(config, datasets, **given)
-    factory = executor_factory(c.executor)
-    if factory.in_process:  # jobs run here: a missing GPU is refused before any scene is built
-        from strings_bench.engine.trainer import resolve_device
-
-        resolve_device(c.device)
-    # e.g. Ray not installed, --device cuda:1, or options the executor does not take: refused before any scene is built
-    factory.check_options(device=c.device, **(c.executor_options or {}))
-    if c.ocr_backend is None:  # the engines are built from the names: an unknown one fails before any training
-        from strings_bench.eval.ocr import parse_engines
-
-        parse_engines(c.ocr)
-    plan = plan_run(c)
-    return execute(plan, ocr=c.ocr_backend, executor=c.executor, with_lpips=c.with_lpips, progress=c.progress,
-                   write_report=c.write_report, lpips_at=c.lpips_at, executor_options=c.executor_options)
+    plan = plan_run(c)  # every value checked and resolved, before any scene is built
+    return execute(plan, ocr=c.ocr_backend, executor=c.executor, progress=c.progress, write_report=c.write_report,
+                   executor_options=c.executor_options)

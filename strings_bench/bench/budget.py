@@ -1,10 +1,13 @@
 """The equal Gaussian budget of a run (`run --budget N|METHOD`, `--budget-from FOLDER`), in one value: `Budget`.
 
-`--budget N` caps every method of the run at N Gaussians. `--budget METHOD` makes METHOD the reference: it trains
+Two words: the *budget* is the rule (a count or a reference method); the *cap* is the number of Gaussians it sets
+for one job (the method setting `max_gaussians`, `StrategyContext.cap`). `--budget N` caps every method of the run
+at N Gaussians. `--budget METHOD` makes METHOD the reference: it trains
 first, uncapped, and every other method is capped at the Gaussian count METHOD's cell reaches on the same scene at
 the job's last checkpoint, read where the job runs from this run folder, or from `--budget-from`'s (a run folder
 whose METHOD cells were trained uncapped at the same schedule and image scale). A cap reaches a method as its
-`max_gaussians` setting (engine/strategies/base.py), never through `--set`.
+`max_gaussians` setting (engine/splatting.py, `TrainConfig`; its strategy gets it in its `StrategyContext`), never
+through `--set`; the plan puts a `--budget N` cap into each job's settings (bench/plan.py).
 
 The life of a budget: `Budget.parse` (the command line), `check` (against the run's methods and folders, before any
 scene is built), `manifest` (what run.json records), and `record`, where a job runs: what its cells record

@@ -1,6 +1,6 @@
 """`strings-bench methods check NAME`: the conformance check of a method, after nerfbaselines' `test-method`.
 
-Size (~480 lines): one command's checks, each a top-level function over one CheckContext, in the order they run, with the stand-ins they need.
+Size (~490 lines): one command's checks, each a top-level function over one CheckContext, in the order they run, with the stand-ins they need.
 
 On a tiny embedded scene (the synthetic `books` scene at 96x72 pixels, 8 views: 7 training views and
 1 test view, built into the cache in about a second) the check runs, in order:
@@ -216,7 +216,7 @@ def _stand_in_settings(spec, overrides: dict, scene_path: Path, work: Path) -> t
         from strings_bench.scene.scene import Scene
 
         ply = work / "stand_in" / "point_cloud.ply"
-        trainer = Trainer(get_method("3dgs").build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale), Scene.load(scene_path), [CHECK_STEPS],
+        trainer = Trainer(get_method("3dgs").build(steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale), Scene.load(scene_path), [CHECK_STEPS],
                           device="cpu", progress=False, render_test=False, model_path=lambda step: ply)
         for _ in trainer.train():
             pass
@@ -245,7 +245,9 @@ class CheckContext:
     reloaded: Any = None
 
     def build(self) -> Any:
-        obj = self.spec.build(default_steps_scale=get_schedule(CHECK_SCHEDULE).steps_scale, **self.settings)
+        from strings_bench.bench.plan import with_steps_scale
+
+        obj = self.spec.build(**with_steps_scale(self.spec, get_schedule(CHECK_SCHEDULE).steps_scale, self.settings))
         if not isinstance(obj, (Method, MethodAdapter)):
             raise CheckFailed(f"the spec built a {type(obj).__name__}, neither a Method nor a MethodAdapter "
                               "(strings_bench.core.method)")
@@ -370,8 +372,8 @@ def check_runner(ctx: CheckContext, ocr: str, with_lpips: bool) -> str:
     with registered(spec):
         plan = plan_run([spec.name], [str(ctx.scene_path)], run_dir=run_dir, schedule=CHECK_SCHEDULE, ocr=ocr,
                         method_overrides={spec.name: ctx.settings} if ctx.settings else None,
-                        checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off")
-        execute(plan, progress=False, write_report=False, with_lpips=with_lpips)
+                        checkpoints=[CHECK_PAPER_ITERATION], device="cpu", save_every="off", with_lpips=with_lpips)
+        execute(plan, progress=False, write_report=False)
     cells = [c for c in iter_cells(run_dir) if c.get("method") == spec.name]
     if len(cells) != len(plan.cells):
         raise CheckFailed(f"the run wrote {len(cells)} cell(s), planned {len(plan.cells)}")

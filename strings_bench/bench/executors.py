@@ -11,16 +11,20 @@ from __future__ import annotations
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol
 
 from strings_bench.bench.budget import Budget
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, safe_name
 
+if TYPE_CHECKING:
+    from strings_bench.engine.trainer import SaveEvery
+
 @dataclass(frozen=True, kw_only=True)
 class Job:
-    """Train one method on one scene and evaluate its checkpoints. Plain data: it can travel. Made by the plan
-    (bench/plan.py), keyword by keyword."""
+    """Train one method on one scene and evaluate its checkpoints: every value resolved by the plan
+    (bench/plan.py), keyword by keyword; the runner and the trainer take them as they are. Plain data: it can
+    travel."""
 
     run_dir: str
     method: str
@@ -32,20 +36,30 @@ class Job:
     labels: dict  # iteration -> paper label
     schedule: str  # the run's schedule (core/schedules.py); recorded as the cell's "schedule"
     downscale: float
-    ocr: str
+    # the OCR engines in canonical specs ("rapidocr", "tesseract:lang=rus"), the primary first
+    ocr: tuple[str, ...]
     # the steps scale the method trains at (the schedule's, or the method's --set steps_scale): its checkpoints are
     # scaled by it, and it reaches the method as its `steps_scale` setting where the method takes one
     steps_scale: float
     method_settings: dict = field(default_factory=dict)  # the method's --set values, the all-methods ones included
-    method_presets: tuple[str, ...] = ()  # the method's presets in order: dataset-conditional ones, then --presets
+    # the method's final settings, built with as they are: its spec's defaults, presets, steps scale, --set values
+    # and a --budget N cap
+    settings: dict = field(default_factory=dict)
+    method_presets: tuple[str, ...] = ()  # the method's presets in order (recorded): dataset-conditional, then --presets
     cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
-    device: str = "auto"  # resolved where the job runs (engine.trainer.resolve_device)
-    save_every: str = "10"  # minutes, "<N>steps" or "off" (engine.trainer.SaveEvery.parse)
+    # the device, resolved by the plan for jobs run in-process ("cpu", "cuda", "cuda:N"); for jobs sent to a
+    # distributed executor the checked name its worker resolves ("auto", "cpu", "cuda")
+    device: str = "cpu"
+    save_every: "SaveEvery | None" = None  # when the training state is saved besides checkpoints (None: every 10 min)
     keep_models: bool = False  # write each cell's model.ply
     # of `checkpoints`, those that only `--checkpoints every:N` adds: evaluated with the word-crop metrics only
     # (Evaluator.evaluate_words); () when there are none or the run asked for --dense-eval full
     dense_checkpoints: tuple[int, ...] = ()
-    budget: Budget | None = None  # the run's equal Gaussian budget (bench/budget.py), resolved where the job runs
+    lpips_checkpoints: tuple[int, ...] = ()  # of `checkpoints`, those scored with LPIPS too (--lpips-at)
+    budget: Budget | None = None  # the run's equal Gaussian cap rule (bench/budget.py), recorded with each cell
+    # the cap in Gaussians where the plan knows it (--budget N; also in settings); None without a cap, for
+    # the reference method, and under --budget METHOD, whose count is read where the job runs
+    cap: int | None = None
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

@@ -1,15 +1,18 @@
 """Planning a run: its configuration (`RunConfig`), its methods (`MethodPlan`), its jobs (one per method x scene)
-and its manifest (`RunPlan`).
+and its record (`RunPlan.manifest`, written to run.json).
 
-`plan_run(config)` checks everything that can be checked before any scene is built or method trained:
-method names, `--set` keys, `--presets` names, the OCR profile, the device name, the equal Gaussian cap
-(bench/budget.py), then resolves the scenes and makes one `Job` per (method, scene). The manifest becomes run.json;
-the store refuses to resume a folder made under other settings (store/manifest.py, `check_manifest`).
+`plan_run(config)` parses, checks and resolves every value of a run once, before any scene is built or method
+trained: method names, `--set` keys, `--presets` names, the OCR engines and profile, the device (resolved here
+when jobs run in this process; a distributed executor's workers resolve their own), `--save-every`, the executor's
+options, the equal Gaussian cap and the LPIPS checkpoints; then it resolves the scenes and makes
+one frozen `Job` per (method, scene) holding the method's final settings. The runner and the trainer take a job
+as it is. run.json is the plan's record, never read back as configuration: a resumed run compares it with its
+new plan and refuses a mismatch (store/manifest.py, `check_manifest`).
 
 A method's settings, in the order they apply: the spec's defaults, its presets whose "@apply" conditions match
-the scene (e.g. STRinGS' N_max per dataset), the presets chosen with `--presets`, the schedule's steps scale, then
-`--set` values (methods/registry.py). The steps scale is a typed value of the plan (`MethodPlan.steps_scale`,
-`Job.steps_scale`): the checkpoints are scaled by it, and the method is built with it.
+the scene (e.g. STRinGS' N_max per dataset), the presets chosen with `--presets`, the schedule's steps scale
+(`with_steps_scale`, where the method takes one), then `--set` values. The steps scale is a typed value of the
+plan (`MethodPlan.steps_scale`, `Job.steps_scale`): the checkpoints are scaled by it, and the method is built with it.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Iterable
 
+from strings_bench.bench.budget import SETTING as CAP_SETTING
 from strings_bench.bench.budget import Budget, refuse_set
 from strings_bench.bench.executors import Job
 from strings_bench.core.errors import StringsBenchError
@@ -119,7 +123,8 @@ class RunConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class MethodPlan:
-    """One method of a run, as planned: its chosen presets, its `--set` values and the steps scale it trains at."""
+    """One method of a run, as planned: its chosen presets, its `--set` values (with the miniature's settings it
+    takes) and the steps scale it trains at."""
 
     name: str
     presets: tuple[str, ...]  # chosen with --presets (the scene's own presets are added per job)
@@ -129,11 +134,19 @@ class MethodPlan:
 
 @dataclass(frozen=True, kw_only=True)
 class RunPlan:
-    """A planned run: its folder, its jobs (a cap's reference method first) and its manifest (run.json)."""
+    """A planned run: its folder, its jobs (a cap's reference method first), where they run and its record
+    (run.json).
+
+    device: the device its jobs train on, resolved on this machine when they run in this process (`in_process`);
+        else the checked name each worker resolves ("auto", "cpu", "cuda").
+    manifest: what run.json records (write-only: a resumed run compares it with the folder's).
+    """
 
     run_dir: Path
     jobs: list[Job]
     manifest: dict
+    device: str = "cpu"
+    in_process: bool = True
 
     @property
     def cells(self) -> list[CellKey]:
@@ -147,13 +160,12 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     from strings_bench.methods.registry import get_method
 
     c = RunConfig.of(config, datasets, **given)
+    device, in_process = _resolve_device(c)
     if not c.methods:
         raise StringsBenchError("no methods given", hint="e.g. --methods strings,3dgs; see `strings-bench methods list`")
     p = schedule(c.schedule, c.steps_scale, c.checkpoints, c.dense_every, c.miniature)
-    if c.dense_eval not in DENSE_EVAL:
-        raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
     datasets = list(c.datasets) if c.datasets else p.default_datasets()
-    ocr = _check_options(c)
+    ocr, save_every = _check_options(c)
     specs = {m: get_method(m) for m in c.methods}  # fails early on an unknown name
     _check_names(c)
     ds = float(c.downscale if c.downscale is not None else p.downscale)
@@ -168,8 +180,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
     if cap is not None:  # the reference method's jobs first: the others' caps are its counts
         planned.sort(key=lambda mp: not cap.is_reference(mp.name))
-    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=_scene_ocr(ocr, ref), downscale=ds, cap=cap)
-            for mp in planned for ref in refs]
+    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=_scene_ocr(ocr, ref), downscale=ds, cap=cap, device=device,
+                 save_every=save_every) for mp in planned for ref in refs]
     manifest = {
         "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
         # --steps-scale / --checkpoints as given (None: the schedule's); `schedule` above holds the one in effect.
@@ -184,7 +196,25 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         # absent without a cap, so that folders made before caps existed keep resuming
         **(cap.manifest() if cap is not None else {}),
     }
-    return RunPlan(run_dir=Path(c.run_dir), jobs=jobs, manifest=manifest)
+    return RunPlan(run_dir=Path(c.run_dir), jobs=jobs, manifest=manifest, device=device, in_process=in_process)
+
+
+def _resolve_device(c: RunConfig) -> tuple[str, bool]:
+    """(the device jobs train on, whether they run in this process). In-process jobs' device is resolved here
+    ('auto' -> 'cuda' or 'cpu'; a GPU torch cannot see is refused before any scene is built); a distributed
+    executor's jobs get the checked name, which each worker resolves. The executor's options are checked too
+    (Ray not installed, --device cuda:1 on Ray, an option it does not take)."""
+    from strings_bench.bench.executors import executor_factory
+    from strings_bench.engine.trainer import check_device_name, resolve_device
+
+    factory = executor_factory(c.executor)
+    if factory.in_process:
+        device = resolve_device(c.device)
+    else:
+        check_device_name(c.device)
+        device = "auto" if c.device in (None, "") else str(c.device)
+    factory.check_options(device=c.device, **(c.executor_options or {}))
+    return device, factory.in_process
 
 
 def _check_names(c: RunConfig) -> None:
@@ -197,18 +227,23 @@ def _check_names(c: RunConfig) -> None:
                                     hint=f"methods of this run: {', '.join(methods)}")
 
 
-def _check_options(c: RunConfig) -> str:
-    """Check the CER profile, the device name and `--save-every`; returns the OCR engine list in canonical names
-    ("rapid,tess" = "rapidocr,tesseract"), so that a resumed run compares like with like."""
-    from strings_bench.engine.trainer import SaveEvery, check_device_name
+def _check_options(c: RunConfig) -> tuple[str, "SaveEvery"]:
+    """Check the CER profile, `--dense-eval` and `--lpips-at`; returns the OCR engine list in canonical names
+    ("rapid,tess" = "rapidocr,tesseract"), so that a resumed run compares like with like, and `--save-every` parsed."""
+    from strings_bench.engine.trainer import SaveEvery
     from strings_bench.eval.cer import get_profile
     from strings_bench.eval.ocr import parse_engines
 
     get_profile(c.cer_profile)  # fails early on an unknown name
-    check_device_name(c.device)
-    SaveEvery.parse(c.save_every)
-    # strict where the engines are built from the names (the run, eval.ocr.get_engines)
-    return ",".join(parse_engines(c.ocr, strict=False)) if isinstance(c.ocr, str) else c.ocr
+    if c.dense_eval not in DENSE_EVAL:
+        raise StringsBenchError(f"unknown --dense-eval {c.dense_eval!r}", hint=f"one of: {', '.join(DENSE_EVAL)}")
+    if c.lpips_at not in LPIPS_AT:
+        raise StringsBenchError(f"unknown LPIPS policy {c.lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
+    save_every = SaveEvery.parse(c.save_every)
+    if not isinstance(c.ocr, str):
+        return c.ocr, save_every
+    # strict where the engines are built from the names; a backend object given in code may carry any name
+    return ",".join(parse_engines(c.ocr, strict=c.ocr_backend is None)), save_every
 
 
 def _given_settings(c: RunConfig, specs: dict) -> dict[str, dict]:
@@ -232,45 +267,78 @@ def _method_plan(spec, c: RunConfig, p: Schedule, given: dict) -> MethodPlan:
     """A method's plan, its --presets and --set keys checked (a typo is refused before any scene is built)."""
     chosen = tuple(spec.check_presets((c.method_presets or {}).get(spec.name)))
     scale = float(given.get("steps_scale", p.steps_scale))  # a --set steps_scale for the method wins
-    if spec.takes_steps_scale():  # the miniature's settings it takes, at the method's scale; its --set values win
+    if takes_steps_scale(spec):  # the miniature's settings it takes, at the method's scale; its --set values win
         schema = spec.settings()
         mini = replace(p, steps_scale=scale).miniature_settings()
         given = {**{k: v for k, v in mini.items() if schema is None or k in {s.name for s in schema}}, **given}
-    spec.check_keys(spec.resolve(chosen, **spec.with_steps_scale(scale, given)))
+    spec.check_keys(spec.resolve(chosen, **with_steps_scale(spec, scale, given)))
     return MethodPlan(name=spec.name, presets=chosen, settings=given, steps_scale=scale)
+
+
+def takes_steps_scale(spec) -> bool:
+    """Whether the run's schedule scale reaches `spec`'s method as its `steps_scale` setting: every method whose
+    implementation describes that setting (every Gaussian method: engine TrainConfig); an implementation that
+    describes no settings takes it when the spec names it (defaults or a preset). Adapters (ply, external)
+    train nothing and have no steps to scale."""
+    schema = spec.settings()
+    if schema is not None:
+        return any(s.name == "steps_scale" for s in schema)
+    return "steps_scale" in spec.defaults or any("steps_scale" in p for p in spec.presets.values())
+
+
+def with_steps_scale(spec, steps_scale: float, overrides: dict | None = None) -> dict:
+    """`overrides` (`--set` values) with the run's `steps_scale` added where `spec`'s method takes one
+    (`takes_steps_scale`); a `steps_scale` in `overrides` wins. The one way a schedule reaches a method."""
+    overrides = dict(overrides or {})
+    if takes_steps_scale(spec):
+        overrides.setdefault("steps_scale", float(steps_scale))
+    return overrides
+
+
+def method_settings(spec, presets, steps_scale: float, given: dict) -> dict:
+    """A method's final settings: its spec's defaults, `presets` in order, the steps scale, then `given`."""
+    return spec.resolve(presets, **with_steps_scale(spec, steps_scale, given))
 
 
 _told_ocr: set = set()
 
 
-def _scene_ocr(ocr, ref) -> str:
+def _scene_ocr(ocr, ref) -> tuple[str, ...]:
     """The OCR engines of one scene's jobs: the run's, led by the scene's own GT engine where it names one
     (eval.ocr.scene_engines); said once per scene. A backend object (tests) is used as given."""
     if not isinstance(ocr, str):
-        return ocr
+        return (ocr,)
     from strings_bench.eval.ocr import scene_engines
 
     engines, note = scene_engines(ocr, ref.settings)
     if note and (ref.dataset, ref.scene, ocr) not in _told_ocr:
         _told_ocr.add((ref.dataset, ref.scene, ocr))
         log.warning("%s/%s: %s", ref.dataset, ref.scene, note)
-    return engines
+    return tuple(engines.split(","))
 
 
-def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr: str, downscale: float, cap) -> Job:
+def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale: float, cap,
+         device: str, save_every) -> Job:
     """The job of one method on one scene. Its presets: those that apply to the scene by themselves, then the
-    chosen ones; its checkpoints follow from its steps scale, or from the method (e.g. the ply adapter: the model's
-    own iteration). The method is built once, by the job (bench/runner.py)."""
+    chosen ones; its settings final (a cap of a count included); its checkpoints follow from its steps scale, or
+    from the method (e.g. the ply adapter: the model's own iteration). The method is built once, by the job
+    (bench/runner.py)."""
     presets = tuple(spec.presets_for(ref.dataset, ref.scene)) + mp.presets
-    fixed = spec.fixed_checkpoints(spec.resolve(presets, **spec.with_steps_scale(mp.steps_scale, mp.settings)))
-    steps = fixed or p.checkpoints(mp.steps_scale)
+    settings = method_settings(spec, presets, mp.steps_scale, mp.settings)
+    fixed = spec.fixed_checkpoints(settings)
+    steps = tuple(fixed or p.checkpoints(mp.steps_scale))
     dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(mp.steps_scale))
+    count = None if cap is None or cap.is_reference(mp.name) else cap.count  # a reference's count: read where the job runs
+    if count is not None:
+        settings = {**settings, CAP_SETTING: count}
+    lpips = () if not c.with_lpips else steps if c.lpips_at == "all" else (max(steps),)
     return Job(run_dir=str(c.run_dir), method=mp.name, dataset=ref.dataset, scene=ref.scene, scene_path=str(ref.path),
-               scene_settings=dict(ref.settings), checkpoints=tuple(steps),
+               scene_settings=dict(ref.settings), checkpoints=steps,
                labels={it: p.label_of(it, mp.steps_scale) for it in steps}, schedule=p.name, downscale=downscale,
-               ocr=ocr, steps_scale=mp.steps_scale, method_settings=dict(mp.settings), method_presets=presets,
-               cer_profile=c.cer_profile, device=c.device, save_every=str(c.save_every),
-               keep_models=bool(c.keep_models), dense_checkpoints=dense, budget=cap)
+               ocr=ocr, steps_scale=mp.steps_scale, method_settings=dict(mp.settings), settings=settings,
+               method_presets=presets,
+               cer_profile=c.cer_profile, device=device, save_every=save_every, keep_models=bool(c.keep_models),
+               dense_checkpoints=dense, lpips_checkpoints=tuple(lpips), budget=cap, cap=count)
 
 
 def _method_entry(spec) -> dict:

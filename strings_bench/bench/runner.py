@@ -22,8 +22,10 @@ Run folder (see docs/guide/running.md):
       gt/<dataset>/<scene>/<view stem>.png   ground-truth test views at the evaluated size
       report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
-The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`; the
-schedules are core/schedules.py; `strings_bench.bench.run` plans and executes. The run folder is written and read
+The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`, which resolves
+every value (device, OCR engines, save schedule, final method settings, cap, LPIPS checkpoints) once: the runner
+takes a job as it is and reads run.json only to compare it with the plan (a resume). The schedules are
+core/schedules.py; `strings_bench.bench.run` plans and executes. The run folder is written and read
 through the store (strings_bench/store/). Execution goes through an `Executor` (bench/executors.py:
 `submit(job)` / `map(jobs)`); `LocalExecutor` runs jobs one after another in this process,
 `RayExecutor` (bench/ray_executor.py, `--executor ray`) runs each job as a Ray task, `SlurmExecutor`
@@ -55,17 +57,16 @@ from strings_bench.store import (CellConfig, CellRecord, check_manifest, iterati
                                  write_manifest, write_results_csv)
 
 log = logging.getLogger(__name__)
-LPIPS_AT = ("last", "all")  # LPIPS at each job's last checkpoint (default) or at every checkpoint
 
 
 # ---- running ------------------------------------------------------------------------------------
 def build_method(job: Job, cap: int | None = None):
-    """The job's method, built once: its presets, its steps scale, its --set values and its Gaussian cap."""
+    """The job's method, built once from its final settings (bench/plan.py); `cap`: a Gaussian cap known only
+    where the job runs (`--budget METHOD`: the reference's count), added to them."""
     from strings_bench.methods.registry import get_method
 
-    settings = {**job.method_settings, **({CAP_SETTING: cap} if cap is not None else {})}
-    # a --set steps_scale among the settings wins over the job's (which is that value already)
-    return get_method(job.method).build(job.method_presets, default_steps_scale=job.steps_scale, **settings)
+    settings = job.settings if cap is None else {**job.settings, CAP_SETTING: int(cap)}
+    return get_method(job.method).instantiate(settings)
 
 
 def _load_scene(job: Job):
@@ -75,21 +76,18 @@ def _load_scene(job: Job):
 
 
 class Runner:
-    """Runs jobs and writes cells. `ocr` may be a backend name or a backend object (tests).
+    """Runs jobs and writes cells.
 
+    `ocr`: None (each job's own engines, `Job.ocr`) or a backend object used in their place (tests).
     `results_csv`: rebuild results.csv after every cell (in-process runs); a worker of a distributed
     executor leaves it to the driver.
     """
 
-    def __init__(self, run_dir: str | Path, ocr="rapidocr", with_lpips: bool = True, progress: bool = True,
-                 on_cell: Callable[[CellKey], None] | None = None, lpips_at: str = "last", results_csv: bool = True):
+    def __init__(self, run_dir: str | Path, ocr=None, progress: bool = True,
+                 on_cell: Callable[[CellKey], None] | None = None, results_csv: bool = True):
         self.run_dir = Path(run_dir)
         self.results_csv = results_csv
         self.ocr = ocr
-        self.with_lpips = with_lpips
-        if lpips_at not in LPIPS_AT:
-            raise StringsBenchError(f"unknown LPIPS policy {lpips_at!r}", hint=f"one of: {', '.join(LPIPS_AT)}")
-        self.lpips_at = lpips_at
         self.progress = progress
         self.on_cell = on_cell
         self._evaluators: dict[tuple, Evaluator] = {}  # per scene; see run_job
@@ -108,24 +106,23 @@ class Runner:
         budget = None if job.budget is None else job.budget.record(job.method, job.dataset, job.scene,
                                                                     job.checkpoints, job.run_dir)
         scene = _load_scene(job)
-        adapter = build_method(job, cap_of(budget))
-        adapter.progress = self.progress is not False  # --no-progress reaches the training and mask bars
-        from strings_bench.eval.ocr import get_engines
+        method = build_method(job, None if job.cap is not None else cap_of(budget))
+        method.progress = self.progress is not False  # --no-progress reaches the training and mask bars
+        from strings_bench.eval.ocr import get_engine
 
         # the job's engines (the scene's own GT engine first where it names one: bench/plan.py), unless this runner
         # was given a backend object (tests)
-        ocr = get_engines(job.ocr if isinstance(self.ocr, str) and job.ocr else self.ocr)
-        from strings_bench.engine.trainer import resolve_device
-
-        device = resolve_device(job.device)  # checked here, where the job runs
+        ocr = ([self.ocr] if self.ocr is not None
+               else [get_engine(e) if isinstance(e, str) else e for e in job.ocr])
+        with_lpips = bool(job.lpips_checkpoints)
         # One Evaluator per scene in this process: the GT side (GT OCR, GT word crops, LPIPS features) is read once
         # and reused by every method's job on the scene.
         ekey = (job.scene_path, json.dumps(job.scene_settings, sort_keys=True, default=str), job.downscale,
-                job.cer_profile, device, self.with_lpips, job.ocr)
+                job.cer_profile, job.device, with_lpips, job.ocr)
         evaluator = self._evaluators.get(ekey)
         if evaluator is None:
-            evaluator = Evaluator.for_scene(scene, ocr, job.downscale, with_lpips=self.with_lpips,
-                                            cer_profile=job.cer_profile, device=device)
+            evaluator = Evaluator.for_scene(scene, ocr, job.downscale, with_lpips=with_lpips,
+                                            cer_profile=job.cer_profile, device=job.device)
             self._evaluators[ekey] = evaluator
             while len(self._evaluators) > EVALUATORS_KEPT:
                 del self._evaluators[next(iter(self._evaluators))]  # the scene seen longest ago
@@ -133,8 +130,8 @@ class Runner:
         wanted = set(job.checkpoints)
         written: list[CellKey] = []
         seen: set[int] = set()
-        describe = jsonable(adapter.describe())
-        for result in self._checkpoints(job, adapter, scene, describe):
+        describe = jsonable(method.describe())
+        for result in self._checkpoints(job, method, scene, describe):
             if result.iteration not in wanted:
                 log.debug("%s yielded unrequested checkpoint %d; ignored", job.method, result.iteration)
                 continue
@@ -151,26 +148,26 @@ class Runner:
         missing = sorted(k.iteration for k in job.cells() if not is_finished(run_dir, k))
         if missing:
             raise StringsBenchError(f"method {job.method} stopped without checkpoint(s) {missing} on {job.dataset}/{job.scene}",
-                                    hint="the adapter's train() must yield one CheckpointResult per requested iteration")
+                                    hint="the method adapter's train() must yield one CheckpointResult per requested iteration")
         if all(is_finished(run_dir, k) for k in job.cells()):
             job.state_path().unlink(missing_ok=True)  # every cell is written: the state is no longer needed
         return written
 
-    def _checkpoints(self, job: Job, adapter, scene, describe: dict) -> Iterator:
+    def _checkpoints(self, job: Job, method, scene, describe: dict) -> Iterator:
         """The method's checkpoints: trained by the framework's loop for a `Method` (resumable), or
-        yielded by an adapter for models trained elsewhere."""
-        if not isinstance(adapter, Method):
-            return adapter.train(scene, list(job.checkpoints), job.downscale)
-        from strings_bench.engine.trainer import SaveEvery, Trainer
+        yielded by a `MethodAdapter` for models trained elsewhere."""
+        if not isinstance(method, Method):
+            return method.train(scene, list(job.checkpoints), job.downscale)
+        from strings_bench.engine.trainer import Trainer
 
         def model_path(step: int) -> Path:
             return CellKey(job.method, job.dataset, job.scene, step).path(Path(job.run_dir)) / "model.ply"
 
         fingerprint = {"settings": json.loads(json.dumps(describe.get("settings", {}), sort_keys=True, default=str)),
                        "scene_path": job.scene_path, "dataset": job.dataset}
-        return Trainer(adapter, scene, job.checkpoints, downscale=job.downscale, device=job.device,
+        return Trainer(method, scene, job.checkpoints, downscale=job.downscale, device=job.device,
                        progress=self.progress is not False, state_path=job.state_path(),
-                       save_every=SaveEvery.parse(job.save_every), model_path=model_path if job.keep_models else None,
+                       save_every=job.save_every, model_path=model_path if job.keep_models else None,
                        fingerprint=fingerprint).train()
 
     def _rho(self, job: Job, scene) -> float | None:
@@ -183,9 +180,7 @@ class Runner:
     def _write_cell(self, job: Job, key: CellKey, result, evaluator: Evaluator, describe: dict, scene,
                     budget: dict | str | None = None) -> None:
         t0 = time.perf_counter()
-        # LPIPS (a VGG16 pass per view, seconds on a CPU) at the last checkpoint only unless asked:
-        # the paper reports it at 30K.
-        lpips_here = self.with_lpips and (self.lpips_at == "all" or key.iteration == max(job.checkpoints))
+        lpips_here = key.iteration in job.lpips_checkpoints  # the plan's (--lpips-at; the paper reports it at 30K)
         dense = key.iteration in set(job.dense_checkpoints)  # only `every:N` asked for it: word-crop metrics only
         ev = (evaluator.evaluate_words(job.method, result.renders) if dense
               else evaluator.evaluate(job.method, result.renders, with_lpips=lpips_here))
@@ -223,12 +218,13 @@ EVALUATORS_KEPT = 8  # scenes whose Evaluator a runner keeps (jobs run method by
 POLL_SECONDS = 2.0  # how often the driver looks at the run folder while jobs run elsewhere
 
 
-def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lpips: bool = True,
-            progress: bool = True, write_report: bool = True, lpips_at: str = "last",
-            executor_options: dict | None = None) -> Path:
+def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", progress: bool = True,
+            write_report: bool = True, executor_options: dict | None = None) -> Path:
     """Run every unfinished cell of `plan`, then write results.csv and (optionally) the report.
 
-    `executor` is a name in EXECUTORS (built with `executor_options`) or an executor object. A job
+    `ocr`: None (the jobs' engines) or a backend object used in their place (tests).
+    `executor` is a name in EXECUTORS (built with `executor_options`) or an executor object; a name must be
+    the one the plan was made for (`RunConfig.executor`: it resolved the device for it). A job
     that fails does not stop the others; once all have ended, one StringsBenchError lists every cell
     that was not written and why. Ctrl-C cancels the running jobs, removes their incomplete cells
     and re-raises KeyboardInterrupt. A second run in the same folder at once stops with an error naming the
@@ -236,14 +232,12 @@ def execute(plan: RunPlan, ocr=None, executor: str | Executor = "local", with_lp
     """
     plan.run_dir.mkdir(parents=True, exist_ok=True)
     with run_folder_lock(plan.run_dir):
-        return _execute(plan, ocr, executor, with_lpips, progress, write_report, lpips_at, executor_options)
+        return _execute(plan, ocr, executor, progress, write_report, executor_options)
 
 
-def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, write_report: bool, lpips_at: str,
-             executor_options: dict | None) -> Path:
+def _execute(plan: RunPlan, ocr, executor, progress: bool, write_report: bool, executor_options: dict | None) -> Path:
     run_dir = plan.run_dir
     from strings_bench.core.io import cache_root, sweep_stale_temps
-    from strings_bench.engine.trainer import resolve_device
 
     if isinstance(executor, str):
         factory = executor_factory(executor)
@@ -257,9 +251,8 @@ def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, wri
 
     # The device of the latest execution (a resumed run may continue elsewhere); a distributed executor's
     # workers resolve their own and record it in each result.json.
-    asked = plan.manifest.get("device", "auto")
-    resolved = device_info(resolve_device(asked)) if in_process else {"device": "on each worker (see result.json)",
-                                                                       "gpu": None}
+    resolved = (device_info(plan.device) if in_process and plan.in_process
+                else {"device": "on each worker (see result.json)", "gpu": None})
     write_manifest(run_dir, {**check_manifest(run_dir, plan.manifest), "versions": versions(), "resolved_device": resolved})
     cells = plan.cells
     done = sum(is_finished(run_dir, k) for k in cells)
@@ -275,8 +268,7 @@ def _execute(plan: RunPlan, ocr, executor, with_lpips: bool, progress: bool, wri
             bar.set_postfix_str(f"{key.method} {key.dataset}/{key.scene} @{key.iteration}")
 
     # Jobs run elsewhere get a runner without callbacks into this process; the driver follows them on disk.
-    runner = Runner(run_dir, ocr=ocr if ocr is not None else plan.manifest["ocr"], with_lpips=with_lpips,
-                    on_cell=on_cell if in_process else None, lpips_at=lpips_at,
+    runner = Runner(run_dir, ocr=ocr, on_cell=on_cell if in_process else None,
                     progress=progress if in_process else False, results_csv=in_process)
     ex = factory(runner, **(executor_options or {})) if factory is not None else executor
     pending = []

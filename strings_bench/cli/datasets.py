@@ -199,7 +199,8 @@ def cmd_prepare(args) -> int:
 def _stats(scene_id: str, path, seconds: float) -> dict:
     from strings_bench.scene.scene import Scene
     from strings_bench.datasets.synthetic import read_meta
-    from strings_bench.datasets.synthetic.generate import META_FILE, count_text_points
+    from strings_bench.datasets.synthetic.generate import META_FILE
+    from strings_bench.datasets.synthetic.sfm import count_text_points
 
     from strings_bench.scene.difficulty import recorded_difficulty
 

@@ -17,7 +17,7 @@ def _split(s: str) -> list[str]:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from strings_bench.bench.executors import EXECUTORS
-    from strings_bench.bench.plan import DEFAULT_RUN_DIR
+    from strings_bench.bench.plan import DEFAULT_RUN_DIR, DENSE_EVAL, LPIPS_AT
     from strings_bench.core.schedules import DEFAULT_SCHEDULE, MINIATURES, SCHEDULES
 
     p = subparsers.add_parser("run", help=command_help("run"),
@@ -29,9 +29,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="comma-separated dataset ids (synthetic, synthetic/books, strings360/globe) or scene folders "
                         "(default: the schedule's scenes: " + "; ".join(
                             f"{n}: {','.join(pr.default_datasets())}" for n, pr in SCHEDULES.items()) + ")")
-    p.add_argument("--schedule", "--preset", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
-                   help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}; "
-                        "--preset is the former name): " + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
+    p.add_argument("--schedule", dest="schedule", default=DEFAULT_SCHEDULE, choices=sorted(SCHEDULES),
+                   help=f"how long every method trains and which checkpoints are evaluated (default {DEFAULT_SCHEDULE}): "
+                        + "; ".join(f"{n} = {pr.description}" for n, pr in SCHEDULES.items()))
+    # refused by name: argparse would otherwise take it for an abbreviated --presets
+    p.add_argument("--preset", dest="former_preset", default=None, metavar="NAME",
+                   help="refused: the former name of --schedule (the error names the --schedule to give)")
     p.add_argument("--presets", dest="method_presets", action="append", default=[], metavar="METHOD=PRESET[+PRESET]",
                    help="a named variant of one method's settings, e.g. --presets strings=release (the authors' release "
                         "where it differs from the paper); repeatable; `strings-bench methods show METHOD` lists them. "
@@ -48,7 +51,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "(e.g. every:500, or 3K,7K,every:500), for time to legibility (docs/readability.md); the "
                         "checkpoints only every:N adds get the word-crop metrics only (see --dense-eval); recorded "
                         "in run.json")
-    p.add_argument("--dense-eval", choices=("words", "full"), default="words",
+    p.add_argument("--dense-eval", choices=DENSE_EVAL, default=DENSE_EVAL[0],
                    help="how the checkpoints that only --checkpoints every:N adds are evaluated: words (default: "
                         "word-crop readability and PSNR/SSIM; no OCR of the renders, no LPIPS; GT reads are made once "
                         "per scene) or full (OCR-CER and every metric, as the other checkpoints)")
@@ -115,7 +118,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "there uncapped, same schedule and image scale) instead of training METHOD in this run, e.g. "
                         "other seeds at the count 3DGS reached at seed 0")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
-    p.add_argument("--lpips-at", default="last", choices=["last", "all"],
+    p.add_argument("--lpips-at", default=LPIPS_AT[0], choices=LPIPS_AT,
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--device", default="auto",
@@ -182,6 +185,10 @@ def run_config(args: argparse.Namespace):
     """The run the command line asks for, as one RunConfig (bench/plan.py)."""
     from strings_bench.bench.plan import RunConfig
 
+    if getattr(args, "former_preset", None) is not None:
+        raise StringsBenchError(f"--preset {args.former_preset} is no option: the schedule is --schedule",
+                                hint=f"--schedule {args.former_preset}; --presets METHOD=PRESET chooses a method's "
+                                     "named settings")
     checkpoints, dense_every = split_checkpoints(args.checkpoints)
     return RunConfig(methods=_split(args.methods), datasets=_split(args.datasets) if args.datasets else None,
                      run_dir=args.out, schedule=args.schedule, ocr=args.ocr, downscale=args.downscale,

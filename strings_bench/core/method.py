@@ -40,7 +40,7 @@ __all__ = ["CheckpointResult", "Method", "MethodAdapter"]
 class Method(ABC):
     """A method trained by the framework's loop (see the module docstring for the call order).
 
-    Subclasses set `name`; a method's citation is its spec's (`MethodSpec.build` sets `paper`). The method spec (`methods.registry.MethodSpec`) builds the
+    Subclasses set `name`; a method's citation is its spec's (`MethodSpec.instantiate` sets `paper`). The method spec (`methods.spec.MethodSpec`) builds the
     object from its defaults, the preset and `--set`: with `cls.from_settings(**settings)` when the
     class has it (`GaussianSplatting` does), else `cls(**settings)`; the spec then sets `name` to its
     own. A class may describe its settings with `settings_schema()` (a list of `core.settings.Setting`):

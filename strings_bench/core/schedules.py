@@ -3,7 +3,7 @@ iteration is labelled (7000 -> 7K). This is the one table of schedule scales.
 
 A *schedule* is the run's: its steps scale, its checkpoints (named by the paper iteration they stand
 for) and the scenes it uses when none are named. It is not a *method preset* (a named variant of one
-method's settings, such as STRinGS' `release`; `run --presets strings=release`; methods/registry.py).
+method's settings, such as STRinGS' `release`; `run --presets strings=release`; methods/strings/spec.py).
 The schedule's scale reaches every method that trains (its `steps_scale` setting; bench/plan.py), always.
 
 Every iteration number of a method (checkpoints, densification window, resets, LR schedules) is

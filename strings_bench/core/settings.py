@@ -49,8 +49,8 @@ def dataclass_settings(cls: type, group: str = "", prefix: str = "", skip: tuple
     docs = _comments(cls)
     out = []
     for f in dataclasses.fields(cls):
-        if f.name in skip or f.name.startswith("_"):
-            continue
+        if f.name in skip or f.name.startswith("_") or not f.metadata.get("setting", True):
+            continue  # metadata {"setting": False}: a field that is no setting (a strategy's context)
         if f.default is not dataclasses.MISSING:
             default = f.default
         elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]

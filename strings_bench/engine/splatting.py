@@ -1,6 +1,6 @@
 """3D Gaussian Splatting as a `Method`: the reference implementation every built-in method extends.
 
-Size (~490 lines): one method, 3DGS, with its hooks in the order the loop calls them and their docstrings; a hook split off into another file would be read out of that order.
+Size (~560 lines): one method, 3DGS, with its hooks in the order the loop calls them and their docstrings; a hook split off into another file would be read out of that order.
 
 `GaussianSplatting(config, strategy)` holds the model, the optimizer and the strategy state, and
 implements the method protocol (`strings_bench.core.method.Method`); the framework's loop
@@ -19,6 +19,7 @@ hooks (docs/engine.md):
     sh_degree_for_step(step)        -> int                           (default: +1 every 1000 x steps_scale, >= 50 steps)
     strategy_step(step)             -> int                           (step number the strategy sees)
     on_step_start(step)             -> None                          (e.g. switch phase: self.set_model(...))
+    skips_refinement(step)          -> bool                          (a phase switch skips the step's refinement)
     render_raster(view, sh_degree, model=None) -> RasterOutput       (default: model.render; Mip: through its filter)
     model_to_render()               -> GaussianModel                 (what checkpoint renders show; Mip: filter folded in)
     checkpoint_extra(step)          -> dict                          (method stats for CheckpointResult.extra)
@@ -26,7 +27,8 @@ hooks (docs/engine.md):
 
 Every schedule inside (densification, opacity reset, SH degree, position-LR decay) is its nominal
 3DGS iteration number multiplied by `config.steps_scale` (intervals keep at least `config.interval_floor`
-steps, 50 unless the miniature `rounds` lowers it; opacity resets at least 200: `strategies.base.scaled_interval`).
+steps, 50 unless the miniature `rounds` lowers it; opacity resets at least 200), through one
+`StrategyContext` (`self.context`) that the method and its strategy share.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from strings_bench.engine.losses import gs_loss
 from strings_bench.engine.motion import motion_record, new_motion_log, note_motion
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
 from strings_bench.engine.optim_kernels import sums_finite
-from strings_bench.engine.strategies.base import MIN_SCALED_INTERVAL, Strategy, scaled_interval, scaled_step
+from strings_bench.engine.strategies.base import MIN_SCALED_INTERVAL, Strategy, StrategyContext
 from strings_bench.engine.strategies.default import DefaultStrategy
 from strings_bench.core.method import Method
 
@@ -76,6 +78,7 @@ class TrainConfig:
     # The miniature `rounds` sets 1, so that a shrunk run refines as many times as the paper's (an interval of 100
     # at x0.1 is 10 steps) instead of at least every 50 steps.
     interval_floor: int = MIN_SCALED_INTERVAL  # shortest refinement / SH interval of a shrunk run, in steps
+    max_gaussians: int | None = None  # the run's equal Gaussian cap (run --budget; never --set); None: no cap
     lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
     init_opacity: float = 0.1  # opacity of the initial Gaussians
     backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
@@ -88,6 +91,7 @@ class TrainConfig:
         if isinstance(self.interval_floor, bool) or int(self.interval_floor) != self.interval_floor \
                 or self.interval_floor < 1:
             raise StringsBenchError(f"interval_floor must be a whole number of steps >= 1, got {self.interval_floor}")
+        StrategyContext(cap=self.max_gaussians)  # refuses a cap that is not a positive whole number
 
 
 def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, str]:
@@ -97,6 +101,8 @@ def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, s
     keys = {f.name: "train" for f in dc_fields(TrainConfig) if f.name != "lrs"}
     keys.update({f"lr_{f.name}": "lr" for f in dc_fields(LearningRates)})
     for f in dc_fields(strategy_cls):
+        if not f.metadata.get("setting", True):  # the strategy's context: given by the method
+            continue
         keys[f.name] = "train+strategy" if keys.get(f.name) == "train" else "strategy"
     return keys
 
@@ -180,7 +186,7 @@ class GaussianSplatting(Method):
     """
 
     name = "3dgs"
-    paper = ""  # the citation is the method spec's (methods/registry.py); MethodSpec.build sets it
+    paper = ""  # the citation is the method spec's (its *_spec.py beside the method); MethodSpec.instantiate sets it
     strategy_cls: type[Strategy] = DefaultStrategy
     # A subclass's own settings dataclass (e.g. STRinGS' t1, alpha, beta, gamma); its instance is
     # `self.method_settings`.
@@ -190,7 +196,10 @@ class GaussianSplatting(Method):
     def __init__(self, config: TrainConfig | None = None, strategy: Strategy | None = None,
                  model: GaussianModel | None = None):
         self.config = config or TrainConfig()
-        self.strategy = strategy if strategy is not None else self.strategy_cls()
+        # the schedule scale and the cap, told once to the strategy (and used by the method's own at/every)
+        self.context = StrategyContext(steps_scale=self.config.steps_scale, interval_floor=self.config.interval_floor,
+                                       cap=self.config.max_gaussians, reserved=self.reserved_gaussians)
+        self.strategy = (strategy if strategy is not None else self.strategy_cls(context=self.context)).bind(self.context)
         self.settings: dict = {}
         self.method_settings = self.method_settings_cls() if self.method_settings_cls is not None else None
         self._given_model = model
@@ -255,14 +264,14 @@ class GaussianSplatting(Method):
 
     # ---- schedule helpers -------------------------------------------------------------------
     def at(self, nominal: float) -> int:
-        """The step actually run for nominal 3DGS iteration `nominal` (x steps_scale, at least 1). Called by the
-        hooks that read a schedule."""
-        return scaled_step(nominal, self.config.steps_scale)
+        """The step actually run for nominal 3DGS iteration `nominal` (`StrategyContext.at`: x steps_scale, at least
+        1). Called by the hooks that read a schedule."""
+        return self.context.at(nominal)
 
     def every(self, nominal: float) -> int:
-        """The interval actually used for a nominal 3DGS interval `nominal` (x steps_scale, at least
-        config.interval_floor steps: 50 unless the miniature lowers it). Called by the hooks that read a schedule."""
-        return scaled_interval(nominal, self.config.steps_scale, self.config.interval_floor)
+        """The interval, in steps, of a nominal 3DGS interval `nominal` (`StrategyContext.every`: x steps_scale, at
+        least config.interval_floor steps). Called by the hooks that read a schedule."""
+        return self.context.every(nominal)
 
     # ---- set-up --------------------------------------------------------------------------------
     def setup(self, scene: "Scene", *, downscale: float = 1.0, device: str = "cpu", seed: int | None = None) -> None:
@@ -404,6 +413,11 @@ class GaussianSplatting(Method):
             step: the 1-based step about to run.
         """
 
+    def skips_refinement(self, step: int) -> bool:
+        """The phase-switch hook of `refine`: True skips the strategy's round at `step` (its gradients are
+        zeroed, its statistics not taken). False here; STRinGS hands phase 1 over before T1's refinement."""
+        return False
+
     def checkpoint_extra(self, step: int) -> dict:
         """Method statistics stored in the checkpoint's result (`CheckpointResult.extra`, then result.json). Called
         at each checkpoint after the test views are rendered, before `refine(step)`.
@@ -415,20 +429,15 @@ class GaussianSplatting(Method):
         extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
                  "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss,
                  "peak_gaussians": int(self.size_log["peak_gaussians"]), **motion_record(self.motion_log)}
-        if getattr(self.strategy, "max_gaussians", None) is not None:
+        if self.context.cap is not None:
             extra["budget_reached_at"] = self.size_log["budget_reached_at"]  # a step, or None: never filled
         return extra
 
     def note_model_size(self, step: int) -> None:
         """Update `size_log` after the model may have grown (a refinement, a phase switch): the peak count, and the first
-        step at which the budget in force held the model (it reached the cap, or the strategy dropped candidates for it)."""
-        n = len(self.model)
-        self.size_log["peak_gaussians"] = max(int(self.size_log["peak_gaussians"]), n)
-        cap = self.strategy.cap_now(self.strategy_state)
-        # filled: at the cap, or growth already cut by it (a strategy that prunes in the same round may end a little
-        # under the cap; DefaultStrategy and its subclasses count the candidates the budget dropped)
-        held = cap is not None and (n >= cap or self.strategy_state.get("budget_dropped", 0) > 0)
-        if held and self.size_log["budget_reached_at"] is None:
+        step at which the cap in force held the model (`Strategy.cap_holds`)."""
+        self.size_log["peak_gaussians"] = max(int(self.size_log["peak_gaussians"]), len(self.model))
+        if self.strategy.cap_holds(self.model) and self.size_log["budget_reached_at"] is None:
             self.size_log["budget_reached_at"] = int(step)
 
     # ---- model / optimizer ---------------------------------------------------------------------
@@ -453,16 +462,10 @@ class GaussianSplatting(Method):
                                 hint="the SfM model (or the selected subset of points) is empty")
         self.model = model
         self.optimizer = self.make_optimizer(model)
-        self.strategy_state = self.strategy.initialize_state(self.extent, self.config.steps_scale,
-                                                             [self.camera(i) for i in self.train_views()])
-        if self.config.interval_floor != MIN_SCALED_INTERVAL:  # read by Strategy.every (older states lack it)
-            self.strategy_state["interval_floor"] = int(self.config.interval_floor)
-        reserved = self.reserved_gaussians()
-        if reserved:
-            self.strategy_state["reserved_gaussians"] = int(reserved)
-        room_now = self.strategy.cap_now(self.strategy_state)  # the budget less what the method reserves
-        if room_now is not None and len(model) > room_now:
-            cap = self.strategy.max_gaussians
+        self.strategy_state = self.strategy.initialize_state(self.extent, [self.camera(i) for i in self.train_views()])
+        in_force = self.context.cap_in_force()  # the cap less what the method keeps free
+        if in_force is not None and len(model) > in_force:
+            cap, reserved = self.context.cap, self.reserved_gaussians()
             more = f" and {reserved} it adds later" if reserved else ""
             raise StringsBenchError(
                 f"the budget of {cap} Gaussians is below what {self.name} starts from on {self.scene.name}: "
@@ -471,8 +474,8 @@ class GaussianSplatting(Method):
         self.note_model_size(self.step)
 
     def reserved_gaussians(self) -> int:
-        """Gaussians this method will add by itself later (outside the strategy), kept free under a budget
-        (`Strategy.cap_now`). Called by `set_model`.
+        """Gaussians this method will add by itself later (outside the strategy), kept free of the cap
+        (`StrategyContext.cap_in_force`). Called by `set_model`.
 
         Returns:
             a count, 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1.
@@ -597,6 +600,9 @@ class GaussianSplatting(Method):
             return
         _, sstep, info = self._step_info
         self._step_info = None
+        if self.skips_refinement(step):
+            self.optimizer.zero_grad()
+            return
         count = len(self.model)
         self.strategy.step_post_backward(self.model, self.optimizer, self.strategy_state, sstep, info)
         if len(self.model) != count:

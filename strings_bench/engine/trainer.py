@@ -56,13 +56,9 @@ STATE_VERSION = 1
 CPU_TORCH_THREADS = 1
 
 
-# glibc's malloc hands every block above its mmap threshold (adaptive, 128 KiB to 32 MiB) back to the
-# kernel when it is freed, and the next block of that size costs a page fault per 4 KiB page when it
-# is first written. A CPU training step allocates and frees arrays of tens of MB (gradients, the SH
-# concatenation, the rasterizer's buffers): at 335 000 Gaussians that was a third of the step
-# (docs/engine.md, "CPU speed"). Served from the heap and kept there, the same
-# blocks are reused from step to step. Nothing computed changes; the process keeps its peak heap
-# until it exits.
+# Blocks up to this size are served from glibc's heap and kept there, so a CPU step's arrays of tens of MB are
+# reused instead of paid for in page faults at every step (measured: docs/engine.md, "CPU speed"). Nothing
+# computed changes; the process keeps its peak heap until it exits.
 CPU_MMAP_THRESHOLD = 1 << 30
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt parameters (malloc.h)
 _freed_memory_kept: bool | None = None  # not tried yet

@@ -1,6 +1,6 @@
 """OCR character error rate (OCR-CER) as the STRinGS authors compute it (docs/sources.md, section 3).
 
-Size (~540 lines): the authors' CER rules and every named profile in one file, so that the exact `paper` profile reads against each deviation from it.
+Size (~580 lines): the authors' CER rules and every named profile in one file, so that the exact `paper` profile reads against each deviation from it.
 
 Per image, with GT words = OCR of the masked ground-truth view and predicted words = OCR of the
 masked rendered view, under the default profile "paper" (the authors' rules, exactly):

@@ -1,19 +1,22 @@
-"""Methods behind one interface, and the registry of method specs (`registry.py`).
+"""Methods behind one interface, each with its spec beside it (`<name>_spec.py`), and the registry that finds them
+(`registry.py`; the spec machinery: `spec.py`).
 
 Adding a method
 ===============
 
 A worked example, step by step: docs/guide/adding-a-method.md, whose code is examples/opacity-splat/.
 
-A method is one keyword `MethodSpec` (`registry.py`): its name (the one place it is written: a built method
+A method is one keyword `MethodSpec` (`spec.py`): its name (the one place it is written: a built method
 gets it), a lazy `"module:Class"` implementation (imported only when the method is built or shown), a
 description, the paper, a title and group for the tables, `defaults`, `presets` (named variants of its settings:
 chosen with `run --presets NAME=PRESET`, or applied by themselves on the scenes their `"@apply"` conditions
-match, as nerfbaselines does), its published figures (`paper_figures=PaperFigures(...)`, shown beside the
+match, as nerfbaselines does), its published figures (`paper_figures=PaperFigures({(dataset, metric, iteration):
+value})`, shown beside the
 measured ones), and, for an ablation, `ablation_of=`, `ablation_at=` (the paper iteration it is compared at) and
 `ablation_effect=` (what it takes away), which the ablation tables and `strings-bench compare` read. The run's
-schedule scale reaches every method with a `steps_scale` setting (every Gaussian method has it); a spec needs no
-entry for it. Built-in methods are rows of `BUILTIN_SPECS`; a method in your own package is found through an
+schedule scale reaches every method with a `steps_scale` setting (every Gaussian method has it; bench/plan.py adds
+it); a spec needs no entry for it. A built-in method's spec is a module beside it (`gs3d_spec.py` beside `gs3d.py`,
+`strings/spec.py`), listed in `registry.BUILTIN_SPEC_MODULES`; a method in your own package is found through an
 entry point in its `pyproject.toml` (it names a `MethodSpec`, or a callable returning one):
 
     [project.entry-points."strings_bench.methods"]

@@ -13,4 +13,4 @@ from strings_bench.engine.splatting import GaussianSplatting
 
 
 class GS3D(GaussianSplatting):
-    """3DGS as registered (`methods/registry.py`, "3dgs"): the engine's reference method unchanged."""
+    """3DGS as registered (`methods/gs3d_spec.py`, "3dgs"): the engine's reference method unchanged."""

@@ -5,7 +5,7 @@ edge-aware score, growth control to a Gaussian budget, long-axis split, recovery
 Learning rates of the release (arguments/__init__.py; the spec's defaults): position 4e-5 -> 2e-6
 (x extent), opacity 0.025, higher SH orders 0.005 / 20 = 2.5e-4; the others as 3DGS.
 
-Settings: as 3dgs, plus ImprovedGSStrategy fields (budget, budget_multiple, max_gaussians,
+Settings: as 3dgs, plus ImprovedGSStrategy fields (budget, budget_multiple,
 grow_grad2d_abs, score_views, split_distance, opacity_reduction, reset_value, recovery_*, ...) and
 ImprovedGSSettings (multi_step_update and its intervals).
 """

@@ -51,5 +51,5 @@ class PerceptualGS(GaussianSplatting):
 
     def loss(self, out, gt, view_idx: int, step: int):
         base = super().loss(out, gt, view_idx, step)
-        weight = self.strategy.rgb_weight(self.config.steps_scale, self.strategy_step(step))
+        weight = self.strategy.rgb_weight(self.strategy_step(step))
         return base if weight == 1.0 else base * weight

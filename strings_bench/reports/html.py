@@ -1,6 +1,6 @@
 """The run's report as static HTML: `report/index.html` and one word-crop gallery page per scene.
 
-Size (~640 lines): one offline page generator; its CSS, script and gallery are inline by design (no CDN, no template files to lose).
+Size (~680 lines): one offline page generator; its CSS, script and gallery are inline by design (no CDN, no template files to lose).
 
     from strings_bench.reports.html import write_html    # called by write_report
 

@@ -1,6 +1,6 @@
 """The five synthetic scenes, mirroring the text configurations of STRinGS-360.
 
-Size (~460 lines): the five scene builders side by side over the primitives they share; one file per scene would scatter the size choices that are meant to be compared.
+Size (~470 lines): the five scene builders side by side over the primitives they share; one file per scene would scatter the size choices that are meant to be compared.
 
 World frame: z up, the floor at z = 0, the object(s) around the origin, 1 unit ~ 1 m. Each scene
 builder returns a `SceneSpec`: the primitives to ray-cast, every printed word (primitive + its box

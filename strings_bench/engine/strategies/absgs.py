@@ -10,7 +10,7 @@ averaged over the steps in which the Gaussian was visible, as in 3DGS.
 Clone: ordinary gradient >= `grow_grad2d` (2e-4) and largest scale <= `grow_scale3d` x extent.
 Split: absolute gradient >= `grow_grad2d_abs` (4e-4) and largest scale > `grow_scale3d` x extent.
 Everything else (schedule, pruning, opacity reset) is vanilla 3DGS (DefaultStrategy).
-With a budget (`max_gaussians`), candidates grow in order of their statistic over its threshold (`_grow_scores`).
+With the Gaussian cap (run --budget), candidates grow in order of their statistic over its threshold (`_grow_scores`).
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ class AbsGSStrategy(DefaultStrategy):
     def get_raster_kwargs(self, step: int) -> dict:
         return {"compute_absgrad": True}
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, cameras)
         state["grad2d_abs"] = None
         return state
 

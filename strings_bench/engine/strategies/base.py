@@ -1,9 +1,11 @@
 """The densification-strategy interface (gsplat style).
 
 A strategy is a dataclass whose fields are its settings (flat `--set` keys of the method that uses
-it). `engine.splatting.GaussianSplatting` drives it; per training step (1-based) it calls:
+it), plus a `StrategyContext` given once at construction: the run's steps scale and interval floor,
+and the Gaussian cap with what the method keeps free of it. `engine.splatting.GaussianSplatting`
+builds both and drives the strategy; per training step (1-based) it calls:
 
-    state = strategy.initialize_state(scene_extent, steps_scale, cameras)  # at every set_model(): the initial
+    state = strategy.initialize_state(scene_extent, cameras)        # at every set_model(): the initial
                                                                     # model, and phase switches (STRinGS)
     # train_step(step):
     sstep = method.strategy_step(step)                              # the step the strategy sees
@@ -19,22 +21,20 @@ it). `engine.splatting.GaussianSplatting` drives it; per training step (1-based)
     strategy.step_post_backward(model, optimizer, state, sstep, info)  # gradients still in .grad:
     optimizer.zero_grad()                                                # statistics, densify, reset
 
-A strategy's own round of growing and pruning is `densify` (DefaultStrategy); `refine` is the method's
-hook that calls `step_post_backward`.
-
-Iteration numbers in settings are nominal (for a 30 000-step run); `self.at(state, n)` gives the
-actual step for the run's `steps_scale`, `self.every(state, n)` the actual interval (with floors in
-scaled-down runs, see MIN_SCALED_INTERVAL). Strategies change the Gaussians only through
-`strategies.ops`, which keeps the optimizer state, `model.extras` and the tensors of `state` in step.
-`state` is part of the resumable training state (saved with torch.save): anything picklable;
-tensors and torch generators in it, also inside dicts and lists, are moved to the CPU to be saved
-and back to the method's device on resume.
+Iteration numbers in settings are nominal (for a 30 000-step run); `self.at(n)` gives the actual
+step, `self.every(n)` the actual interval (`StrategyContext`). Strategies change the Gaussians only
+through `strategies.ops`, which keeps the optimizer state, `model.extras` and the tensors of `state`
+in step. `state` holds training state only (statistics, counters, generators), never a setting: it is
+part of the resumable training state (torch.save); its tensors and generators, also inside dicts and
+lists, are moved to the CPU to be saved and back to the method's device on resume.
+Why the interval floors: docs/engine.md, "Schedules and threads".
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import torch
 
@@ -47,19 +47,15 @@ def scaled_step(nominal: float, steps_scale: float) -> int:
     return int(round(nominal * steps_scale))
 
 
-# Shortest interval (refinement, opacity reset, SH increase, relocation) in a scaled-down run.
-# Scaling 3DGS's every-100-steps refinement by 0.05 would refine every 5 steps on 5 steps of
-# gradient statistics, before new Gaussians settle: measured on synthetic/books, 3DGS grew from
-# 2.9k to 131k Gaussians in 150 steps. Quick runs keep at least this many steps between rounds.
+# Shortest interval, in steps, between refinement rounds (and SH increases, relocations) of a
+# scaled-down run: new Gaussians need that many steps of statistics (docs/engine.md, "Schedules and threads").
 MIN_SCALED_INTERVAL = 50
-
-# Opacity resets need a longer floor: recovering from opacity 0.01 takes a roughly fixed number of
-# Adam steps (~100-150 at the 0.05 opacity LR), not a fixed fraction of the run. Scaled by 0.02, 3DGS
-# reset every 60 steps and reached 11.2 dB at its 7K checkpoint vs 16.5 dB without resets (books).
+# Shortest opacity-reset interval of a scaled-down run: recovering from opacity 0.01 takes a roughly
+# fixed number of Adam steps, not a fraction of the run (docs/engine.md, "Schedules and threads").
 MIN_SCALED_RESET_INTERVAL = 200
 
 
-def keep_within_budget(candidates: torch.Tensor, scores: torch.Tensor, cost: torch.Tensor | int,
+def keep_within_cap(candidates: torch.Tensor, scores: torch.Tensor, cost: torch.Tensor | int,
                        room: int | None) -> torch.Tensor:
     """The candidates that fit in `room` new Gaussians, highest `scores` first (Taming-3DGS' budgeted densification).
 
@@ -76,9 +72,9 @@ def keep_within_budget(candidates: torch.Tensor, scores: torch.Tensor, cost: tor
 
     Example:
         >>> import torch
-        >>> from strings_bench.engine.strategies.base import keep_within_budget
+        >>> from strings_bench.engine.strategies.base import keep_within_cap
         >>> cand = torch.tensor([True, True, False, True])
-        >>> keep_within_budget(cand, torch.tensor([0.1, 0.9, 5.0, 0.5]), 1, room=2).tolist()
+        >>> keep_within_cap(cand, torch.tensor([0.1, 0.9, 5.0, 0.5]), 1, room=2).tolist()
         [False, True, False, True]
     """
     candidates = torch.as_tensor(candidates, dtype=torch.bool)
@@ -105,13 +101,85 @@ def scaled_interval(nominal: float, steps_scale: float, floor: int = MIN_SCALED_
     return int(max(1, scaled_step(nominal, steps_scale), lower))
 
 
+def _no_reserve() -> int:
+    return 0
+
+
+@dataclass(frozen=True)
+class StrategyContext:
+    """What a method tells its strategy once, at construction: how nominal iteration numbers map to
+    the run's steps, and the Gaussian cap. The method's own schedule (`GaussianSplatting.at/every`) is
+    the same object, so the method and its strategy scale alike.
+
+    steps_scale: the run's schedule scale (1.0 = the paper's 30 000 steps).
+    interval_floor: the shortest refinement / SH interval of a scaled-down run, in steps (the
+        miniature `rounds` lowers it to 1).
+    cap: the run's equal Gaussian cap (`run --budget`); None: none.
+    reserved: () -> how many of the cap the method keeps free now for Gaussians it adds itself
+        (STRinGS' phase 1: the non-text points that join at T1); 0 by default.
+    """
+
+    steps_scale: float = 1.0
+    interval_floor: int = MIN_SCALED_INTERVAL
+    cap: int | None = None
+    reserved: Callable[[], int] = field(default=_no_reserve, compare=False, repr=False)
+
+    def __post_init__(self):
+        from strings_bench.core.errors import StringsBenchError
+
+        if not self.steps_scale > 0:
+            raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
+        if self.cap is not None and (isinstance(self.cap, bool) or int(self.cap) != self.cap or self.cap < 1):
+            raise StringsBenchError(f"max_gaussians must be a positive number of Gaussians, got {self.cap!r}",
+                                    hint="leave it unset (None) for no cap")
+
+    def at(self, nominal: float) -> int:
+        """The step of nominal iteration `nominal`: round(nominal x steps_scale).
+
+        Example:
+            >>> from strings_bench.engine.strategies import StrategyContext
+            >>> StrategyContext(steps_scale=0.01).at(15_000)
+            150
+        """
+        return scaled_step(nominal, self.steps_scale)
+
+    def every(self, nominal: float, floor: int | None = None) -> int:
+        """The interval, in steps, of nominal interval `nominal`: scaled, but in a scaled-down run never
+        shorter than min(floor, nominal) steps, `floor` being `interval_floor` (None), or a caller's floor
+        lowered to it (a strategy's); at least 1.
+
+        Example:
+            >>> from strings_bench.engine.strategies import StrategyContext
+            >>> StrategyContext(steps_scale=0.01).every(100), StrategyContext().every(100)
+            (50, 100)
+        """
+        floor = int(self.interval_floor) if floor is None else min(floor, int(self.interval_floor))
+        return scaled_interval(nominal, self.steps_scale, floor)
+
+    def reset_interval(self, nominal: float) -> int:
+        """An opacity-reset interval, in steps: as `every` with the floor MIN_SCALED_RESET_INTERVAL (200),
+        which `interval_floor` does not lower."""
+        return scaled_interval(nominal, self.steps_scale, MIN_SCALED_RESET_INTERVAL)
+
+    def cap_in_force(self) -> int | None:
+        """The most Gaussians the model may hold now: `cap` less what the method keeps free; None without a cap.
+
+        Example:
+            >>> from strings_bench.engine.strategies import StrategyContext
+            >>> StrategyContext(cap=1000, reserved=lambda: 300).cap_in_force(), StrategyContext().cap_in_force()
+            (700, None)
+        """
+        return None if self.cap is None else int(self.cap) - int(self.reserved())
+
+
 @dataclass
 class Strategy:
     """Base strategy: no densification, no extra loss. Subclasses override what they need.
 
     Subclass it as a dataclass; each field is a setting, and the comment beside the field is the
     meaning `strings-bench methods show` prints. A method picks its strategy with the class
-    attribute `strategy_cls` (`engine.splatting.GaussianSplatting`).
+    attribute `strategy_cls` (`engine.splatting.GaussianSplatting`), which builds it with its
+    `StrategyContext` (`context=`, keyword only; not a setting).
 
     The `info` dict (built by the method for every step; read-only for the strategy):
         raster: the step's `RasterOutput` (`out.absgrad` after backward when get_raster_kwargs
@@ -125,10 +193,9 @@ class Strategy:
         camera: the view's `Camera` at the training resolution.
 
     The `state` dict (created by `initialize_state`, owned by the strategy, saved with the
-    training state):
+    training state; state only, no setting):
         scene_extent: float, the scene's extent in world units (1.1 x the largest distance of a
             training camera from their mean); size thresholds are fractions of it.
-        steps_scale: float, the run's schedule scale (read by `at`, `every`, `reset_interval`).
         ...: the subclass's own entries. A tensor whose first dimension is N (the number of
             Gaussians) is resized by every op of `strategies.ops` (new rows copy their parent or
             are zero), so per-Gaussian statistics stay aligned with the model.
@@ -145,8 +212,8 @@ class Strategy:
         ... class PruneUnseen(Strategy):
         ...     prune_every: int = 100  # nominal interval between rounds
         ...
-        ...     def initialize_state(self, scene_extent, steps_scale=1.0, cameras=None):
-        ...         state = super().initialize_state(scene_extent, steps_scale, cameras)
+        ...     def initialize_state(self, scene_extent, cameras=None):
+        ...         state = super().initialize_state(scene_extent, cameras)
         ...         state["seen"] = None  # (N,) bool once the first step ran
         ...         return state
         ...
@@ -154,7 +221,7 @@ class Strategy:
         ...         if state["seen"] is None:
         ...             state["seen"] = torch.zeros(len(model), dtype=torch.bool)
         ...         state["seen"] |= info["radii"] > 0
-        ...         if step % self.every(state, self.prune_every) == 0:
+        ...         if step % self.every(self.prune_every) == 0:
         ...             ops.remove(model, optimizer, ~state["seen"], state=state)
         ...             state["seen"] = None
         >>> cam = Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))
@@ -176,32 +243,33 @@ class Strategy:
     """
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
-    # The equal-budget cap (`run --budget`, docs/guide/running.md): never hold more Gaussians than this. Each strategy
-    # honours it by its own rules (docs/baselines.md, "Equal Gaussian budget"): one with a budget of its own uses it
-    # (MCMC: cap_max), the others stop densifying at the cap, keeping the highest-scoring candidates when they do
-    # not all fit (`keep_within_budget`), as Taming-3DGS does. A subclass may redeclare the field with its own rule.
-    max_gaussians: int | None = None  # equal-budget cap on the number of Gaussians (None: no cap; run --budget)
+    # the run's schedule scale and Gaussian cap, given once (not a setting: dataclass_settings skips it)
+    context: StrategyContext = field(default_factory=StrategyContext, kw_only=True, repr=False, compare=False,
+                                     metadata={"setting": False})
 
-    def __post_init__(self):
-        if self.max_gaussians is not None and (int(self.max_gaussians) != self.max_gaussians or self.max_gaussians < 1):
+    def bind(self, context: StrategyContext) -> "Strategy":
+        """Give a strategy built without a context (`Strategy()`) its method's; returns self. A strategy built
+        with another context is refused: the method and its strategy must scale alike."""
+        if self.context != StrategyContext() and self.context != context:
             from strings_bench.core.errors import StringsBenchError
 
-            raise StringsBenchError(f"max_gaussians must be a positive number of Gaussians, got {self.max_gaussians!r}",
-                                    hint="leave it unset (None) for no budget")
+            raise StringsBenchError(f"{type(self).__name__} was built for {self.context}, its method runs {context}",
+                                    hint="build the strategy without a context; the method gives it its own")
+        self.context = context
+        return self
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
         """A fresh state for a new model (called at every `set_model`, so a phase switch resets it).
 
         Args:
             scene_extent: the scene's extent in world units (`scene.extent`).
-            steps_scale: the run's schedule scale (1.0 = the paper's 30 000 steps).
             cameras: the training views' cameras at the training resolution (Mip-Splatting's 3D
                 filter reads them); unused here.
 
         Returns:
-            dict with "scene_extent" and "steps_scale" (floats); subclasses add their entries.
+            {"scene_extent": float}; subclasses add their entries.
         """
-        return {"scene_extent": float(scene_extent), "steps_scale": float(steps_scale)}
+        return {"scene_extent": float(scene_extent)}
 
     def get_raster_kwargs(self, step: int) -> dict:
         """Extra keyword arguments for this step's `rasterize` call, e.g. {"compute_absgrad": True}
@@ -256,74 +324,50 @@ class Strategy:
             info: this step's info dict.
         """
 
-    # ---- the Gaussian budget ----------------------------------------------------------------
-    def cap_now(self, state: dict) -> int | None:  # not "budget": Improved-GS has a setting of that name
-        """The most Gaussians the model may hold now: `max_gaussians` less what the method keeps free for
-        Gaussians it will add itself (`state["reserved_gaussians"]`: STRinGS' phase 1 keeps room for the non-text
-        points that join at T1); None without a budget.
-
-        Args:
-            state: this strategy's state dict (reads "reserved_gaussians", default 0).
-
-        Example:
-            >>> from strings_bench.engine.strategies import Strategy
-            >>> Strategy(max_gaussians=1000).cap_now({"reserved_gaussians": 300}), Strategy().cap_now({})
-            (700, None)
-        """
-        if self.max_gaussians is None:
-            return None
-        return int(self.max_gaussians) - int(state.get("reserved_gaussians", 0))
-
-    def room(self, model: GaussianModel, state: dict) -> int | None:
-        """How many Gaussians may still be added (>= 0), or None without a budget.
+    # ---- the Gaussian cap ------------------------------------------------------------------------
+    def room(self, model: GaussianModel) -> int | None:
+        """How many Gaussians may still be added (>= 0) under the cap in force
+        (`StrategyContext.cap_in_force`), or None without a cap.
 
         Args:
             model: the model (its current size is read).
-            state: this strategy's state dict (see `cap_now`).
         """
-        cap = self.cap_now(state)
+        cap = self.context.cap_in_force()
         return None if cap is None else max(0, cap - len(model))
 
-    # ---- helpers ----------------------------------------------------------------------------
-    @staticmethod
-    def at(state: dict, nominal: float) -> int:
-        """The actual step of nominal iteration `nominal`: round(nominal x state["steps_scale"]).
+    def cap_holds(self, model: GaussianModel) -> bool:
+        """Whether the cap has held the model back: it is at the cap in force (a strategy that drops
+        candidates for the cap says so too: `DefaultStrategy`). False without a cap.
 
         Args:
-            state: a state dict from `initialize_state` (steps_scale defaults to 1).
+            model: the model (its current size is read).
+        """
+        cap = self.context.cap_in_force()
+        return cap is not None and len(model) >= cap
+
+    # ---- the schedule (the context's) -----------------------------------------------------------
+    def at(self, nominal: float) -> int:
+        """The step of nominal iteration `nominal` (`StrategyContext.at`).
+
+        Args:
             nominal: an iteration number of the paper's 30 000-step schedule.
-
-        Example:
-            >>> from strings_bench.engine.strategies import Strategy
-            >>> Strategy.at({"steps_scale": 0.01}, 15_000)
-            150
         """
-        return scaled_step(nominal, state.get("steps_scale", 1.0))
+        return self.context.at(nominal)
 
-    @staticmethod
-    def every(state: dict, nominal: float, floor: int = MIN_SCALED_INTERVAL) -> int:
-        """The actual interval of nominal interval `nominal`: scaled, but in scaled-down runs never
-        shorter than min(floor, nominal) steps; at least 1.
+    def every(self, nominal: float, floor: int = MIN_SCALED_INTERVAL) -> int:
+        """The interval, in steps, of nominal interval `nominal` (`StrategyContext.every`).
 
         Args:
-            state: a state dict from `initialize_state`.
             nominal: an interval of the paper's schedule (e.g. refine every 100).
-            floor: the shortest interval in a scaled-down run (MIN_SCALED_INTERVAL = 50).
-
-        Example:
-            >>> from strings_bench.engine.strategies import Strategy
-            >>> Strategy.every({"steps_scale": 0.01}, 100), Strategy.every({"steps_scale": 1.0}, 100)
-            (50, 100)
+            floor: the shortest interval in a scaled-down run (MIN_SCALED_INTERVAL = 50; the run's
+                interval_floor lowers it).
         """
-        # a run's own floor (TrainConfig.interval_floor; the miniature `rounds` lowers it) can only lower `floor`
-        return scaled_interval(nominal, state.get("steps_scale", 1.0), min(floor, int(state.get("interval_floor", floor))))
+        return self.context.every(nominal, floor)
 
-    @staticmethod
-    def reset_interval(state: dict, nominal: float) -> int:
-        """Opacity-reset interval: as `every` with the longer floor MIN_SCALED_RESET_INTERVAL (200).
+    def reset_interval(self, nominal: float) -> int:
+        """An opacity-reset interval, in steps (`StrategyContext.reset_interval`: at least 200 in a scaled-down run).
 
         Args:
-            state: a state dict from `initialize_state`.
             nominal: the nominal reset interval (3DGS: 3 000).
         """
-        return scaled_interval(nominal, state.get("steps_scale", 1.0), MIN_SCALED_RESET_INTERVAL)
+        return self.context.reset_interval(nominal)

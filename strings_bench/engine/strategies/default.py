@@ -9,7 +9,7 @@ children (scales / (0.8 n)); prune opacity < prune_opa and, after `screen_prune_
 > prune_scale3d x extent (and screen radius > prune_screen_px, off by default); then clear the statistics.
 Every `reset_every` steps (before refine_stop_iter): opacity <- min(opacity, reset_value).
 
-With a budget (`max_gaussians`, run --budget): when the clones and splits of a round would pass it, the ones with
+With a Gaussian cap (run --budget, `StrategyContext.cap`): when the clones and splits of a round would pass it, the ones with
 the largest mean gradient grow and the rest wait (Taming-3DGS' rule: stop densifying at the cap); pruning is
 unchanged.
 """
@@ -26,7 +26,7 @@ from strings_bench.core.errors import TrainingError
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.optim import GaussianAdam
 import strings_bench.engine.strategies.ops as ops
-from strings_bench.engine.strategies.base import Strategy, keep_within_budget
+from strings_bench.engine.strategies.base import Strategy, keep_within_cap
 
 
 @dataclass
@@ -49,10 +49,12 @@ class DefaultStrategy(Strategy):
     Example:
         >>> from strings_bench.engine.strategies import DefaultStrategy
         >>> strategy = DefaultStrategy(grow_grad2d=4e-4)
-        >>> state = strategy.initialize_state(scene_extent=2.0, steps_scale=0.01)
+        >>> from strings_bench.engine.strategies import StrategyContext
+        >>> strategy = DefaultStrategy(grow_grad2d=4e-4, context=StrategyContext(steps_scale=0.01))
+        >>> state = strategy.initialize_state(scene_extent=2.0)
         >>> sorted(state)
-        ['count', 'grad2d', 'max_radii', 'n_refine', 'scene_extent', 'steps_scale']
-        >>> strategy.at(state, strategy.refine_stop_iter), strategy.every(state, strategy.refine_every)
+        ['count', 'grad2d', 'max_radii', 'n_refine', 'scene_extent']
+        >>> strategy.at(strategy.refine_stop_iter), strategy.every(strategy.refine_every)
         (150, 50)
     """
 
@@ -60,11 +62,7 @@ class DefaultStrategy(Strategy):
     grow_grad2d: float = 2e-4  # densify when the mean screen-space gradient norm (NDC) exceeds this
     grow_scale3d: float = 0.01  # clone if largest scale <= this x extent, else split
     prune_scale3d: float = 0.1  # after screen_prune_after, prune world scale > this x extent
-    # docs/sources.md §1 states a 20 px screen-radius prune after 3K, but the authors' code zeroes its
-    # max-radius buffer whenever it clones/splits, just before that test, so the rule never fires
-    # there (gsplat disables it too). At our 320x240 it would fire: on synthetic/books it pruned
-    # 3.4k -> 1.1k Gaussians at the first refinement after 3K (PSNR 15.7 -> 9.2 dB). Off by
-    # default (inf, as in practice); set 20 to apply the rule as written.
+    # off by default: the authors' code never applies the paper's 20 px rule (why: docs/engine.md, "DefaultStrategy")
     prune_screen_px: float = math.inf  # prune screen radius > this px after 3K (inf = off: the reference never applies it)
     refine_start_iter: int = 500  # first densification step (nominal)
     refine_stop_iter: int = 15_000  # last densification step (nominal)
@@ -73,21 +71,28 @@ class DefaultStrategy(Strategy):
     reset_value: float = 0.01  # opacity after a reset: min(opacity, this)
     screen_prune_after: int = 3_000  # big-Gaussian prunes start after this step (nominal)
     n_split: int = 2  # children of a split
-    # A memory guard, not a budget: growth past it fails clearly (the budget, `max_gaussians`, is the base
-    # Strategy's field: growth stops at it). Named max_gaussians before the budget existed.
+    # a memory guard, not the cap: growth past it fails clearly, where the cap stops growth quietly
     memory_limit_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
         """`Strategy.initialize_state` plus empty statistics (grad2d, count, max_radii) and n_refine.
 
         Args:
             scene_extent: the scene's extent in world units.
-            steps_scale: the run's schedule scale.
             cameras: the training cameras (unused here).
         """
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
+        state = super().initialize_state(scene_extent, cameras)
         state.update(grad2d=None, count=None, max_radii=None, n_refine=0)
+        self.dropped_for_cap = 0  # candidates the cap held back since this state began (`cap_holds`)
         return state
+
+    def cap_holds(self, model: GaussianModel) -> bool:
+        """At the cap in force, or growth already cut by it (a round that prunes too may end a little under it).
+
+        Args:
+            model: the model (its current size is read).
+        """
+        return super().cap_holds(model) or (self.context.cap is not None and self.dropped_for_cap > 0)
 
     # ---- hooks ------------------------------------------------------------------------------
     def step_pre_backward(self, model, optimizer, state, step, info) -> None:
@@ -115,12 +120,12 @@ class DefaultStrategy(Strategy):
             step: the step the strategy sees.
             info: this step's info dict.
         """
-        if step >= self.at(state, self.refine_stop_iter):
+        if step >= self.at(self.refine_stop_iter):
             return
         self._update_state(model, state, info)
-        if step > self.at(state, self.refine_start_iter) and step % self.every(state, self.refine_every) == 0:
+        if step > self.at(self.refine_start_iter) and step % self.every(self.refine_every) == 0:
             self.densify(model, optimizer, state, step)
-        if step % self.reset_interval(state, self.reset_every) == 0:
+        if step % self.reset_interval(self.reset_every) == 0:
             self._reset_opacity(model, optimizer, state)
 
     @torch.no_grad()
@@ -212,28 +217,28 @@ class DefaultStrategy(Strategy):
         """Gaussians one split adds (n_split children replace the parent)."""
         return self.n_split - 1
 
-    def _fit_budget(self, model: GaussianModel, state: dict, step: int, clone: torch.Tensor,
+    def _fit_cap(self, model: GaussianModel, state: dict, step: int, clone: torch.Tensor,
                     split: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(clone, split) cut to the room the budget leaves (`max_gaussians`), highest `_grow_scores` first."""
-        room = self.room(model, state)
+        """(clone, split) cut to the room the cap leaves (`Strategy.room`), highest `_grow_scores` first."""
+        room = self.room(model)
         if room is None:
             return clone, split
         cost = torch.where(split, self._split_cost(), 1)
-        keep = keep_within_budget(clone | split, self._grow_scores(model, state, step), cost, room)
-        state["budget_dropped"] = state.get("budget_dropped", 0) + int((clone | split).sum() - keep.sum())
+        keep = keep_within_cap(clone | split, self._grow_scores(model, state, step), cost, room)
+        self.dropped_for_cap = getattr(self, "dropped_for_cap", 0) + int((clone | split).sum() - keep.sum())
         return clone & keep, split & keep
 
     @torch.no_grad()
     def _grow_gs(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
-        """`_select`, cut to the budget (`_fit_budget`), refuse growth past `memory_limit_gaussians`, `_grow`, and
+        """`_select`, cut to the cap (`_fit_cap`), refuse growth past `memory_limit_gaussians`, `_grow`, and
         record what was done."""
-        clone, split = self._fit_budget(model, state, step, *self._select(model, state, step))
+        clone, split = self._fit_cap(model, state, step, *self._select(model, state, step))
         grow = int(clone.sum()) + int(split.sum()) * self._split_cost()
         if len(model) + grow > self.memory_limit_gaussians:
             raise TrainingError(f"densification at step {step} would make {len(model) + grow} Gaussians "
                                 f"(more than memory_limit_gaussians={self.memory_limit_gaussians})",
-                                hint="raise memory_limit_gaussians or the gradient threshold(s), or set a budget "
-                                     "(max_gaussians, run --budget)")
+                                hint="raise memory_limit_gaussians or the gradient threshold(s), or set a cap "
+                                     "(run --budget)")
         self._grow(model, optimizer, state, clone, split)
         state["last_clone"], state["last_split"] = int(clone.sum()), int(split.sum())
 
@@ -241,7 +246,7 @@ class DefaultStrategy(Strategy):
         """Opacity < prune_opa; after screen_prune_after also world scale > prune_scale3d x extent and
         screen radius > prune_screen_px."""
         prune = model.opacities < self.prune_opa
-        if step > self.at(state, self.screen_prune_after):
+        if step > self.at(self.screen_prune_after):
             prune |= model.scales.max(dim=-1).values > self.prune_scale3d * state["scene_extent"]
             if state["max_radii"] is not None:
                 prune |= state["max_radii"] > self.prune_screen_px

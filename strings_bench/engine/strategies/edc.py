@@ -97,7 +97,7 @@ class EDCStrategy(AbsGSStrategy):
         if self.release_schedule:
             grads_abs = grads_abs * (1 + count / 100.0 * 0.3)
             for until, factor in ((3_500, 2.0), (6_500, 1.5), (9_500, 1.2)):
-                if step < self.at(state, until):
+                if step < self.at(until):
                     threshold *= factor
                     break
         split = grads_abs >= threshold
@@ -107,17 +107,17 @@ class EDCStrategy(AbsGSStrategy):
         long_axis_split(model, optimizer, split, state, self.split_offset, self.other_axes_factor, self.opacity_factor)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:
-        if self.release_schedule and step == self.at(state, 300):
+        if self.release_schedule and step == self.at(300):
             self._prune_below(model, optimizer, state, 0.02)
         super().step_post_backward(model, optimizer, state, step, info)
-        reset = self.reset_interval(state, self.reset_every)
-        if reset < step < self.at(state, self.refine_stop_iter) and step % reset == self.recovery_step(state):
+        reset = self.reset_interval(self.reset_every)
+        if reset < step < self.at(self.refine_stop_iter) and step % reset == self.recovery_step():
             self._prune_below(model, optimizer, state, self.recovery_prune_opa)
 
-    def recovery_step(self, state: dict) -> int:
+    def recovery_step(self) -> int:
         """Steps after each opacity reset at which the recovery-aware pruning runs."""
-        reset = self.reset_interval(state, self.reset_every)
-        delay = max(self.at(state, self.recovery_delay), self.recovery_min_steps)
+        reset = self.reset_interval(self.reset_every)
+        delay = max(self.at(self.recovery_delay), self.recovery_min_steps)
         return min(delay, reset - 1) % reset
 
     @torch.no_grad()

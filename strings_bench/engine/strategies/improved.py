@@ -17,7 +17,7 @@ Every 100 iterations in (500, 15 000):
    non-zero sums are divided by their mean; the score is their mean over the views. After 14 500 the
    score is the mean absolute gradient instead.
 2. Growth control (the budget): the count may reach B sqrt((it - 500) / (14 500 - 500)), B from
-   14 500 on; B is `max_gaussians` (the run's `--budget`) if set, else `budget` (the release's
+   14 500 on; B is the run's cap (`--budget`, `StrategyContext.cap`) if set, else `budget` (the release's
    per-scene `--budget`, budget.txt), else `budget_multiple` x the initial count (this suite's default
    for scenes the release has no budget for, the rule this suite uses for MCMC's cap).
 3. Candidates: mean absolute gradient >= `grow_grad2d_abs` (3e-4; / 1.5 after 14 500 while below the
@@ -132,7 +132,6 @@ class ImprovedGSStrategy(Strategy):
     refine_every: int = 100  # densification interval (nominal)
     budget: int | None = None  # final Gaussian budget (the release's --budget, per scene in budget.txt); None: budget_multiple
     budget_multiple: float = 10.0  # with budget unset: final budget = this x the initial number of Gaussians
-    max_gaussians: int | None = None  # the run's Gaussian cap (--budget): replaces the final budget when set
     growth_full_iter: int = 14_500  # growth control reaches the final budget here (release: densify_until - 500)
     score_views: int = 10  # training views rendered for each edge-aware score (release --cams)
     late_iter: int = 14_500  # after this, score = absolute gradient and, below budget, threshold / late_threshold_div
@@ -153,7 +152,6 @@ class ImprovedGSStrategy(Strategy):
     recovery_min_steps: int = 100  # minimum recovery window at scaled schedules (no effect at steps_scale 1)
 
     def __post_init__(self):
-        super().__post_init__()  # the base Strategy checks max_gaussians
         if self.budget is not None and int(self.budget) < 1:
             raise StringsBenchError(f"improved-gs budget must be a positive number of Gaussians, got {self.budget}",
                                     hint="leave it unset to use budget_multiple x the initial count")
@@ -174,8 +172,8 @@ class ImprovedGSStrategy(Strategy):
         self._views = {"order": sorted(cameras), "cameras": dict(cameras), "edges": dict(edge_maps),
                        "backend": backend}
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, cameras)
         state.update(grad2d_abs=None, count=None, n_initial=None, view_stack=[], all_views_done=[],
                      n_refine=0, n_split=0, n_recovery_prune=0, last_budget=None)
         return state
@@ -189,16 +187,17 @@ class ImprovedGSStrategy(Strategy):
 
     # ---- the budget ---------------------------------------------------------------------------
     def final_budget(self, state: dict) -> int:
-        """The final Gaussian budget B: max_gaussians, else budget, else budget_multiple x the initial count."""
-        if self.max_gaussians is not None:
-            return int(self.max_gaussians)
+        """The final Gaussian budget B: the run's cap (the context's), else budget, else budget_multiple x the
+        initial count."""
+        if self.context.cap is not None:
+            return int(self.context.cap)
         if self.budget is not None:
             return int(self.budget)
         return max(1, int(round(self.budget_multiple * int(state["n_initial"]))))
 
     def budget_at(self, state: dict, step: int) -> int:
         """Growth control: the count allowed after the round at `step`."""
-        return growth_budget(step, self.at(state, self.refine_start_iter), self.at(state, self.growth_full_iter),
+        return growth_budget(step, self.at(self.refine_start_iter), self.at(self.growth_full_iter),
                              self.final_budget(state))
 
     # ---- the schedule ---------------------------------------------------------------------------
@@ -206,23 +205,23 @@ class ImprovedGSStrategy(Strategy):
                            info: dict) -> None:
         if state.get("n_initial") is None:
             state["n_initial"] = len(model)
-        if step == self.at(state, self.early_prune_iter):
+        if step == self.at(self.early_prune_iter):
             self._prune_where(model, optimizer, state, model.opacities < self.early_prune_opa)
-        if not self.at(state, self.refine_start_iter) < step < self.at(state, self.refine_stop_iter):
+        if not self.at(self.refine_start_iter) < step < self.at(self.refine_stop_iter):
             return
         self._update_state(model, state, info)
-        if step % self.every(state, self.refine_every) == 0:
+        if step % self.every(self.refine_every) == 0:
             self.densify(model, optimizer, state, step)
-        reset = self.reset_interval(state, self.reset_every)
+        reset = self.reset_interval(self.reset_every)
         if step % reset == 0:
             ops.reset_opacity(model, optimizer, self.reset_value)
-        if reset < step < self.at(state, self.recovery_stop_iter) and step % reset == self.recovery_step(state):
+        if reset < step < self.at(self.recovery_stop_iter) and step % reset == self.recovery_step():
             self.recovery_prune(model, optimizer, state)
 
-    def recovery_step(self, state: dict) -> int:
+    def recovery_step(self) -> int:
         """Steps after each opacity reset at which the recovery-aware pruning runs."""
-        reset = self.reset_interval(state, self.reset_every)
-        delay = max(self.at(state, self.recovery_delay), self.recovery_min_steps)
+        reset = self.reset_interval(self.reset_every)
+        delay = max(self.at(self.recovery_delay), self.recovery_min_steps)
         return min(delay, reset - 1) % reset
 
     @torch.no_grad()
@@ -248,7 +247,7 @@ class ImprovedGSStrategy(Strategy):
                                          "alone needs strategy.attach_views(cameras, edge_maps)")
         order = self._views["order"]
         for nominal in (3_400, 6_400):  # release: iteration % 3000 == 400 and iteration < 9000
-            if step >= self.at(state, nominal) and nominal not in state["all_views_done"]:
+            if step >= self.at(nominal) and nominal not in state["all_views_done"]:
                 state["all_views_done"].append(nominal)
                 return list(order)
         views = []
@@ -276,7 +275,7 @@ class ImprovedGSStrategy(Strategy):
             grads = state["grad2d_abs"] / state["count"].clamp_min(1)
             budget = self.budget_at(state, step)
             threshold = self.grow_grad2d_abs
-            late = step > self.at(state, self.late_iter)
+            late = step > self.at(self.late_iter)
             if late:
                 score = grads.clone()
                 if len(model) < budget:
@@ -294,7 +293,7 @@ class ImprovedGSStrategy(Strategy):
                             parents=torch.cat([parents, parents]), state=state)
             state["n_split"] += int(split.sum())
             state["last_budget"] = budget
-        if step < self.at(state, self.prune_stop_iter):
+        if step < self.at(self.prune_stop_iter):
             self._prune_where(model, optimizer, state, model.opacities < self.prune_opa)
         state["n_refine"] += 1
         state["grad2d_abs"] = state["count"] = None

@@ -115,7 +115,7 @@ class MCMCStrategy(Strategy):
     refine_every: int = 100  # relocation interval (nominal)
     min_opacity: float = 0.005      # "dead" threshold
     grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to the cap
-    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; a budget (max_gaussians) replaces it
+    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; the run's cap (max_gaussians) replaces it
     cap_multiple: float = 10.0  # cap = this x initial Gaussians when cap_max is None
     opacity_reg: float = 0.01  # weight of mean |opacity| in the loss
     scale_reg: float = 0.01  # weight of mean |scale| in the loss
@@ -126,19 +126,18 @@ class MCMCStrategy(Strategy):
     seed: int | None = None         # sampling RNG (None: torch's global RNG, seeded by the trainer)
 
     def __post_init__(self):
-        super().__post_init__()
         if self.cap_max is not None and self.cap_max < 1:
             raise StringsBenchError(f"MCMC cap_max must be a positive number of Gaussians, got {self.cap_max}",
                                     hint="leave it unset to use cap_multiple x the initial point count")
         if not 1 <= self.n_max <= 200:
             raise StringsBenchError(f"MCMC n_max must be in [1, 200], got {self.n_max}")
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, cameras)
         # The seeded generator is made at first use, on the model's device (a CPU generator cannot
         # drive torch.multinomial / torch.randn on CUDA tensors).
-        # A budget (max_gaussians, run --budget) is MCMC's own cap: cap_max := max_gaussians.
-        state.update(cap=self.cap_max if self.max_gaussians is None else int(self.max_gaussians), generator=None,
+        # The run's cap (run --budget) is MCMC's own: cap_max := the context's cap.
+        state.update(cap=self.cap_max if self.context.cap is None else int(self.context.cap), generator=None,
                      n_relocated=0, n_added=0)
         return state
 
@@ -160,8 +159,8 @@ class MCMCStrategy(Strategy):
                            info: dict) -> None:
         if state.get("cap") is None:
             state["cap"] = max(len(model), int(round(self.cap_multiple * len(model))))
-        if (self.at(state, self.refine_start_iter) < step < self.at(state, self.refine_stop_iter)
-                and step % self.every(state, self.refine_every) == 0):
+        if (self.at(self.refine_start_iter) < step < self.at(self.refine_stop_iter)
+                and step % self.every(self.refine_every) == 0):
             state["n_relocated"] += self.relocate(model, optimizer, state)
             state["n_added"] += self.grow(model, optimizer, state)
         lr = optimizer.lrs.get("means", 0.0)

@@ -165,8 +165,8 @@ class MipStrategy(DefaultStrategy):
     def get_raster_kwargs(self, step: int) -> dict:
         return {"mip_filter": True} if self.mip_2d else {}
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, cameras)
         state["train_cameras"] = list(cameras or [])
         return state
 
@@ -178,8 +178,8 @@ class MipStrategy(DefaultStrategy):
         update_filter(model, cams, self.near, self.frustum_margin, self.sigma_scale)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:
-        if step >= self.at(state, self.refine_stop_iter):  # after densification: the 3D filter's upkeep only
-            if step % self.every(state, self.filter_every) == 0:
+        if step >= self.at(self.refine_stop_iter):  # after densification: the 3D filter's upkeep only
+            if step % self.every(self.filter_every) == 0:
                 self.update_filter(model, state)
             return
         super().step_post_backward(model, optimizer, state, step, info)

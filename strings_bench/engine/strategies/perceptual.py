@@ -133,7 +133,6 @@ class PerceptualGSStrategy(DefaultStrategy):
             raise StringsBenchError(f"perceptual-gs sensitivity_init must be in (0, 1), got {self.sensitivity_init}")
         self._views: dict | None = None
         self._leaf: tuple | None = None  # (model, leaf) of this step's sensitivity render, for its Adam step
-        self._steps_scale = 1.0
 
     def attach_views(self, cameras: dict, maps: dict, background=(0.0, 0.0, 0.0), backend: str = "auto") -> None:
         """The training views: {view_idx: Camera}, {view_idx: (H, W) sensitivity map at the training size}."""
@@ -150,9 +149,8 @@ class PerceptualGSStrategy(DefaultStrategy):
                                          "alone needs strategy.attach_views(cameras, maps)")
         return self._views
 
-    def initialize_state(self, scene_extent: float, steps_scale: float = 1.0, cameras=None) -> dict:
-        state = super().initialize_state(scene_extent, steps_scale, cameras)
-        self._steps_scale = float(steps_scale)  # loss_terms has no state: the BCE schedule reads this
+    def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        state = super().initialize_state(scene_extent, cameras)
         state.update(trans=None, sens_exp_avg=None, sens_exp_avg_sq=None, sens_step=0, split_only=False,
                      sparse=False, classified=False, n_hd=0, n_md=0)
         return state
@@ -167,18 +165,18 @@ class PerceptualGSStrategy(DefaultStrategy):
             model.extras[SENSITIVITY_KEY] = sens
         return sens
 
-    def bce_active(self, state_or_scale, step: int) -> bool:
-        scale = state_or_scale["steps_scale"] if isinstance(state_or_scale, dict) else float(state_or_scale)
-        return self.lambda_bce > 0 and step <= round(self.sensitivity_until * scale)
+    def bce_active(self, step: int) -> bool:
+        """Whether the BCE term is on at `step` (the strategy's step): up to `sensitivity_until`, scaled."""
+        return self.lambda_bce > 0 and step <= round(self.sensitivity_until * self.context.steps_scale)
 
-    def rgb_weight(self, steps_scale: float, step: int) -> float:
+    def rgb_weight(self, step: int) -> float:
         """The factor on the 3DGS loss at `step`: 1 - lambda_bce while the BCE term is on, else 1."""
-        return 1.0 - self.lambda_bce if self.bce_active(steps_scale, step) else 1.0
+        return 1.0 - self.lambda_bce if self.bce_active(step) else 1.0
 
     def loss_terms(self, model: GaussianModel, info: dict, step: int):
         """lambda_bce x BCE(1 - render of (1 - s), the view's map) while the BCE term is on."""
         self._leaf = None
-        if not self.bce_active(self._steps_scale, step):
+        if not self.bce_active(step):
             return 0.0
         views = self._require_views()
         leaf = self.sensitivity_logits(model).detach().requires_grad_(True)
@@ -218,19 +216,19 @@ class PerceptualGSStrategy(DefaultStrategy):
 
     # ---- statistics and schedule ---------------------------------------------------------------
     def is_hd_round(self, state: dict, step: int) -> bool:
-        return step >= self.at(state, self.hd_md_from) and step % self.every(state, self.hd_interval) == 0
+        return step >= self.at(self.hd_md_from) and step % self.every(self.hd_interval) == 0
 
     def is_md_round(self, state: dict, step: int) -> bool:
-        return step >= self.at(state, self.hd_md_from) and step % self.every(state, self.md_interval) == 0
+        return step >= self.at(self.hd_md_from) and step % self.every(self.md_interval) == 0
 
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
         self._sensitivity_adam_step(model, state)
         self.sensitivity_logits(model)
-        if step <= self.at(state, self.sensitivity_until) and (self.is_hd_round(state, step)
+        if step <= self.at(self.sensitivity_until) and (self.is_hd_round(state, step)
                                                                or self.is_md_round(state, step)):
             self.update_trans(model, state)
-        if not state["classified"] and step >= self.at(state, self.classify_iter):
+        if not state["classified"] and step >= self.at(self.classify_iter):
             self.classify_scene(model, state)
         super().step_post_backward(model, optimizer, state, step, info)
 

@@ -55,30 +55,30 @@ def densification_factors(counts: np.ndarray, n_max: int, equal_counts: str = "n
     return np.clip(np.floor(x + 0.5), 1, n_max).astype(np.int64)
 
 
-def fit_factors_to_budget(n_children: np.ndarray, budget: int | None) -> np.ndarray:
-    """Eq. 1's factors cut to a Gaussian budget (run --budget): when sum(N_i) exceeds `budget`, the parents with the
+def fit_factors_to_cap(n_children: np.ndarray, cap: int | None) -> np.ndarray:
+    """Eq. 1's factors cut to the Gaussian cap (run --budget): when sum(N_i) exceeds `cap`, the parents with the
     largest N_i (the least observed text points, Eq. 1's own priority; ties: the lower index) keep their N_i while
     the total fits, every later one keeps N_i = 1 (itself, undensified). None: unchanged."""
     k = np.asarray(n_children, dtype=np.int64).reshape(-1)
-    if budget is None or int(k.sum()) <= budget:
+    if cap is None or int(k.sum()) <= cap:
         return k
-    from strings_bench.engine.strategies.base import keep_within_budget
+    from strings_bench.engine.strategies.base import keep_within_cap
 
-    keep = keep_within_budget(torch.from_numpy(k > 1), torch.from_numpy(k.astype(np.float64)),
-                              torch.from_numpy(k - 1), max(0, int(budget) - len(k)))
+    keep = keep_within_cap(torch.from_numpy(k > 1), torch.from_numpy(k.astype(np.float64)),
+                              torch.from_numpy(k - 1), max(0, int(cap) - len(k)))
     return np.where(keep.numpy(), k, 1)
 
 
 def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Tensor,
                        generator: torch.Generator | None = None,
-                       max_gaussians: int = DEFAULT_MAX_GAUSSIANS, budget: int | None = None) -> "GaussianModel":
+                       memory_limit: int = DEFAULT_MAX_GAUSSIANS, cap: int | None = None) -> "GaussianModel":
     """Replace Gaussian i of `model` by n_children[i] samples of itself, in place (n = 1 keeps it).
 
     Children are drawn by `strategies.ops.sample_children` from N(mean, R S^2 R^T) of the parent
     (unshrunk scales), log-scales reduced by log(0.8 n), other parameters and extras copied.
     Row order afterwards: the kept (n = 1) Gaussians, then the children grouped by parent.
-    `budget`: at most this many Gaussians afterwards (`fit_factors_to_budget`); `max_gaussians` is the memory guard
-    (more is an error).
+    `cap`: at most this many Gaussians afterwards (`fit_factors_to_cap`); `memory_limit` is the memory guard
+    (more is an error: the setting max_text_gaussians).
     """
     from strings_bench.engine.strategies import ops
 
@@ -88,13 +88,13 @@ def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Te
         raise StringsBenchError(f"{k.shape[0]} densification factors for {n} Gaussians")
     if n and int(k.min()) < 1:
         raise StringsBenchError("densification factors must be >= 1")
-    if budget is not None:
-        k = torch.from_numpy(fit_factors_to_budget(k.cpu().numpy(), budget)).to(model.device)
+    if cap is not None:
+        k = torch.from_numpy(fit_factors_to_cap(k.cpu().numpy(), cap)).to(model.device)
     total = int(k.sum())
-    if total > max_gaussians:
+    if total > memory_limit:
         raise TrainingError(
-            f"text densification would make {total} Gaussians from {n} (more than max_gaussians={max_gaussians})",
-            hint="lower the scene's n_max setting, or raise max_gaussians if you have the memory")
+            f"text densification would make {total} Gaussians from {n} (more than max_text_gaussians={memory_limit})",
+            hint="lower the scene's n_max setting, or raise max_text_gaussians if you have the memory")
     split = k > 1
     if not bool(split.any()):
         return model

@@ -126,7 +126,7 @@ def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> floa
 def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
     from strings_bench.methods.strings.densify import DEFAULT_N_MAX
 
-    # The per-dataset values are the spec's @apply presets (methods/registry.py); scenes carry none.
+    # The per-dataset values are the spec's @apply presets (methods/strings/spec.py); scenes carry none.
     return int(st.n_max) if st.n_max is not None else DEFAULT_N_MAX
 
 
@@ -239,12 +239,11 @@ class Strings(GaussianSplatting):
                 factors = densification_factors(counts[is_text], self.n_max, st.equal_counts)
             # the children are sampled on the model's device, so the generator must live there too
             gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
-            cap = self.strategy.max_gaussians
-            # Under a budget Eq. 1 leaves room for the non-text points that join at T1 (reserved_gaussians)
-            budget = None if cap is None else int(cap) - self.reserved_gaussians()
-            densify_text_model(model, factors, gen, max_gaussians=st.max_text_gaussians, budget=budget)
-            if budget is not None:
-                stats["text_densify_budget"] = budget
+            # Under a cap Eq. 1 leaves room for the non-text points that join at T1 (reserved_gaussians)
+            cap = self.context.cap_in_force()
+            densify_text_model(model, factors, gen, memory_limit=st.max_text_gaussians, cap=cap)
+            if cap is not None:
+                stats["text_densify_budget"] = cap
         stats["text_gaussians_after_densify"] = len(model)
         if st.prune_outside_masks:
             outside = self.mask_hits(model) < st.tau
@@ -273,8 +272,8 @@ class Strings(GaussianSplatting):
         return torch.from_numpy(hits).to(model.device)
 
     def reserved_gaussians(self) -> int:
-        """Under a budget, phase 1 keeps room for the non-text SfM points that join at T1 (`_start_phase2`), so
-        phase 1's growth (Eq. 1 and 3DGS densification) stops at max_gaussians less their number."""
+        """Under a cap, phase 1 keeps room for the non-text SfM points that join at T1 (`_start_phase2`), so
+        phase 1's growth (Eq. 1 and 3DGS densification) stops at the cap less their number."""
         if self.fallback or self.phase != 1 or self.segmentation is None:
             return 0
         return int((~self.segmentation.is_text).sum())
@@ -315,14 +314,10 @@ class Strings(GaussianSplatting):
             return masked_l1(pred, gt, self._mask_tensor(view_idx))  # mean over the whole image, no SSIM
         return gs_loss(pred, gt, self.config.lambda_dssim)
 
-    def refine(self, step: int) -> None:
-        # The release saves phase 1 at T1 before that iteration's densification and opacity reset
-        # (train.py: the save, then densify_and_prune and reset_opacity), and phase 2 starts from the save.
-        if self.st.handoff == "before_refine" and self.phase == 1 and step == self.t1 and not self.fallback:
-            self._step_info = None
-            self.optimizer.zero_grad()
-            return
-        super().refine(step)
+    def skips_refinement(self, step: int) -> bool:
+        """The phase switch: with handoff before_refine, T1's refinement is skipped, as the release saves phase 1
+        at T1 before that iteration's densify_and_prune and reset_opacity, and phase 2 starts from the save."""
+        return self.st.handoff == "before_refine" and self.phase == 1 and step == self.t1 and not self.fallback
 
     def _mask_tensor(self, view_idx: int) -> torch.Tensor:
         if view_idx not in self._mask_tensors:
