@@ -257,13 +257,19 @@ def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
     register_dataset(DatasetCard(id="own-engine", title="test", locate=lambda scene, _p=path: _p,
                                  scenes=[SceneCard("cyrillic", {"gt_ocr": "tesseract:lang=rus"}), SceneCard("latin", {})]))
     plan = plan_run(["fake-a"], ["own-engine"], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr")
-    assert {j.scene: j.ocr for j in plan.jobs} == {"cyrillic": "tesseract:lang=rus,rapidocr", "latin": "rapidocr"}
+    assert {j.scene: j.ocr for j in plan.jobs} == {"cyrillic": ("tesseract:lang=rus", "rapidocr"), "latin": ("rapidocr",)}
     assert plan.manifest["ocr"] == "rapidocr"  # the run's own choice is what run.json records
     asked = []
-    monkeypatch.setattr(ocr_mod, "get_engines", lambda spec: asked.append(spec) or [rf.FakeOCR()])
+    def fake_engine(spec):  # a fake reader under each engine's own name
+        asked.append(spec)
+        engine = rf.FakeOCR()
+        engine.name = spec.partition(":")[0]
+        return engine
+
+    monkeypatch.setattr(ocr_mod, "get_engine", fake_engine)
     bench.run(["fake-a"], ["own-engine"], run_dir=tmp_path / "run", schedule="tiny", ocr="rapidocr", with_lpips=False,
               progress=False, write_report=False)
-    assert sorted(asked) == ["rapidocr", "tesseract:lang=rus,rapidocr"]
+    assert sorted(asked) == ["rapidocr", "rapidocr", "tesseract:lang=rus"]  # each job's engines, one by one
 
 
 # ---- the verdicts of the captures' comparison (benchmarks/captures_compare.py) -------------------------------

@@ -153,4 +153,7 @@ def test_todays_run_writes_the_142d0ce_cells_in_every_non_timing_column(tmp_path
     for key in ("versions", "datasets", "resolved_device"):
         old_m.pop(key), new_m.pop(key)
     assert new_m["schedule"].pop("miniature") == "shrink"
+    # the schedule's description is its --help text, corrected since (tiny evaluates 3K too: 15/35/150 steps)
+    assert "15/35/150 iterations for 3K/7K/30K" in new_m["schedule"].pop("description")
+    old_m["schedule"].pop("description")
     assert new_m == old_m

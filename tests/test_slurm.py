@@ -95,7 +95,8 @@ def scenes() -> list[Path]:
 
 
 def _plan(out: Path, scenes, methods=METHODS):
-    return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
+    return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(),
+                    save_every="4steps", **SCHEDULE)
 
 
 def _rows(out: Path) -> dict[tuple, dict]:
@@ -212,7 +213,7 @@ def test_a_job_that_fails_on_its_node_is_reported_with_its_cell_and_log(slurm, s
     images_bin = broken / "sparse" / "0" / "images.bin"
     images_bin.write_bytes(images_bin.read_bytes()[:40])  # a truncated COLMAP file: the job fails loading it
     out = tmp_path / "run"
-    plan = plan_run(["3dgs"], [str(broken)], run_dir=out, ocr="fake", save_every="4steps", **SCHEDULE)
+    plan = plan_run(["3dgs"], [str(broken)], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(), save_every="4steps", **SCHEDULE)
     with pytest.raises(StringsBenchError) as caught:
         _execute(plan, _runner(out))
     message = str(caught.value)

