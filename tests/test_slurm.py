@@ -96,7 +96,7 @@ def scenes() -> list[Path]:
 
 def _plan(out: Path, scenes, methods=METHODS):
     return plan_run(list(methods), [str(s) for s in scenes], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(),
-                    save_every="4steps", **SCHEDULE)
+                    with_lpips=False, save_every="4steps", **SCHEDULE)
 
 
 def _rows(out: Path) -> dict[tuple, dict]:
@@ -114,24 +114,24 @@ def _records(out: Path) -> dict:
 
 def _runner(out: Path, **pause) -> runner.Runner:
     cls = PausingRunner if pause else runner.Runner
-    return cls(out, ocr=rf.FakeOCR(), with_lpips=False, progress=False, results_csv=False, **pause)
+    return cls(out, ocr=rf.FakeOCR(), progress=False, results_csv=False, **pause)
 
 
 def _execute(plan, job_runner, **options):
     # lost_after: the run folder is local here, a task's result file is seen at once (on NFS it may take 60 s)
     return runner.execute(plan, executor=SlurmExecutor(job_runner, poll_seconds=1, lost_after=3, **options),
-                          with_lpips=False, progress=False, write_report=False)
+                          progress=False, write_report=False)
 
 
 @pytest.mark.slow
 def test_a_detached_array_followed_by_a_second_run_equals_the_local_run(slurm, scenes, tmp_path):
     local_out, slurm_out = tmp_path / "local", tmp_path / "slurm"
-    runner.execute(_plan(local_out, scenes), ocr=rf.FakeOCR(), executor="local", with_lpips=False, progress=False,
+    runner.execute(_plan(local_out, scenes), ocr=rf.FakeOCR(), executor="local", progress=False,
                    write_report=False)
 
     plan = _plan(slurm_out, scenes)
     ex = SlurmExecutor(_runner(slurm_out), poll_seconds=1, detach=True)
-    runner.execute(plan, executor=ex, with_lpips=False, progress=False, write_report=False)
+    runner.execute(plan, executor=ex, progress=False, write_report=False)
     # One array of 4 tasks, recorded in the run folder; the command returned at once.
     assert len(ex.submitted) == 4 and len({s.split("_")[0] for s in ex.submitted}) == 1
     first = _records(slurm_out)
@@ -139,7 +139,7 @@ def test_a_detached_array_followed_by_a_second_run_equals_the_local_run(slurm, s
 
     # The same command again follows the array (nothing submitted) and waits for it.
     follower = SlurmExecutor(_runner(slurm_out), poll_seconds=1)
-    runner.execute(plan, executor=follower, with_lpips=False, progress=False, write_report=False)
+    runner.execute(plan, executor=follower, progress=False, write_report=False)
     assert follower.submitted == [] and sorted(follower.followed) == sorted(ex.submitted)
     assert _records(slurm_out) == first
 
@@ -156,7 +156,7 @@ def test_a_detached_array_followed_by_a_second_run_equals_the_local_run(slurm, s
         assert Path(rec["log_err"]).is_file()
     # A third run finds every cell written: nothing to submit.
     third = SlurmExecutor(_runner(slurm_out), poll_seconds=1)
-    runner.execute(plan, executor=third, with_lpips=False, progress=False, write_report=False)
+    runner.execute(plan, executor=third, progress=False, write_report=False)
     assert third.submitted == [] and third.followed == []
 
 
@@ -196,7 +196,7 @@ def test_a_task_cancelled_mid_training_is_reported_and_resumed_from_its_checkpoi
     # The same command resubmits only the cancelled job, which continues from step 8.
     (pause / "released").touch()
     again = SlurmExecutor(_runner(out), poll_seconds=1)
-    runner.execute(plan, executor=again, with_lpips=False, progress=False, write_report=False)
+    runner.execute(plan, executor=again, progress=False, write_report=False)
     assert len(again.submitted) == 1 and again.submitted[0] != rec["job_id"] and again.followed == []
     assert _records(out)[f"3dgs/{target.name}/{target.name}"]["job_id"] == again.submitted[0]
     assert _records(out)[f"3dgs/{scenes[1].name}/{scenes[1].name}"] == records[f"3dgs/{scenes[1].name}/{scenes[1].name}"]
@@ -213,7 +213,8 @@ def test_a_job_that_fails_on_its_node_is_reported_with_its_cell_and_log(slurm, s
     images_bin = broken / "sparse" / "0" / "images.bin"
     images_bin.write_bytes(images_bin.read_bytes()[:40])  # a truncated COLMAP file: the job fails loading it
     out = tmp_path / "run"
-    plan = plan_run(["3dgs"], [str(broken)], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(), save_every="4steps", **SCHEDULE)
+    plan = plan_run(["3dgs"], [str(broken)], run_dir=out, ocr="fake", ocr_backend=rf.FakeOCR(), with_lpips=False,
+                    save_every="4steps", **SCHEDULE)
     with pytest.raises(StringsBenchError) as caught:
         _execute(plan, _runner(out))
     message = str(caught.value)
