@@ -21,7 +21,7 @@ SCRIPT = ROOT / "scripts" / "gpu_campaign.sh"
 
 
 # The rounds' date, set by the tests rather than read from the clock (the fixtures carry dates of their own).
-ROUND_DATE = "2026-12-02"
+ROUND_DATE = "2020-03-02"
 
 
 def campaign(*args, timeout=600, env=None):
@@ -107,7 +107,7 @@ def test_dry_run_of_a_calibration_point_banks_its_run(tmp_path):
 def test_30k_uses_the_banked_7k_point_closest_to_the_paper(tmp_path):
     mod = _module()
     for rs, cer in (("1.5", "0.95"), ("2", "0.70")):
-        path = tmp_path / f"2026-12-01_cal7k-rs{rs}_run_nvidia-h100.csv"
+        path = tmp_path / f"2020-03-01_cal7k-rs{rs}_run_nvidia-h100.csv"
         path.write_text(f"method,iteration,cer\n3dgs,7000,{cer}\n")
     assert mod._banked_7k(tmp_path)[0] == (pytest.approx(0.036), 2.0)
     done = campaign("--dry-run", tmp_path / "empty", "cal30k", timeout=60)  # nothing banked: a clear failure
@@ -123,7 +123,7 @@ def test_a_later_round_skips_the_steps_already_banked(tmp_path):
     out = tmp_path / "gpu"
     out.mkdir()
     mod = _module()
-    day = "2026-12-01"
+    day = "2020-03-01"
     earlier = [{"date": day, "stage": "verify", "step": step, "status": status, "seconds": "1",
                 "detail": "", "dry_run": "true"} for step, status in
                (("versions", "ok"), ("compile", "ok"), ("pytest_gpu", "ok"), ("benchmark_320x240", "partial"),
@@ -160,7 +160,7 @@ def test_a_round_is_named_by_its_date_and_its_number_that_day(tmp_path):
     (tmp_path / "2026-11-30_verify_nvidia-h200.csv").write_text("")
     (tmp_path / "2026-11-30_x1-rooms_nvidia-h100.csv").write_text("")  # another stage or GPU: no matter
     assert mod.round_stem(tmp_path, "2026-11-30", "verify", "nvidia-h200") == "2026-11-30.2"
-    assert mod.round_stem(tmp_path, "2026-12-01", "verify", "nvidia-h200") == "2026-12-01"
+    assert mod.round_stem(tmp_path, "2020-03-01", "verify", "nvidia-h200") == "2020-03-01"
     assert mod.round_stem(tmp_path, "2026-11-30", "x1-rooms", "nvidia-h200") == "2026-11-30"
     (tmp_path / "2026-11-30.2_verify_nvidia-h200.csv").write_text("")
     assert mod.round_stem(tmp_path, "2026-11-30", "verify", "nvidia-h200") == "2026-11-30.3"
@@ -191,14 +191,14 @@ def test_x1_rooms_builds_a_room_only_for_the_cells_it_runs(tmp_path):
     out.mkdir()
     mod = _module()
     for method in mod.X1_METHODS:
-        (out / f"2026-12-01_x1-rooms_x1_storeroom_{method}_7k_cpu-dry-run.csv").write_text(
+        (out / f"2020-03-01_x1-rooms_x1_storeroom_{method}_7k_cpu-dry-run.csv").write_text(
             f"method,iteration,label,cer,dry_run\n{method},15,3K,0.9,true\n{method},35,7K,0.8,true\n")
     campaign("--dry-run", "--budget", "25", out, "x1-rooms", timeout=180)
     (today,) = [p for p in out.glob("*_x1-rooms_cpu-dry-run.csv")]
     steps = [r["step"] for r in rows(today)]
     assert steps[:2] == ["versions", "compile"] and "build_storeroom" not in steps
     assert steps[2:6] == [f"x1_storeroom_{m}_7k" for m in mod.X1_METHODS]
-    assert all(r["detail"].startswith("banked in 2026-12-01") for r in rows(today)[2:6])
+    assert all(r["detail"].startswith("banked in 2020-03-01") for r in rows(today)[2:6])
     assert steps[6] == "build_pantry" and rows(today)[6]["status"] == "ok", rows(today)[6]
     assert steps[7:] == ["x1_pantry_3dgs_7k"]  # started, then cut by the budget (or done on a fast machine)
     pantry = Path((out / "runs" / "logs" / "x1-rooms_scene_pantry.path").read_text().strip())
@@ -262,8 +262,8 @@ def test_captures_7k_dry_run_banks_each_cell_then_skips_it(tmp_path):
     assert all(r["status"] == "ok" for r in steps), steps
     (cell,) = rows(next(out.glob("*_captures-7k_bundler_et_3dgs_7k_cpu-dry-run.csv")))
     assert cell["method"] == "3dgs" and cell["label"] == "7K" and float(cell["peak_memory_mb"]) > 0
-    again = campaign("--dry-run", "--force", "--date", "2026-12-03", out, "captures-7k", timeout=600, env=env_cache)
+    again = campaign("--dry-run", "--force", "--date", "2020-03-03", out, "captures-7k", timeout=600, env=env_cache)
     assert again.returncode == 0, again.stdout[-3000:]
-    later = {r["step"]: r for r in rows(out / "2026-12-03_captures-7k_cpu-dry-run.csv")}
+    later = {r["step"]: r for r in rows(out / "2020-03-03_captures-7k_cpu-dry-run.csv")}
     assert "build_bundler_et" not in later  # every cell banked: the scene is not even looked for
     assert later["bundler_et_3dgs_7k"]["detail"].startswith(f"banked in {ROUND_DATE}_")
