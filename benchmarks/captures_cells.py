@@ -1,15 +1,19 @@
-"""Run the captures' comparison cell by cell: one (capture, method, seed) per run folder, a few at a time, each
-banked as soon as it finishes.
+"""Run a comparison cell by cell: one (scene, method, seed) per run folder, a few at a time, each banked as soon as
+it finishes. The real captures by name, or any other scenes by dataset id:
 
     python benchmarks/captures_cells.py --captures tum_freiburg3_office,bundler_et [--methods 3dgs,strings,...]
         [--seeds 0-2] [--lanes 2] [--runs runs] [--bank docs/results/data/captures/cells] [--dry-run]
+    python benchmarks/captures_cells.py --scenes synthetic360-cpu/storeroom,synthetic360-cpu/pantry --methods ...
+        --bank docs/results/data/synthetic360-cpu/cells
 
 Each cell is the captures' regime (docs/results/captures.md) for one method and seed:
 
     strings-bench run --schedule cpu --downscale 1 --methods M --set seed=S --datasets captures/C \\
         --ocr ENGINE --out RUNS/cap-C-seedS-M --no-progress            # output in RUNS/cap-C-seedS-M.log
 
-with ENGINE the capture's own OCR engine (its GT engine, `strings-bench datasets show captures/C`) and one thread
+with ENGINE the capture's own OCR engine (its GT engine, `strings-bench datasets show captures/C`); a scene given
+by `--scenes DATASET/SCENE` runs at the schedule's own size (no `--downscale`) with the default OCR engine, in the
+folder RUNS/DATASET-SCENE-seedS-M. Each run has one thread
 per run (NUMBA_NUM_THREADS, OMP_NUM_THREADS and MKL_NUM_THREADS set to 1), so that `--lanes` runs share as many
 cores. A run folder per cell keeps each cell's training time and peak memory its own, and lets cells of one
 comparison come from several days or machines.
@@ -67,23 +71,34 @@ def bank(run_dir: Path, bank_dir: Path) -> str:
 
 @dataclass(frozen=True)
 class Cell:
-    capture: str
+    capture: str  # the scene's name (a capture's name when dataset is "captures")
     method: str
     seed: int
+    dataset: str = "captures"
+
+    @property
+    def is_capture(self) -> bool:
+        return self.dataset == "captures"
 
     @property
     def folder_name(self) -> str:
-        return f"cap-{self.capture}-seed{self.seed}-{self.method}"
+        prefix = "cap" if self.is_capture else self.dataset
+        return f"{prefix}-{self.capture}-seed{self.seed}-{self.method}"
 
     def checkpoints(self, root: Path) -> int:
         """How many of the cell's checkpoints have a result under root/<folder name> (a run folder or a banked one)."""
-        cells = root / self.folder_name / "cells" / self.method / "captures" / self.capture
+        cells = root / self.folder_name / "cells" / self.method / self.dataset / self.capture
         return len(list(cells.glob(f"*/{RESULT_FILE}"))) if cells.is_dir() else 0
 
     def command(self, runs: Path, strings_bench: str) -> list[str]:
-        return [strings_bench, "run", "--schedule", SCHEDULE, "--downscale", DOWNSCALE, "--methods", self.method,
-                "--set", f"seed={self.seed}", "--datasets", f"captures/{self.capture}",
-                "--ocr", CAPTURES[self.capture].gt_ocr, "--out", str(runs / self.folder_name), "--no-progress"]
+        if self.is_capture:  # full size, the capture's own GT engine
+            extra = ["--downscale", DOWNSCALE]
+            tail = ["--ocr", CAPTURES[self.capture].gt_ocr]
+        else:
+            extra, tail = [], []
+        return [strings_bench, "run", "--schedule", SCHEDULE, *extra, "--methods", self.method,
+                "--set", f"seed={self.seed}", "--datasets", f"{self.dataset}/{self.capture}",
+                *tail, "--out", str(runs / self.folder_name), "--no-progress"]
 
 
 def seeds_arg(text: str) -> list[int]:
@@ -97,11 +112,19 @@ def seeds_arg(text: str) -> list[int]:
     return out
 
 
-def plan(captures: list[str], methods: list[str], seeds: list[int]) -> list[Cell]:
+def plan(captures: list[str], methods: list[str], seeds: list[int], scenes: list[str] = ()) -> list[Cell]:
+    """The cells in run order: scene by scene, then seed by seed, the methods of a seed in turn (A, B, A, B)."""
     unknown = [c for c in captures if c not in CAPTURES]
     if unknown:
         raise StringsBenchError(f"unknown capture(s): {', '.join(unknown)}", hint=f"captures: {', '.join(CAPTURES)}")
-    return [Cell(c, m, s) for c in captures for s in seeds for m in methods]
+    places = [("captures", c) for c in captures]
+    for text in scenes:
+        dataset, _, scene = text.partition("/")
+        if not dataset or not scene or "/" in scene:
+            raise StringsBenchError(f"--scenes takes DATASET/SCENE, got {text!r}",
+                                    hint="e.g. synthetic360-cpu/storeroom (strings-bench datasets list)")
+        places.append((dataset, scene))
+    return [Cell(scene, m, s, dataset) for dataset, scene in places for s in seeds for m in methods]
 
 
 RUNNING_ELSEWHERE = "running elsewhere"
@@ -162,7 +185,7 @@ def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings
                       f"{runs / cell.folder_name}.log", flush=True)
         while todo and len(running) + len(elsewhere) < lanes:
             cell = todo.pop(0)
-            if cell.capture not in prepared:
+            if cell.is_capture and cell.capture not in prepared:
                 if not is_built(cell.capture):  # built once, before its cells run side by side
                     print(f"building captures/{cell.capture} ...", flush=True)
                     proc = subprocess.run([strings_bench, "datasets", "prepare", f"captures/{cell.capture}"], env=env,
@@ -182,7 +205,9 @@ def run_cells(cells: list[Cell], runs: Path, bank_dir: Path, lanes: int, strings
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--captures", required=True, help="comma-separated capture names (strings-bench datasets list)")
+    ap.add_argument("--captures", default="", help="comma-separated capture names (strings-bench datasets list)")
+    ap.add_argument("--scenes", default="", help="comma-separated DATASET/SCENE of other datasets, run at the "
+                                                   "schedule's own size with the default OCR engine")
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated (default: %(default)s)")
     ap.add_argument("--seeds", type=seeds_arg, default=[0, 1, 2], help="e.g. 0-2 or 0,2 (default: 0-2)")
     ap.add_argument("--lanes", type=int, default=2, help="runs at a time, one thread each (default: %(default)s)")
@@ -194,9 +219,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.lanes < 1:
         ap.error("--lanes must be at least 1")
+    if not args.captures.strip() and not args.scenes.strip():
+        ap.error("give --captures, --scenes or both")
     try:
         cells = plan([c.strip() for c in args.captures.split(",") if c.strip()],
-                     [m.strip() for m in args.methods.split(",") if m.strip()], args.seeds)
+                     [m.strip() for m in args.methods.split(",") if m.strip()], args.seeds,
+                     [c.strip() for c in args.scenes.split(",") if c.strip()])
         if args.dry_run:
             for cell in cells:
                 print(f"{cell.folder_name}: {state(cell, args.runs, args.bank)}")

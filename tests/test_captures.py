@@ -582,3 +582,23 @@ def test_captures_cells_leaves_a_cell_run_by_another_process_to_it_and_counts_it
     assert len(runs_made) == 3 and not any("seed0-3dgs" in ln for ln in runs_made)
     for name in ("seed0-3dgs", "seed0-strings", "seed1-3dgs", "seed1-strings"):
         assert len(list((bank / f"cap-bundler_et-{name}").rglob("result.json"))) == 3, name
+
+
+def test_cells_of_other_scenes_run_at_the_schedules_size_with_the_default_engine_in_turn(tmp_path, capsys):
+    """--scenes DATASET/SCENE: the cells of a seed run its methods in turn (A, B, A, B), without the captures'
+    --downscale and --ocr, in RUNS/DATASET-SCENE-seedS-M; a scene given without its dataset is refused."""
+    from _scripts import load_benchmark
+
+    cells = load_benchmark("captures_cells")
+    plan = cells.plan([], ["strings", "3dgs"], [0, 1], ["synthetic360-cpu/storeroom"])
+    assert [c.folder_name for c in plan] == [
+        "synthetic360-cpu-storeroom-seed0-strings", "synthetic360-cpu-storeroom-seed0-3dgs",
+        "synthetic360-cpu-storeroom-seed1-strings", "synthetic360-cpu-storeroom-seed1-3dgs"]
+    assert plan[1].command(tmp_path, "sb") == [
+        "sb", "run", "--schedule", "cpu", "--methods", "3dgs", "--set", "seed=0", "--datasets",
+        "synthetic360-cpu/storeroom", "--out", str(tmp_path / "synthetic360-cpu-storeroom-seed0-3dgs"), "--no-progress"]
+    with pytest.raises(Exception, match="--scenes takes DATASET/SCENE"):
+        cells.plan([], ["3dgs"], [0], ["storeroom"])
+    with pytest.raises(SystemExit):
+        cells.main(["--dry-run"])  # neither --captures nor --scenes
+    assert "give --captures, --scenes or both" in capsys.readouterr().err
