@@ -101,7 +101,7 @@ def test_plain_folder_with_gt_dir(tmp_path, ocr):
     render_files = {n: _save(pred / n.replace(".png", ".jpg") if n == "view_1.png" else pred / n, r)
                     for n, r in renders.items()}  # a .jpg render matches its view by stem
     said = []
-    out = evaluate(pred, EvaluateOptions(gt=gt_dir, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False),
+    out = evaluate(pred, EvaluateOptions(min_gt_chars=0, gt=gt_dir, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False),
                    say=said.append)
     assert said[0].startswith("layout: folder")
     (cell,) = _cells(out)
@@ -117,6 +117,31 @@ def test_plain_folder_with_gt_dir(tmp_path, ocr):
     assert float(row["cer"]) == pytest.approx(cer, abs=1e-12)
 
 
+def test_a_gt_folder_with_too_little_text_warns_and_leaves_the_cer_empty(tmp_path, ocr, caplog):
+    """Images without known text get the GT floor (50 characters) by default, as a run on a user's own photos does:
+    the cell keeps its characters and errors, its CER is empty with the reason, and the log warns once;
+    --min-gt-chars 0 keeps the CER; a negative floor is refused."""
+    gt_dir, pred = tmp_path / "gt", tmp_path / "renders"
+    for i, w in enumerate(WORDS):
+        _save(gt_dir / f"view_{i}.png", _text_image(w))
+        _save(pred / f"view_{i}.png", _text_image(w))
+    with caplog.at_level("WARNING"):
+        out = evaluate(pred, EvaluateOptions(gt=gt_dir, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False),
+                       say=_quiet)
+    (cell,) = _cells(out)
+    chars = cell["cer"]["chars"]
+    assert 0 < chars < 50 and cell["cer"]["cer"] is None and "below this scene's floor of 50" in cell["cer"]["not_scored"]
+    assert _rows(out)[0]["cer"] == ""
+    assert sum("OCR-CER not scored" in r.getMessage() for r in caplog.records) == 1
+    kept = evaluate(pred, EvaluateOptions(min_gt_chars=0, gt=gt_dir, out=tmp_path / "ev0", ocr=ocr, with_lpips=False,
+                                          report=False), say=_quiet)
+    (cell0,) = _cells(kept)
+    assert cell0["cer"]["chars"] == chars and cell0["cer"]["cer"] is not None
+    with pytest.raises(PredictionsError, match="min_gt_chars must be 0"):
+        evaluate(pred, EvaluateOptions(min_gt_chars=-1, gt=gt_dir, out=tmp_path / "evn", ocr=ocr, with_lpips=False,
+                                       report=False), say=_quiet)
+
+
 def test_gt_as_renders_reads_like_gt_and_gray_reads_nothing(tmp_path, ocr):
     gt_dir = tmp_path / "gt"
     for i, w in enumerate(WORDS):
@@ -124,7 +149,7 @@ def test_gt_as_renders_reads_like_gt_and_gray_reads_nothing(tmp_path, ocr):
     gray = tmp_path / "gray"
     for i in range(len(WORDS)):
         _save(gray / f"v{i}.png", np.full((TH, TW, 3), 128, np.uint8))
-    same = evaluate(gt_dir, EvaluateOptions(gt=gt_dir, out=tmp_path / "same", ocr=ocr, with_lpips=False, report=False),
+    same = evaluate(gt_dir, EvaluateOptions(min_gt_chars=0, gt=gt_dir, out=tmp_path / "same", ocr=ocr, with_lpips=False, report=False),
                     say=_quiet)
     (cell,) = _cells(same)
     assert cell["cer"]["chars"] >= 12 and cell["cer"]["cer"] == 0.0
@@ -139,7 +164,7 @@ def test_gt_as_renders_reads_like_gt_and_gray_reads_nothing(tmp_path, ocr):
     for side in ("render", "gt"):
         assert words_summary(rows, side)["word_cer"] == rd[side]["word_cer"]
         assert words_summary(rows, side)["text_nll"] == rd[side]["text_nll"]
-    gray_out = evaluate(gray, EvaluateOptions(gt=gt_dir, out=tmp_path / "grayout", ocr=ocr, with_lpips=False,
+    gray_out = evaluate(gray, EvaluateOptions(min_gt_chars=0, gt=gt_dir, out=tmp_path / "grayout", ocr=ocr, with_lpips=False,
                                               report=False), say=_quiet)
     (cell,) = _cells(gray_out)
     assert cell["cer"]["cer"] == 1.0
@@ -166,7 +191,7 @@ def _inria_model(root: Path, masked: bool = True) -> tuple[Path, dict]:
 def test_inria_layout_with_release_masks(tmp_path, ocr):
     model, _ = _inria_model(tmp_path)
     said = []
-    out = evaluate(model, EvaluateOptions(out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False), say=said.append)
+    out = evaluate(model, EvaluateOptions(min_gt_chars=0, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False), say=said.append)
     assert said[0] == "layout: inria (2 checkpoint(s): 3000, 7000)"
     cells = {c["iteration"]: c for c in _cells(out)}
     assert set(cells) == {3000, 7000} and cells[7000]["label"] == "7K" and cells[7000]["method"] == "my_model"
@@ -182,7 +207,7 @@ def test_inria_layout_with_release_masks(tmp_path, ocr):
     assert cells[3000]["cer"]["cer"] == pytest.approx(cer, abs=1e-12)
     # without masks/ the whole image is read, and the right-hand word is found
     model2, _ = _inria_model(tmp_path / "nomask", masked=False)
-    out2 = evaluate(model2 / "test" / "ours_7000", EvaluateOptions(out=tmp_path / "ev2", ocr=ocr, with_lpips=False,
+    out2 = evaluate(model2 / "test" / "ours_7000", EvaluateOptions(min_gt_chars=0, out=tmp_path / "ev2", ocr=ocr, with_lpips=False,
                                                                    report=False), say=_quiet)
     (c2,) = _cells(out2)
     assert c2["method"] == "my_model"
@@ -221,7 +246,7 @@ def test_nerfbaselines_folder_tar_and_zip_agree(tmp_path, ocr):
     results = []
     for i, src in enumerate((folder, tmp_path / "pred.tar.gz", tmp_path / "pred.zip")):
         said = []
-        out = evaluate(src, EvaluateOptions(out=tmp_path / f"ev{i}", ocr=ocr, with_lpips=False, report=False),
+        out = evaluate(src, EvaluateOptions(min_gt_chars=0, out=tmp_path / f"ev{i}", ocr=ocr, with_lpips=False, report=False),
                        say=said.append)
         assert said[0].startswith("layout: nerfbaselines")
         (cell,) = _cells(out)
@@ -243,7 +268,7 @@ def test_nerfbaselines_evaluate_reports_ocr_cer_through_its_entry_points(tmp_pat
     from nerfbaselines.evaluation import evaluate as nb_evaluate
 
     out = nb_evaluate(str(pred), str(tmp_path / "nb.json"), evaluation_protocol=build_evaluation_protocol("strings-ocr"))
-    ours = evaluate(pred, EvaluateOptions(out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False), say=_quiet)
+    ours = evaluate(pred, EvaluateOptions(min_gt_chars=0, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False), say=_quiet)
     (cell,) = _cells(ours)
     m = out["metrics"]
     assert m["ocr_cer_chars"] == cell["cer"]["chars"] and m["ocr_cer_errors"] == cell["cer"]["errors"]

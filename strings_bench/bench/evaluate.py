@@ -103,6 +103,9 @@ class EvaluateOptions:
         cer_profile: how text is normalised before CER ("paper": the authors' protocol).
         with_lpips: compute LPIPS (needs the LPIPS-VGG weights).
         allow_missing: score a test view without a render as unread (CER 1) instead of refusing.
+        min_gt_chars: the floor on GT characters below which a scene's OCR-CER is left empty (None: the scene's
+            own `min_gt_chars`, else eval/floors.py MIN_GT_CHARS when the views have no known text, else none;
+            0: no floor, the CER is kept however little text the GT reads).
         train_seconds: the training time to record with the cells (None: not known).
         report: write report/ (tables, figures, index.html).
         progress: show progress bars.
@@ -121,6 +124,7 @@ class EvaluateOptions:
     cer_profile: str = "paper"
     with_lpips: bool = True
     allow_missing: bool = False
+    min_gt_chars: int | None = None
     train_seconds: float | None = None
     report: bool = True
     progress: bool = True
@@ -181,6 +185,8 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
                     "masks": str(Path(opts.masks).resolve()) if opts.masks else None,
                     "ocr": [e.name for e in engines], "cer_profile": opts.cer_profile, "downscale": opts.downscale,
                     "allow_missing": opts.allow_missing}
+        if opts.min_gt_chars is not None:  # recorded when given, so that a folder made without it still resumes
+            manifest["min_gt_chars"] = int(opts.min_gt_chars)
         _check_manifest(out, manifest)
         evaluator_cache: dict = {}
         written = []
@@ -210,7 +216,7 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
             if ev_key not in evaluator_cache:
                 evaluator_cache[ev_key] = Evaluator(list(views.values()), engines, with_lpips=opts.with_lpips,
                                                     cer_profile=opts.cer_profile, mask_settings=mask_settings,
-                                                    min_gt_chars=(source.settings or {}).get("min_gt_chars"))
+                                                    min_gt_chars=_floor(opts, source, views))
             evaluator = evaluator_cache[ev_key]
             result = evaluator.evaluate(method, renders, missing=missing)
             train = opts.train_seconds
@@ -235,6 +241,17 @@ def evaluate(pred: str | Path, opts: EvaluateOptions, say=print) -> Path:
     if opts.report:
         write_run_report(out)
     return out
+
+
+def _floor(opts: EvaluateOptions, source: Source, views: dict) -> int | None:
+    """The GT-character floor of this evaluation: the option when given (0: none), else the scene's rule."""
+    from strings_bench.eval.floors import gt_floor
+
+    if opts.min_gt_chars is not None:
+        if int(opts.min_gt_chars) < 0:
+            raise PredictionsError(f"min_gt_chars must be 0 (no floor) or more, got {opts.min_gt_chars}")
+        return int(opts.min_gt_chars) or None
+    return gt_floor(source.settings, list(views.values()))
 
 
 def _default_method(preds: Predictions, pred: Path) -> str:

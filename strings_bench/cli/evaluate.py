@@ -37,6 +37,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (a VGG pass per view; slow on a CPU)")
     p.add_argument("--allow-missing", action="store_true",
                    help="score test views without a render as unread (every GT character an error) instead of refusing")
+    p.add_argument("--min-gt-chars", type=int, default=None, metavar="N",
+                   help="leave OCR-CER empty when the GT reads fewer than N characters on the test views (default: "
+                        "50 for views without known text, a scene's own floor where it sets one; 0: no floor)")
     p.add_argument("--train-seconds", type=float, default=None,
                    help="training time of the method, for the time columns and the scatter (default n/a)")
     p.add_argument("--no-report", action="store_true", help="write results.csv only, not the report")
@@ -50,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     opts = EvaluateOptions(scene=args.scene, gt=args.gt, masks=args.masks, out=args.out, method=args.method,
                            dataset=args.dataset, scene_name=args.scene_name, downscale=args.downscale, ocr=args.ocr,
                            cer_profile=args.cer_profile, with_lpips=not args.no_lpips, allow_missing=args.allow_missing,
-                           train_seconds=args.train_seconds, report=not args.no_report)
+                           min_gt_chars=args.min_gt_chars, train_seconds=args.train_seconds, report=not args.no_report)
     out = evaluate(args.pred, opts)
     print(f"results: {out / 'results.csv'}")
     if not args.no_report:
