@@ -26,11 +26,11 @@ from strings_bench.datasets.registry import get_dataset, register_dataset, resol
 from strings_bench.datasets.synthetic import (SCENE_NAMES_360, SYNTHETIC360_CPU, SYNTHETIC360_DEFAULTS, default_settings,
                                               read_meta, settings_with, synthetic360_card)
 
-# The cache keys (scene generator version 3) of draws 1 and 2 of synthetic360-cpu: the folders `datasets prepare synthetic360-cpu --seed N`
+# The cache keys (scene generator version 4) of draws 1 and 2 of synthetic360-cpu: the folders `datasets prepare synthetic360-cpu --seed N`
 # builds (the same settings), which the issue-40 calibration trains on. Draw 0 keeps the keys pinned in
-# test_synthetic360.py (cfce5d7accc0, 0f86491f3f10, 17cee2632e85).
-CPU_DRAW_KEYS = {1: {"pantry": "d4a90fe39a35", "office": "701dfd063858", "storeroom": "361be17b3a62"},
-                 2: {"pantry": "f4ff91bd8e3d", "office": "853b414e9ed6", "storeroom": "00f8a832f0ec"}}
+# test_synthetic360.py (5ddc335574f8, 7231c35af058, f49a673bafe6).
+CPU_DRAW_KEYS = {1: {"pantry": "60053935cc3a", "office": "4eec66663185", "storeroom": "f73b5e529e70"},
+                 2: {"pantry": "0e0545dc94ac", "office": "d2fb695e8c7f", "storeroom": "6167f539b4ed"}}
 
 
 def test_draw_names_parse_and_refuse_what_is_no_draw():
@@ -52,7 +52,7 @@ def test_draws_are_scenes_of_every_synthetic360_card_and_draw_0_keeps_its_keys(m
     assert card.draws == REGISTERED_DRAWS == (0, 1, 2) and "registered: @0, @1, @2" in card.notes
     assert [s.name for s in card.scenes] == list(SCENE_NAMES_360)  # the dataset itself: draw 0, as before
     assert default_settings("pantry@0", "synthetic360-cpu") == default_settings("pantry", "synthetic360-cpu") == cpu
-    assert cpu.key("pantry") == "cfce5d7accc0"
+    assert cpu.key("pantry") == "5ddc335574f8"
     for n, keys in CPU_DRAW_KEYS.items():
         for room, key in keys.items():
             st = default_settings(f"{room}@{n}", "synthetic360-cpu")

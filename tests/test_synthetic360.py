@@ -275,7 +275,7 @@ def test_synthetic_scenes_are_untouched_and_reject_room_controls():
     cam, res, _ = next(generate.render_views(spec, st))
     assert np.array_equal(res.rgb, spec.world.render(cam, st.supersample).rgb) and res.photometry is None
     # Difficulty controls at their defaults leave the cache key as it was before they existed.
-    assert settings_with().key("books") == "23fdfa560f11"
+    assert settings_with().key("books") == "65ae8fddd661"
     with pytest.raises(DatasetError, match="synthetic/globe has no setting room_scale"):
         generate.make_spec("globe", 0, settings_with(room_scale=2.0))
     # Photometric controls apply to every scene.
@@ -313,8 +313,8 @@ def test_cpu_configuration_is_a_card_with_pinned_cache_keys(monkeypatch, tmp_pat
     st = settings_with(**SYNTHETIC360_CPU)
     assert (st.width, st.height, st.n_views, st.room_scale, st.text_px) == (320, 240, 48, 0.6, (10.0, 16.0))
     assert all(getattr(st, k) == v for k, v in SYNTHETIC360_DEFAULTS.items())  # the card's camera variation
-    assert {s: st.key(s) for s in SCENE_NAMES_360} == {"pantry": "cfce5d7accc0", "office": "0f86491f3f10",
-                                                         "storeroom": "17cee2632e85"}
+    assert {s: st.key(s) for s in SCENE_NAMES_360} == {"pantry": "5ddc335574f8", "office": "7231c35af058",
+                                                         "storeroom": "f49a673bafe6"}
     assert default_settings("office", "synthetic360-cpu") == st
     assert default_settings("office") == settings_with(**SYNTHETIC360_DEFAULTS) != st  # synthetic360 is unchanged
     calls = []
@@ -446,11 +446,10 @@ def test_views_rendered_in_worker_processes_equal_the_one_process_render(monkeyp
         generate.render_workers(st)
 
 
-def test_sfm_points_do_not_depend_on_the_thread_count(tmp_path):
-    """The build runs pycolmap on every core and the cache key leaves the thread count out, so 1 and 4
-    threads must triangulate the same points with the same tracks from the same images. pycolmap is not
-    bit-reproducible even at one count (a track's observation order and ~1e-16 of the coordinates vary
-    run to run), so tracks are compared as sets and coordinates to 1e-9."""
+def test_sfm_gives_the_same_points_to_the_bit_from_build_to_build(tmp_path):
+    """The cache key leaves the machine out, so two SfM runs on the same images must give the same points, tracks
+    and colours to the bit (features, matching and triangulation each on one thread: on two, matching gave an idle
+    machine other points than a loaded one)."""
     st = settings_with(width=320, height=240, n_views=16, **SYNTHETIC360_DEFAULTS)
     spec = generate.make_spec("pantry", st.seed, st)
     (tmp_path / "images").mkdir()
@@ -459,12 +458,10 @@ def test_sfm_points_do_not_depend_on_the_thread_count(tmp_path):
         Image.fromarray(res.rgb).save(tmp_path / "images" / cam.name)
         cams.append(cam)
 
-    def points(threads):
-        m = generate.triangulate_with_known_poses(tmp_path / "images", tmp_path / f"sfm{threads}", cams, st,
-                                                  threads=threads)[0]
-        return sorted((tuple(np.round(m.xyz[i], 9)), tuple(m.rgb[i]),
-                       tuple(sorted(m.track_view[m.track_ptr[i]:m.track_ptr[i + 1]].tolist())))
-                      for i in range(m.num_points))
+    def points(run):
+        m = generate.triangulate_with_known_poses(tmp_path / "images", tmp_path / f"sfm{run}", cams, st)[0]
+        return (m.xyz.tobytes(), m.rgb.tobytes(), m.track_ptr.tobytes(), m.track_view.tobytes(), m.track_xy.tobytes(),
+                m.num_points)
 
-    one, four = points(1), points(4)
-    assert len(one) > 300 and one == four
+    first, second = points(1), points(2)
+    assert first[-1] > 300 and first == second

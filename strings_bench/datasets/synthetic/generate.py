@@ -52,7 +52,7 @@ from strings_bench.datasets.synthetic.sfm import count_text_points, depth_sample
 log = logging.getLogger(__name__)
 
 # Bump whenever rendering, scene content or SfM settings change what a build produces.
-GENERATOR_VERSION = "3"  # 3: the scene build without BLAS (core/vec3.py), SfM in canonical order
+GENERATOR_VERSION = "4"  # 3: the scene build without BLAS (core/vec3.py), SfM in canonical order; 4: SfM matching on one thread
 SCENE_NAMES = tuple(BUILDERS)  # the `synthetic` dataset (easy: object-centred, clean images)
 SCENE_NAMES_360 = tuple(BUILDERS_360)  # the `synthetic360` dataset (room-scale)
 # SCENE_NAMES_MULTI: the `synthetic-multi` dataset (one scene per script; multiscript.py)

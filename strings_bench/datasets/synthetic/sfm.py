@@ -46,18 +46,18 @@ def _write_pairs(path: Path, names: list[str], overlap: int) -> int:
 
 
 def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Camera], settings: SyntheticSettings,
-                                 relaxed: bool = False, threads: int | None = None) -> tuple[ColmapModel, dict]:
-    """SIFT features on one thread, matching on `threads` threads (default: the usable cores), then
-    pycolmap.triangulate_points with the known cameras on one thread. Returns the triangulated model, its tracks
-    and points in canonical order (scene/colmap.py, in_canonical_order), and stage timings.
+                                 relaxed: bool = False) -> tuple[ColmapModel, dict]:
+    """SIFT features, matching and pycolmap.triangulate_points with the known cameras, each on one thread. Returns
+    the triangulated model, its tracks and points in canonical order (scene/colmap.py, in_canonical_order), and stage
+    timings.
 
-    Only the matching runs on several threads: with the features extracted on two, or the triangulation run on
-    two, the default run's room (3 304 points) came out with the same tracks but other last bits of coordinates
-    (up to 7e-15, in 51 points) from build to build, and the order of a track's observations varied; on one
-    thread each, three triangulations under two OpenBLAS core types gave the same points. The canonical order removes
-    what is left of the threads' order; the thread count stays out of the cache key."""
-    from strings_bench.core.cpus import usable_cores
-
+    Why one thread everywhere: with the features extracted on two, or the triangulation run on two, the default
+    run's room (3 304 points) came out with the same tracks but other last bits of coordinates (up to 7e-15, in 51
+    points) from build to build. Matching on two threads gave the same 3 304 points on a loaded machine (load 8-26),
+    but on an idle one (load 0.4) the same images gave 3 293 points (likely: the matches reach the database in the
+    order the threads finish, and the triangulation follows that order; not traced further). On one thread the
+    order is the pairs' own; it costs about 2 s of a room's build on 2 cores. The canonical order removes what is left; the thread count stays out of the cache
+    key."""
     import pycolmap
 
     work.mkdir(parents=True, exist_ok=True)
@@ -66,7 +66,6 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
     names = [c.name for c in cameras]
     cam0 = cameras[0]
     timings = {}
-    threads = usable_cores() if threads is None else int(threads)
     with _quiet_colmap():
         t0 = time.perf_counter()
         reader = pycolmap.ImageReaderOptions()
@@ -83,7 +82,7 @@ def triangulate_with_known_poses(images_dir: Path, work: Path, cameras: list[Cam
         pairs_file = work / "pairs.txt"
         n_pairs = _write_pairs(pairs_file, names, settings.match_overlap + (4 if relaxed else 0))
         matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = threads
+        matching.num_threads = 1  # see above: on two threads an idle machine gave other points
         pairing = pycolmap.ImportedPairingOptions()
         pairing.match_list_path = str(pairs_file)
         verification = pycolmap.TwoViewGeometryOptions()
