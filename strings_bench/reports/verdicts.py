@@ -132,11 +132,16 @@ class Scale:
 
 CAPTURES_RECORDS = "docs/results/data/verdicts/records-captures.csv"
 CAPTURES_BANK = "docs/results/data/captures/cells"
+ROOMS_RECORDS = "docs/results/data/verdicts/records-synthetic360-cpu.csv"
+ROOMS_BANK = "docs/results/data/synthetic360-cpu/cells"
+BANKS = ((CAPTURES_BANK, CAPTURES_RECORDS), (ROOMS_BANK, ROOMS_RECORDS))  # bank folder -> its records file
 
 SCALES: tuple[Scale, ...] = (
     Scale("x0.05", "x0.05 (`cpu`, synthetic360-cpu)", "synthetic rooms, 3 scenes, draw 0",
-          {"*": "docs/results/data/synthetic360-cpu/comparison.csv"}, "compare",
-          "strings-bench compare output (cells not banked)"),
+          {"*": ROOMS_RECORDS}, "records", "banked cell records",
+          # cell by cell, a seed's methods in turn, one thread each (docs/results/data/synthetic360-cpu/README.md)
+          interleaved="cell by cell on one 2-core AMD EPYC, one thread a cell, the methods of each seed in turn "
+                      "(docs/results/data/synthetic360-cpu/README.md)"),
     Scale("x0.1", "x0.1 (`cpu-long`)", "synthetic rooms, 3 scenes x draws 0-2",
           {"3K": "docs/results/data/cpu-long/comparison_cpu-long_7k_seeds01_all.csv",
            "7K": "docs/results/data/cpu-long/comparison_cpu-long_7k_seeds01_all.csv",
@@ -203,6 +208,16 @@ def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, l
     for r in rows:
         if r[label_key] == label and (scene is None or r["scene"] == scene):
             by_method.setdefault(r["method"], []).append(r)
+    # a replicate (seed, draw) counts only once it holds every scene of the scale: a mean over fewer scenes is
+    # not the same quantity (cells still running, banked as they finish)
+    all_scenes = {r["scene"] for cells in by_method.values() for r in cells}
+    for method, cells in by_method.items():
+        have: dict = {}
+        for r in cells:
+            have.setdefault((int(r.get("seed") or 0), int(r.get("draw") or 0)), set()).add(r["scene"])
+        complete = {k for k, v in have.items() if v >= all_scenes}
+        by_method[method] = [r for r in cells if (int(r.get("seed") or 0), int(r.get("draw") or 0)) in complete]
+    by_method = {m: cells for m, cells in by_method.items() if cells}
     out = {}
     for method, cells in by_method.items():
         values: dict = {}
@@ -461,10 +476,12 @@ def outputs(root: Path) -> dict[Path, str]:
     """Every file `strings-bench verdicts` writes (relative to the root) and its text."""
     from strings_bench.reports.records import bank_records, records_csv
 
-    records = records_csv(bank_records(root / CAPTURES_BANK))
-    files = {Path(CAPTURES_RECORDS): records}
-    # the verdicts read the records just made, not the committed ones
-    staged = {CAPTURES_RECORDS: list(csv.DictReader(io.StringIO(records)))}
+    files: dict[Path, str] = {}
+    staged: dict[str, list[dict]] = {}  # the verdicts read the records just made, not the committed ones
+    for bank, rel in BANKS:
+        records = records_csv(bank_records(root / bank) if (root / bank).is_dir() else [])
+        files[Path(rel)] = records
+        staged[rel] = list(csv.DictReader(io.StringIO(records)))
     verdicts, figures = evaluate(root, staged)
     files[OUT / "verdicts.csv"] = csv_text(verdicts, VERDICT_FIELDS)
     files[OUT / "figures.csv"] = csv_text(figures, FIGURE_FIELDS)
