@@ -24,7 +24,10 @@ Kinds (`kind=`, default `csv`):
   (lowest CER, highest accuracy);
 - `compare`: the long CSV `strings-bench compare` writes (method, label, value, mean, min, max, seeds, draws, ...):
   one row per method, one column per `values=` x `labels=` pair, each cell "mean (min-max)" (the range over the
-  seeds and scene draws; none with one seed of one draw).
+  seeds and scene draws; none with one seed of one draw);
+- `compare-table`: one of the tables `strings-bench compare` prints, made by compare's own formatter
+  (`comparison_tables`) from the comparison.csv it banked: `table=compare_cer` (CER over seeds),
+  `compare_time_quality` (training time and image quality) or `compare_ablations`.
 
 Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whose column is one of the values
 (repeatable, comma-free values).
@@ -276,7 +279,21 @@ def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     return markdown(header, out)
 
 
-KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare, "text": table_text}
+def table_compare_formatted(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    from strings_bench.reports.compare import comparison_from_csv, comparison_tables
+
+    if options.get("where"):
+        raise StringsBenchError(f"{path}: kind=compare-table takes no where= (compare's tables are shown whole)")
+    name = options.get("table", ["compare_cer"])[-1]
+    tables = {t.name: t for t in comparison_tables(comparison_from_csv(path))}
+    if name not in tables:
+        raise StringsBenchError(f"{path}: compare makes no table {name!r} of this comparison",
+                                hint=f"its tables: {', '.join(tables)}")
+    return tables[name].markdown()
+
+
+KINDS = {"csv": table_csv, "compare-table": table_compare_formatted, "results": table_results, "compare": table_compare,
+         "text": table_text}
 
 
 def render_block(spec: str, page: Path) -> str:
