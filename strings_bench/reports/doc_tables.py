@@ -27,7 +27,11 @@ Kinds (`kind=`, default `csv`):
   seeds and scene draws; none with one seed of one draw);
 - `compare-table`: one of the tables `strings-bench compare` prints, made by compare's own formatter
   (`comparison_tables`) from the comparison.csv it banked: `table=compare_cer` (CER over seeds),
-  `compare_time_quality` (training time and image quality) or `compare_ablations`.
+  `compare_time_quality` (training time and image quality) or `compare_ablations`;
+- `markdown`: a table a command printed into a Markdown file it wrote (`strings-bench compare`'s comparison.md:
+  its per-scene rows, the decisions, the tables over draws, which need the run folders' cells and are not in its
+  CSV), as it was printed: `section=SLUG` names the `## ` heading (lower case, words joined by '-': `per-scene`,
+  `decided-or-not`, `known-text-cer-over-draws`) whose first table it is.
 
 Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whose column is one of the values
 (repeatable, comma-free values).
@@ -292,8 +296,34 @@ def table_compare_formatted(rows: list[dict[str, str]], options: dict, path: Pat
     return tables[name].markdown()
 
 
+def _slug(heading: str) -> str:
+    return "-".join(re.findall(r"[a-z0-9]+(?:-[a-z0-9]+)*", heading.lower()))
+
+
+def markdown_section_table(text: str, section: str, path: Path) -> str:
+    """The first Markdown table under the `## ` heading whose slug is `section`, as printed."""
+    lines = text.splitlines()
+    heads = [i for i, line in enumerate(lines) if line.startswith("## ")]
+    found = [i for i in heads if _slug(lines[i][3:]) == section]
+    if not found:
+        raise StringsBenchError(f"{path} has no section {section!r}",
+                                hint="its sections: " + ", ".join(_slug(lines[i][3:]) for i in heads))
+    start = found[0] + 1
+    end = next((i for i in heads if i > found[0]), len(lines))
+    table, inside = [], False
+    for line in lines[start:end]:
+        if line.startswith("|"):
+            table.append(line)
+            inside = True
+        elif inside:
+            break
+    if len(table) < 2 or not re.fullmatch(r"\|(?:-+\|)+", table[1].replace(":", "").replace(" ", "")):
+        raise StringsBenchError(f"{path}: section {section!r} holds no Markdown table")
+    return "\n".join(table) + "\n"
+
+
 KINDS = {"csv": table_csv, "compare-table": table_compare_formatted, "results": table_results, "compare": table_compare,
-         "text": table_text}
+         "text": table_text, "markdown": None}  # markdown: read as text (render_block)
 
 
 def render_block(spec: str, page: Path) -> str:
@@ -303,6 +333,12 @@ def render_block(spec: str, page: Path) -> str:
     if kind not in KINDS:
         raise StringsBenchError(f"{page}: unknown table kind {kind!r}", hint=f"kinds: {', '.join(KINDS)}")
     path = (page.parent / data).resolve()
+    if kind == "markdown":  # a command's Markdown output, not a CSV
+        if options.get("where") or not options.get("section"):
+            raise StringsBenchError(f"{page}: kind=markdown takes section=SLUG and no where= (the table as printed)")
+        if not path.is_file():
+            raise StringsBenchError(f"table data {path} does not exist")
+        return markdown_section_table(path.read_text(encoding="utf-8"), options["section"][-1], path)
     rows = _filter(read_csv(path), options, path)
     return KINDS[kind](rows, options, path)
 
