@@ -198,6 +198,25 @@ def test_compare_table_blocks_are_compares_own_tables(tmp_path):
                          "<!-- end table -->", page)
 
 
+def test_markdown_blocks_read_the_table_a_command_printed_under_a_heading(tmp_path):
+    from strings_bench.core.errors import StringsBenchError
+
+    (tmp_path / "c.md").write_text("# Comparison\n\n## CER over seeds\n\n| a |\n|---|\n| 0.1 |\n\n## Decided or not\n\n"
+                                   "| method | verdict |\n|---|---|\n| 3DGS | decided |\n\ncaption\n\n## Notes\n\nno table\n")
+    page = tmp_path / "p.md"
+
+    def block(spec: str) -> str:
+        return refresh_text(f"<!-- table (strings-bench docs refresh): c.md kind=markdown {spec} -->\n<!-- end table -->",
+                            page)
+
+    assert "| method | verdict |\n|---|---|\n| 3DGS | decided |\n<!-- end table -->" in block("section=decided-or-not")
+    assert "| 0.1 |" not in block("section=decided-or-not")
+    for spec, message in (("section=per-scene", "no section 'per-scene'"), ("section=notes", "holds no Markdown table"),
+                          ("section=decided-or-not where=method:3DGS", "no where="), ("", "section=SLUG")):
+        with pytest.raises(StringsBenchError, match=message):
+            block(spec)
+
+
 def test_cli_reference_names_every_option():
     reference = cli_reference()
     missing = [f"{name} {opt}" for name, p in _parsers(build_parser()) for a in p._actions

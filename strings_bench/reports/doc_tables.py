@@ -16,7 +16,8 @@ what its data gives (tests/test_docs.py runs the check).
 Kinds (`kind=`, default `csv`):
 
 - `csv`: the CSV as it is, header and rows (for tables whose cells are already text); `columns=A,B` keeps those
-  columns, in that order;
+  columns, in that order; `format=COLUMN:SPEC` (repeatable) writes that column's numbers with a Python format spec
+  (`.2f`, `.1%`), for a machine-written CSV of full-precision floats;
 - `text`: the `text` column of each row, as paragraphs (a paragraph a command writes, e.g. the README's on the
   paper's claims, from `strings-bench verdicts`);
 - `results`: rows of a `results.csv` (the run folder's), the columns named by `columns=` with their usual
@@ -65,6 +66,7 @@ RESULT_COLUMNS: dict[str, tuple[str, str, str | None]] = {
     "word_cer": ("word CER", ".3f", "min"),
     "word_acc": ("word acc", ".3f", "max"),
     "text_nll": ("text NLL (nats/char)", ".2f", "min"),
+    "text_psnr": ("text PSNR (dB)", ".2f", None),
     "psnr": ("PSNR (dB)", ".2f", None),
     "ssim": ("SSIM", ".3f", None),
     "lpips": ("LPIPS", ".3f", None),
@@ -109,7 +111,13 @@ def read_csv(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         raise StringsBenchError(f"table data {path} does not exist")
     with path.open(newline="", encoding="utf-8") as f:
-        rows = list(csv.DictReader(f))
+        reader = csv.DictReader(f)
+        rows = list(reader)
+    header = reader.fieldnames or []
+    twice = sorted({h for h in header if header.count(h) > 1})
+    if twice:  # a dict row keeps the last of two equal names: a column would vanish and another shift into its place
+        raise StringsBenchError(f"table data {path}: the header names {', '.join(map(repr, twice))} twice",
+                                hint="give each column its own name")
     for n, row in enumerate(rows, start=2):
         if None in row:  # more fields than the header: an unquoted comma would shift every later column
             raise StringsBenchError(f"table data {path}, line {n}: {len(row) - 1 + len(row[None])} fields where the "
@@ -201,10 +209,21 @@ def table_csv(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     if not rows:
         raise StringsBenchError(f"{path} has no rows")
     header = ",".join(options["columns"]).split(",") if options.get("columns") else list(rows[0])
-    for h in header:
+    formats = dict(f.partition(":")[::2] for f in options.get("format", []))
+    for h in [*header, *formats]:
         if h not in rows[0]:
             raise StringsBenchError(f"{path} has no column {h!r}", hint=f"its columns: {', '.join(rows[0])}")
-    return markdown(header, [[r[h] for h in header] for r in rows])
+
+    def cell(r: dict, h: str) -> str:
+        if h not in formats or _number(r[h]) is None:
+            return r[h]
+        try:
+            return format(_number(r[h]), formats[h])
+        except ValueError:
+            raise StringsBenchError(f"{path}: format={h}:{formats[h]} is not a number format",
+                                    hint="a Python format spec, e.g. .2f or .1%") from None
+
+    return markdown(header, [[cell(r, h) for h in header] for r in rows])
 
 
 def table_text(rows: list[dict[str, str]], options: dict, path: Path) -> str:
