@@ -217,6 +217,21 @@ def test_markdown_blocks_read_the_table_a_command_printed_under_a_heading(tmp_pa
             block(spec)
 
 
+def test_csv_format_rounds_a_machine_written_column_and_a_repeated_header_is_an_error(tmp_path):
+    from strings_bench.core.errors import StringsBenchError
+
+    (tmp_path / "d.csv").write_text("run,step,p90,share\nstrings,100,18.54575884301866,0.4189\n")
+    page = tmp_path / "p.md"
+    out = refresh_text("<!-- table (strings-bench docs refresh): d.csv format=p90:.1f format=share:.1% -->\n"
+                       "<!-- end table -->", page)
+    assert "| strings | 100 | 18.5 | 41.9% |" in out
+    with pytest.raises(StringsBenchError, match="not a number format"):
+        refresh_text("<!-- table (strings-bench docs refresh): d.csv format=p90:.1q -->\n<!-- end table -->", page)
+    (tmp_path / "twice.csv").write_text("step,p90,p90\n100,18.1,18.6\n")  # a dict row would keep 18.6 alone
+    with pytest.raises(StringsBenchError, match="names 'p90' twice"):
+        refresh_text("<!-- table (strings-bench docs refresh): twice.csv -->\n<!-- end table -->", page)
+
+
 def test_cli_reference_names_every_option():
     reference = cli_reference()
     missing = [f"{name} {opt}" for name, p in _parsers(build_parser()) for a in p._actions
