@@ -39,7 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     r = sub.add_parser("refresh", help="rewrite the generated tables and the command-line reference",
                        description="Rewrites every generated table of README.md and docs/ from the CSV it names, and "
                                    "docs/guide/cli.md from the command-line parsers. With --check, writes nothing and "
-                                   "exits with status 1 when a file differs from its sources.")
+                                   "exits with status 1 when a file differs from its sources, when a page outside "
+                                   "docs/history/ has a table read from a transcribed CSV (data/tables/, docs/history/), "
+                                   "or when a history page is not under docs/history/ or lacks its mark.")
     r.add_argument("--check", action="store_true", help="only compare; exit status 1 when something is out of date")
     r.add_argument("--root", default=".", help="the source checkout (default: the current folder)")
     r.set_defaults(func=cmd_refresh)
