@@ -24,7 +24,7 @@ def _checkout(tmp_path: Path, pages: dict[str, str]) -> Path:
     lie (docs/results/data/tables/, docs/history/data/tables/) and the given pages."""
     root = tmp_path / "repo"
     for csv_path in ("docs/results/data/study/out.csv", "docs/results/data/tables/t.csv",
-                     "docs/history/data/tables/t.csv"):
+                     "docs/history/data/tables/t.csv", "docs/history/old.csv"):
         (root / csv_path).parent.mkdir(parents=True, exist_ok=True)
         (root / csv_path).write_text("a\n1\n")
     for name, text in pages.items():
@@ -63,9 +63,11 @@ def test_a_results_table_read_from_a_transcribed_csv_fails(tmp_path, capsys):
 
 
 def test_a_results_table_read_from_the_history_folder_fails(tmp_path, capsys):
-    root = _checkout(tmp_path, {"docs/results/page.md": "# A study\n\n" + _table("../history/data/tables/t.csv")})
-    assert transcribed_reads(root) == [(root / "docs/results/page.md", "../history/data/tables/t.csv")]
-    assert _check(root, capsys)[0] == 1
+    """Anything under docs/history/ is transcribed, in data/tables/ or not."""
+    for data in ("../history/data/tables/t.csv", "../history/old.csv"):
+        root = _checkout(tmp_path / data.replace("/", "_"), {"docs/results/page.md": "# A study\n\n" + _table(data)})
+        assert transcribed_reads(root) == [(root / "docs/results/page.md", data)]
+        assert _check(root, capsys)[0] == 1
 
 
 def test_the_history_mark_does_not_excuse_a_results_page(tmp_path, capsys):
