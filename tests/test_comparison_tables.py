@@ -371,3 +371,48 @@ def test_against_holds_every_method_against_the_method_named(tmp_path, capsys):
     assert "edc-absgs" in e.value.hint and "strings" in e.value.hint
     with pytest.raises(StringsBenchError, match="--against edc-absgs"):  # chosen away by --methods
         cmp.compare(runs, methods=["strings", "improved-gs"], against="edc-absgs")
+
+
+def test_the_banked_csv_gives_the_tables_compare_printed_from_the_folders(tmp_path):
+    """`comparison_from_csv` (what `docs refresh`'s kind=compare-table reads): compare's tables made from the CSV it
+    wrote equal those it made from the run folders, with scene draws (ranges over replicates) and an ablation."""
+    runs = _draw_folders(tmp_path)
+    for seed, run in enumerate(runs):
+        for room in ("pantry", "office"):
+            _cell(run, "strings-no-densify", room, "7K", 350, 0.95, 0.9 + 0.01 * seed, seed=seed or None)
+            _cell(run, "strings-no-densify", f"{room}@1", "7K", 350, 0.97, 0.92, seed=seed or None)
+    c = cmp.compare(runs)
+    written = cmp.write_comparison(c, tmp_path / "out")
+    from_csv = cmp.comparison_from_csv(written["csv"])
+    made = {t.name: t.markdown() for t in cmp.comparison_tables(c)}
+    assert {"compare_cer", "compare_time_quality", "compare_ablations"} <= set(made)
+    for t in cmp.comparison_tables(from_csv):
+        if t.name in ("compare_cer", "compare_time_quality", "compare_ablations"):
+            assert t.markdown() == made[t.name], t.name
+    assert "0.500 (0.300-0.700)" in made["compare_cer"]  # STRinGS' known-text CER over seeds and draws
+
+
+@pytest.mark.parametrize("banked", sorted(p for p in (Path(__file__).resolve().parents[1] / "docs/results/data").glob(
+    "*/comparison*.csv") if (p.with_suffix(".md")).is_file()), ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_each_banked_comparison_csv_gives_the_tables_of_its_markdown(banked):
+    """The tables the results pages make from a banked comparison.csv are those compare printed into the Markdown
+    beside it when it ran on the run folders (an independent record: the folders are not banked)."""
+    printed = banked.with_suffix(".md").read_text(encoding="utf-8")
+    c = cmp.comparison_from_csv(banked)
+    # compare once printed n/a for an ablation at the checkpoint its spec names when the folders lacked it; it now
+    # shows it at the last checkpoint both have and says so in the caption: those rows are not in the old Markdown
+    moved = {c.names.title(m) for m, _, label, named in c.ablations() if label != named}
+    for t in cmp.comparison_tables(c):
+        if t.name in ("compare_cer", "compare_time_quality"):
+            assert t.markdown().strip() in printed, (banked.name, t.name)
+        elif t.name == "compare_ablations":
+            rows = [line for line in t.markdown().splitlines() if line.split(" | ")[0].lstrip("| ") not in moved]
+            assert rows[2:] or moved, banked.name
+            assert all(line in printed.splitlines() for line in rows), (banked.name, t.name)
+
+
+def test_a_csv_that_is_not_a_comparison_is_refused(tmp_path):
+    bad = tmp_path / "results.csv"
+    bad.write_text("method,label,cer\n3dgs,7K,0.5\n")
+    with pytest.raises(StringsBenchError, match="not a comparison.csv"):
+        cmp.comparison_from_csv(bad)

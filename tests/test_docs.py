@@ -22,6 +22,7 @@ DOCS = ROOT / "docs"
 GUIDE = sorted((DOCS / "guide").glob("*.md"))
 DESIGN = sorted(p for p in DOCS.glob("*.md") if p.name != "README.md")
 RESULTS = sorted((DOCS / "results").glob("*.md"))
+HISTORY = sorted((DOCS / "history").glob("*.md"))  # earlier measurements, transcribed: still generated tables
 RESULTS_DATA_NOTES = sorted(p for p in (DOCS / "results" / "data").rglob("*") if p.suffix in (".md", ".csv"))
 USER_PAGES = [ROOT / "README.md", DOCS / "README.md", *GUIDE, *DESIGN]
 # The site's reference, cookbook and maintainers' pages
@@ -141,9 +142,9 @@ def test_generated_docs_match_their_sources():
 
 
 def test_results_tables_are_all_generated():
-    """README and the results pages hold no Markdown table outside a generated block."""
+    """README, the results pages and the history pages hold no Markdown table outside a generated block."""
     loose = []
-    for page in [ROOT / "README.md", *RESULTS]:
+    for page in [ROOT / "README.md", *RESULTS, *HISTORY]:
         text = BLOCK_RE.sub("", page.read_text(encoding="utf-8"))
         text = re.sub(r"```.*?```", "", text, flags=re.S)
         for table in re.findall(r"^ *\|.*\|\s*\n *\|\s*:?-{2,}.*?(?:\n(?! *\|)|\Z)", text, re.M | re.S):
@@ -175,6 +176,60 @@ def test_compare_tables_show_mean_and_range(tmp_path):
     page = tmp_path / "p.md"
     out = refresh_text("<!-- table (strings-bench docs refresh): c.csv kind=compare values=cer_known labels=30K -->\n<!-- end table -->", page)
     assert "| strings | 3 | 0.150 (0.140-0.180) |" in out
+
+
+def test_compare_table_blocks_are_compares_own_tables(tmp_path):
+    """kind=compare-table: compare's table as its formatter makes it from the CSV (ranks and the paper's grey figures
+    included); an unknown table, or where= (compare's tables are shown whole), is an error."""
+    from strings_bench.core.errors import StringsBenchError
+
+    data = tmp_path / "c.csv"
+    data.write_text("method,label,value,mean,min,max,seeds,scenes,per_seed\n"
+                    "3dgs,7K,cer,0.3,0.29,0.31,3,3,0.29 0.3 0.31\n3dgs,7K,cer_known,0.2,0.19,0.21,3,3,0.19 0.2 0.21\n"
+                    "strings,7K,cer,0.25,0.2,0.3,3,3,0.2 0.25 0.3\nstrings,7K,cer_known,0.15,0.14,0.18,3,3,0.14 0.13 0.18\n")
+    page = tmp_path / "p.md"
+    out = refresh_text("<!-- table (strings-bench docs refresh): c.csv kind=compare-table table=compare_cer -->\n"
+                       "<!-- end table -->", page)
+    assert "| STRinGS | _3_ | _3_ | 0.250 (0.200-0.300) **(1)** | n/a | 0.150 (0.140-0.180) **(1)** |" in out
+    assert "| 3DGS | _3_ | _3_ | 0.300 (0.290-0.310) (2) | n/a | 0.200 (0.190-0.210) (2) |" in out
+    for spec, message in (("table=compare_x", "no table 'compare_x'"), ("where=method:3dgs", "takes no where=")):
+        with pytest.raises(StringsBenchError, match=message):
+            refresh_text(f"<!-- table (strings-bench docs refresh): c.csv kind=compare-table {spec} -->\n"
+                         "<!-- end table -->", page)
+
+
+def test_markdown_blocks_read_the_table_a_command_printed_under_a_heading(tmp_path):
+    from strings_bench.core.errors import StringsBenchError
+
+    (tmp_path / "c.md").write_text("# Comparison\n\n## CER over seeds\n\n| a |\n|---|\n| 0.1 |\n\n## Decided or not\n\n"
+                                   "| method | verdict |\n|---|---|\n| 3DGS | decided |\n\ncaption\n\n## Notes\n\nno table\n")
+    page = tmp_path / "p.md"
+
+    def block(spec: str) -> str:
+        return refresh_text(f"<!-- table (strings-bench docs refresh): c.md kind=markdown {spec} -->\n<!-- end table -->",
+                            page)
+
+    assert "| method | verdict |\n|---|---|\n| 3DGS | decided |\n<!-- end table -->" in block("section=decided-or-not")
+    assert "| 0.1 |" not in block("section=decided-or-not")
+    for spec, message in (("section=per-scene", "no section 'per-scene'"), ("section=notes", "holds no Markdown table"),
+                          ("section=decided-or-not where=method:3DGS", "no where="), ("", "section=SLUG")):
+        with pytest.raises(StringsBenchError, match=message):
+            block(spec)
+
+
+def test_csv_format_rounds_a_machine_written_column_and_a_repeated_header_is_an_error(tmp_path):
+    from strings_bench.core.errors import StringsBenchError
+
+    (tmp_path / "d.csv").write_text("run,step,p90,share\nstrings,100,18.54575884301866,0.4189\n")
+    page = tmp_path / "p.md"
+    out = refresh_text("<!-- table (strings-bench docs refresh): d.csv format=p90:.1f format=share:.1% -->\n"
+                       "<!-- end table -->", page)
+    assert "| strings | 100 | 18.5 | 41.9% |" in out
+    with pytest.raises(StringsBenchError, match="not a number format"):
+        refresh_text("<!-- table (strings-bench docs refresh): d.csv format=p90:.1q -->\n<!-- end table -->", page)
+    (tmp_path / "twice.csv").write_text("step,p90,p90\n100,18.1,18.6\n")  # a dict row would keep 18.6 alone
+    with pytest.raises(StringsBenchError, match="names 'p90' twice"):
+        refresh_text("<!-- table (strings-bench docs refresh): twice.csv -->\n<!-- end table -->", page)
 
 
 def test_cli_reference_names_every_option():

@@ -482,7 +482,7 @@ def test_eq1_children_counts_with_unequal_visibility(eq1_scene):
     assert trainer.densify_stats["text_gaussians_after_densify"] == sum(want) == len(sh0)
 
 
-# ---- phase 1 as the authors' release does it (issue 39; docs/results/strings.md, "Phase 1 against the release") ----
+# ---- phase 1 as the authors' release does it (issue 39; docs/history/strings.md, "Phase 1 against the release") ----
 def _children_per_point(model, rgb):
     """How many Gaussians carry each SfM point's colour (children copy their parent's colour)."""
     sh0 = model.params["sh0"].detach().double()[:, 0, :]

@@ -7,10 +7,13 @@ Two kinds of generated text, both in a source checkout:
   `<!-- end table -->`), from the CSV it names (strings_bench.reports.doc_tables);
 - the command-line reference, docs/guide/cli.md, from the argument parsers themselves (`cli_reference`).
 
-`--check` writes nothing and exits with status 1, naming the files, when one differs from its sources, or when a
-page that is not a history page has a table read from a transcribed CSV (`docs/results/data/tables/`: tables first
-typed by hand, not derived from banked records or a command's output on them; `transcribed_reads`). A history page
-says so in its first lines with HISTORY_MARK, and its tables are what was measured then, transcribed.
+`--check` writes nothing and exits with status 1, naming the files, when one differs from its sources, or when the
+results break the rule that every results table is derived: a page outside docs/history/ has a table read from a
+transcribed CSV (one under a `data/tables/` folder, or anything under docs/history/: tables first typed by hand, not
+derived from banked records or a command's output on them; `transcribed_reads`), or a page outside docs/history/
+says it is a history page (`misplaced_history_pages`), or a page under docs/history/ (its README.md aside) does not
+(`unmarked_history_pages`). A history page says so in its first lines with HISTORY_MARK; its tables are what was
+measured then, transcribed, and their CSVs lie in docs/history/data/tables/.
 
 `build` runs MkDocs on mkdocs.yml in strict mode, so that a broken link, a page missing from the navigation's
 targets or an API object that does not exist stops the build (the `docs` extra installs MkDocs:
@@ -25,7 +28,8 @@ from pathlib import Path
 from strings_bench.cli import COMMANDS, build_parser, command_help
 
 CLI_REFERENCE = Path("docs/guide/cli.md")
-TRANSCRIBED = Path("docs/results/data/tables")  # CSVs transcribed from hand-typed Markdown tables
+HISTORY = Path("docs/history")  # the history pages and their transcribed CSVs (data/tables/)
+TRANSCRIBED_FOLDER = "tables"  # a data/tables/ folder holds CSVs transcribed from hand-typed Markdown tables
 HISTORY_MARK = "<!-- history page (strings-bench docs refresh):"
 
 
@@ -35,7 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     r = sub.add_parser("refresh", help="rewrite the generated tables and the command-line reference",
                        description="Rewrites every generated table of README.md and docs/ from the CSV it names, and "
                                    "docs/guide/cli.md from the command-line parsers. With --check, writes nothing and "
-                                   "exits with status 1 when a file differs from its sources.")
+                                   "exits with status 1 when a file differs from its sources, when a page outside "
+                                   "docs/history/ has a table read from a transcribed CSV (data/tables/, docs/history/), "
+                                   "or when a history page is not under docs/history/ or lacks its mark.")
     r.add_argument("--check", action="store_true", help="only compare; exit status 1 when something is out of date")
     r.add_argument("--root", default=".", help="the source checkout (default: the current folder)")
     r.set_defaults(func=cmd_refresh)
@@ -146,21 +152,42 @@ def is_history_page(text: str) -> bool:
     return any(line.startswith(HISTORY_MARK) for line in text.splitlines()[:5])
 
 
+def _is_transcribed(data: Path, history: Path) -> bool:
+    """Whether a table's data (resolved) is a transcribed CSV: anything under docs/history/, or in a data/tables/
+    folder."""
+    parts = data.parts
+    in_tables = any(a == "data" and b == TRANSCRIBED_FOLDER for a, b in zip(parts, parts[1:]))
+    return in_tables or data.is_relative_to(history)
+
+
 def transcribed_reads(root: Path) -> list[tuple[Path, str]]:
-    """(page, data) for every table of a page that is not a history page and reads a transcribed CSV."""
+    """(page, data) for every table of a page outside docs/history/ that reads a transcribed CSV."""
     from strings_bench.reports.doc_tables import blocks, parse_spec
 
-    transcribed = (root / TRANSCRIBED).resolve()
+    history = (root / HISTORY).resolve()
     out = []
     for page in pages(root):
-        text = page.read_text(encoding="utf-8")
-        if is_history_page(text):
+        if page.resolve().is_relative_to(history):
             continue
-        for b in blocks(text):
+        for b in blocks(page.read_text(encoding="utf-8")):
             data, _ = parse_spec(b.spec)
-            if (page.parent / data).resolve().is_relative_to(transcribed):
+            if _is_transcribed((page.parent / data).resolve(), history):
                 out.append((page, data))
     return out
+
+
+def misplaced_history_pages(root: Path) -> list[Path]:
+    """The pages outside docs/history/ that mark themselves history pages (a results page holds derived tables)."""
+    history = (root / HISTORY).resolve()
+    return [p for p in pages(root) if not p.resolve().is_relative_to(history)
+            and is_history_page(p.read_text(encoding="utf-8"))]
+
+
+def unmarked_history_pages(root: Path) -> list[Path]:
+    """The pages under docs/history/ (its README.md aside) that do not say at their top that they are history."""
+    history = root / HISTORY
+    return [p for p in sorted(history.rglob("*.md")) if p != history / "README.md"
+            and not is_history_page(p.read_text(encoding="utf-8"))] if history.is_dir() else []
 
 
 def refresh(root: Path, check: bool = False) -> list[Path]:
@@ -186,15 +213,23 @@ def cmd_refresh(args: argparse.Namespace) -> int:
     changed = refresh(root, check=args.check)
     rel = [str(p.relative_to(root)) if p.is_relative_to(root) else str(p) for p in changed]
     if args.check:
+        def name(page: Path) -> Path:
+            return page.relative_to(root) if page.is_relative_to(root) else page
+
         reads = transcribed_reads(root)
         for page, data in reads:
-            name = page.relative_to(root) if page.is_relative_to(root) else page
-            print(f"{name}: a table reads {data}, a transcribed "
-                  f"CSV (make it from banked records or a command's output, or mark the page a history page: "
-                  f"{HISTORY_MARK} ... -->)")
+            print(f"{name(page)}: a table reads {data}, a transcribed CSV (make it from banked records or a "
+                  f"command's output on them, or move the section to a history page under {HISTORY}/)")
+        misplaced = misplaced_history_pages(root)
+        for page in misplaced:
+            print(f"{name(page)}: a history page outside {HISTORY}/ (move it there; the results pages hold "
+                  f"derived tables only)")
+        unmarked = unmarked_history_pages(root)
+        for page in unmarked:
+            print(f"{name(page)}: a page under {HISTORY}/ without the history mark at its top ({HISTORY_MARK} ... -->)")
         if changed:
             print("out of date (run `strings-bench docs refresh`): " + ", ".join(rel))
-        if changed or reads:
+        if changed or reads or misplaced or unmarked:
             return 1
         print("the generated tables and the command-line reference match their sources")
         return 0

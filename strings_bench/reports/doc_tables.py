@@ -16,7 +16,8 @@ what its data gives (tests/test_docs.py runs the check).
 Kinds (`kind=`, default `csv`):
 
 - `csv`: the CSV as it is, header and rows (for tables whose cells are already text); `columns=A,B` keeps those
-  columns, in that order;
+  columns, in that order; `format=COLUMN:SPEC` (repeatable) writes that column's numbers with a Python format spec
+  (`.2f`, `.1%`), for a machine-written CSV of full-precision floats;
 - `text`: the `text` column of each row, as paragraphs (a paragraph a command writes, e.g. the README's on the
   paper's claims, from `strings-bench verdicts`);
 - `results`: rows of a `results.csv` (the run folder's), the columns named by `columns=` with their usual
@@ -24,7 +25,14 @@ Kinds (`kind=`, default `csv`):
   (lowest CER, highest accuracy);
 - `compare`: the long CSV `strings-bench compare` writes (method, label, value, mean, min, max, seeds, draws, ...):
   one row per method, one column per `values=` x `labels=` pair, each cell "mean (min-max)" (the range over the
-  seeds and scene draws; none with one seed of one draw).
+  seeds and scene draws; none with one seed of one draw);
+- `compare-table`: one of the tables `strings-bench compare` prints, made by compare's own formatter
+  (`comparison_tables`) from the comparison.csv it banked: `table=compare_cer` (CER over seeds),
+  `compare_time_quality` (training time and image quality) or `compare_ablations`;
+- `markdown`: a table a command printed into a Markdown file it wrote (`strings-bench compare`'s comparison.md:
+  its per-scene rows, the decisions, the tables over draws, which need the run folders' cells and are not in its
+  CSV), as it was printed: `section=SLUG` names the `## ` heading (lower case, words joined by '-': `per-scene`,
+  `decided-or-not`, `known-text-cer-over-draws`) whose first table it is.
 
 Options common to all kinds: `where=COLUMN:VALUE[|VALUE...]` keeps the rows whose column is one of the values
 (repeatable, comma-free values).
@@ -58,6 +66,7 @@ RESULT_COLUMNS: dict[str, tuple[str, str, str | None]] = {
     "word_cer": ("word CER", ".3f", "min"),
     "word_acc": ("word acc", ".3f", "max"),
     "text_nll": ("text NLL (nats/char)", ".2f", "min"),
+    "text_psnr": ("text PSNR (dB)", ".2f", None),
     "psnr": ("PSNR (dB)", ".2f", None),
     "ssim": ("SSIM", ".3f", None),
     "lpips": ("LPIPS", ".3f", None),
@@ -102,7 +111,13 @@ def read_csv(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         raise StringsBenchError(f"table data {path} does not exist")
     with path.open(newline="", encoding="utf-8") as f:
-        rows = list(csv.DictReader(f))
+        reader = csv.DictReader(f)
+        rows = list(reader)
+    header = reader.fieldnames or []
+    twice = sorted({h for h in header if header.count(h) > 1})
+    if twice:  # a dict row keeps the last of two equal names: a column would vanish and another shift into its place
+        raise StringsBenchError(f"table data {path}: the header names {', '.join(map(repr, twice))} twice",
+                                hint="give each column its own name")
     for n, row in enumerate(rows, start=2):
         if None in row:  # more fields than the header: an unquoted comma would shift every later column
             raise StringsBenchError(f"table data {path}, line {n}: {len(row) - 1 + len(row[None])} fields where the "
@@ -194,10 +209,21 @@ def table_csv(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     if not rows:
         raise StringsBenchError(f"{path} has no rows")
     header = ",".join(options["columns"]).split(",") if options.get("columns") else list(rows[0])
-    for h in header:
+    formats = dict(f.partition(":")[::2] for f in options.get("format", []))
+    for h in [*header, *formats]:
         if h not in rows[0]:
             raise StringsBenchError(f"{path} has no column {h!r}", hint=f"its columns: {', '.join(rows[0])}")
-    return markdown(header, [[r[h] for h in header] for r in rows])
+
+    def cell(r: dict, h: str) -> str:
+        if h not in formats or _number(r[h]) is None:
+            return r[h]
+        try:
+            return format(_number(r[h]), formats[h])
+        except ValueError:
+            raise StringsBenchError(f"{path}: format={h}:{formats[h]} is not a number format",
+                                    hint="a Python format spec, e.g. .2f or .1%") from None
+
+    return markdown(header, [[cell(r, h) for h in header] for r in rows])
 
 
 def table_text(rows: list[dict[str, str]], options: dict, path: Path) -> str:
@@ -276,7 +302,47 @@ def table_compare(rows: list[dict[str, str]], options: dict, path: Path) -> str:
     return markdown(header, out)
 
 
-KINDS = {"csv": table_csv, "results": table_results, "compare": table_compare, "text": table_text}
+def table_compare_formatted(rows: list[dict[str, str]], options: dict, path: Path) -> str:
+    from strings_bench.reports.compare import comparison_from_csv, comparison_tables
+
+    if options.get("where"):
+        raise StringsBenchError(f"{path}: kind=compare-table takes no where= (compare's tables are shown whole)")
+    name = options.get("table", ["compare_cer"])[-1]
+    tables = {t.name: t for t in comparison_tables(comparison_from_csv(path))}
+    if name not in tables:
+        raise StringsBenchError(f"{path}: compare makes no table {name!r} of this comparison",
+                                hint=f"its tables: {', '.join(tables)}")
+    return tables[name].markdown()
+
+
+def _slug(heading: str) -> str:
+    return "-".join(re.findall(r"[a-z0-9]+(?:-[a-z0-9]+)*", heading.lower()))
+
+
+def markdown_section_table(text: str, section: str, path: Path) -> str:
+    """The first Markdown table under the `## ` heading whose slug is `section`, as printed."""
+    lines = text.splitlines()
+    heads = [i for i, line in enumerate(lines) if line.startswith("## ")]
+    found = [i for i in heads if _slug(lines[i][3:]) == section]
+    if not found:
+        raise StringsBenchError(f"{path} has no section {section!r}",
+                                hint="its sections: " + ", ".join(_slug(lines[i][3:]) for i in heads))
+    start = found[0] + 1
+    end = next((i for i in heads if i > found[0]), len(lines))
+    table, inside = [], False
+    for line in lines[start:end]:
+        if line.startswith("|"):
+            table.append(line)
+            inside = True
+        elif inside:
+            break
+    if len(table) < 2 or not re.fullmatch(r"\|(?:-+\|)+", table[1].replace(":", "").replace(" ", "")):
+        raise StringsBenchError(f"{path}: section {section!r} holds no Markdown table")
+    return "\n".join(table) + "\n"
+
+
+KINDS = {"csv": table_csv, "compare-table": table_compare_formatted, "results": table_results, "compare": table_compare,
+         "text": table_text, "markdown": None}  # markdown: read as text (render_block)
 
 
 def render_block(spec: str, page: Path) -> str:
@@ -286,6 +352,12 @@ def render_block(spec: str, page: Path) -> str:
     if kind not in KINDS:
         raise StringsBenchError(f"{page}: unknown table kind {kind!r}", hint=f"kinds: {', '.join(KINDS)}")
     path = (page.parent / data).resolve()
+    if kind == "markdown":  # a command's Markdown output, not a CSV
+        if options.get("where") or not options.get("section"):
+            raise StringsBenchError(f"{page}: kind=markdown takes section=SLUG and no where= (the table as printed)")
+        if not path.is_file():
+            raise StringsBenchError(f"table data {path} does not exist")
+        return markdown_section_table(path.read_text(encoding="utf-8"), options["section"][-1], path)
     rows = _filter(read_csv(path), options, path)
     return KINDS[kind](rows, options, path)
 

@@ -71,7 +71,7 @@ class StringsSettings:
     # trained with as they are, as the release does; others are dilated. "yes"/"no" force either.
     mask_predilated: str = "auto"  # are the dataset's masks/ already dilated: "auto", "yes" or "no"
     segmentation_downscale: float | None = None  # None: the training downscale
-    # ---- phase 1 as the release does it where the paper is silent (docs/results/strings.md, "Phase 1 against the release")
+    # ---- phase 1 as the release does it where the paper is silent (docs/history/strings.md, "Phase 1 against the release")
     # Initial scales of the text Gaussians: 3-NN over "all" SfM points, then the text subset (the release's
     # create_from_pcd; the paper takes G_text from 3DGS' initialisation of P), or over the "text" points alone.
     init_scales_from: str = "all"  # 3-NN initial scales over "all" SfM points (release) or "text" points only

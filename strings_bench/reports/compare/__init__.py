@@ -42,10 +42,11 @@ from strings_bench.reports.compare.collect import VALUES, cell_seed, collect, co
 from strings_bench.reports.compare.statistics import (CER_VALUES, PAPER_DATASET, Comparison, compare, decided,
                                                       decided_rows, mean_of, paired_lower, room_draw, summarise)
 from strings_bench.reports.compare.tables import DRAWS_NOTE, SEEDS_NOTE, comparison_tables, draws_tables, has_draws
-from strings_bench.reports.compare.writers import (DECIDED_CAPTION, comparison_csv, comparison_html, comparison_markdown,
+from strings_bench.reports.compare.writers import (DECIDED_CAPTION, comparison_csv, comparison_from_csv, comparison_html,
+                                                   comparison_markdown,
                                                    per_scene_table, write_comparison)
 
 __all__ = ["CER_VALUES", "Comparison", "DECIDED_CAPTION", "DRAWS_NOTE", "PAPER_DATASET", "SEEDS_NOTE", "VALUES",
-           "cell_seed", "collect", "common_scenes", "compare", "comparison_csv", "comparison_html", "comparison_markdown",
+           "cell_seed", "collect", "common_scenes", "compare", "comparison_csv", "comparison_from_csv", "comparison_html", "comparison_markdown",
            "comparison_tables", "decided", "decided_rows", "draws_tables", "has_draws", "mean_of", "paired_lower",
            "per_scene_table", "room_draw", "summarise", "write_comparison"]

@@ -139,3 +139,38 @@ def write_comparison(c: Comparison, out: str | Path, per_scene: str | None = Non
             "tex": atomic_write_text(out / "comparison.tex", doc),
             "csv": atomic_write_text(out / "comparison.csv", comparison_csv(c)),
             "html": atomic_write_text(out / "index.html", comparison_html(c, tables))}
+
+
+def comparison_from_csv(path: str | Path, paper_dataset: str | None = None) -> Comparison:
+    """The Comparison a comparison.csv (`comparison_csv`, what `strings-bench compare` banks) holds: every summary
+    as written, so that `comparison_tables` makes the tables compare printed from the run folders. The cells
+    themselves are not in the CSV: the per-room tables over draws (`draws_tables`) and the paired counts of
+    "Decided or not" need the folders; the method names are the specs' (the folders' run.json is not in it)."""
+    from strings_bench.reports.compare.statistics import PAPER_DATASET
+    from strings_bench.reports.table_model import MethodNames
+
+    path = Path(path)
+    if not path.is_file():
+        raise StringsBenchError(f"comparison CSV {path} does not exist")
+    with path.open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    needed = {"method", "label", "value", "mean", "min", "max", "seeds", "scenes", "per_seed"}  # draws: since draws
+    if not rows or not needed <= set(rows[0]):
+        raise StringsBenchError(f"{path} is not a comparison.csv of `strings-bench compare`",
+                                hint=f"it needs the columns {', '.join(sorted(needed))}")
+    numbers: dict = {}
+    for r in rows:
+        seeds, draws = int(r["seeds"]), int(r.get("draws") or 1)
+        per_draw = ({int(d): float(x) for d, _, x in (w.partition(":") for w in r["per_draw"].split())}
+                    if r.get("per_draw") else {0: float(r["mean"])})  # a CSV from before draws: one draw
+        numbers.setdefault(r["method"], {}).setdefault(r["label"], {})[r["value"]] = {
+            "mean": float(r["mean"]), "min": float(r["min"]), "max": float(r["max"]), "seeds": seeds,
+            "draws": draws, "replicates": seeds * draws, "scenes": int(r["scenes"]),
+            "per_seed": [float(x) for x in r["per_seed"].split()], "per_draw": per_draw, "left_out": {}}
+    for by_label in numbers.values():
+        for by_value in by_label.values():
+            for v in VALUES:
+                by_value.setdefault(v, None)
+    names = MethodNames()
+    methods = names.order(numbers)
+    return Comparison({}, numbers, methods, [path], names, paper_dataset or PAPER_DATASET)
