@@ -13,9 +13,10 @@ x2 and its cameras resized, `downscale=0.5`). The trained states are cached unde
 are bit-identical before and after the engine's speed work, so one cache serves both.
 
 At each size the benchmark runs `--steps` ordinary training steps (`train_step` + `refine`, as the
-Trainer does) and splits each step's wall time into the stages, by timing the functions that do them:
+Trainer does) and splits each step's wall time into the stages that the trainer and the rasterizer mark
+(strings_bench/core/instrument.py: this tool installs a recorder; nothing of the package is replaced):
 
-| stage | timed |
+| stage | marked stage |
 |---|---|
 | projection + SH | `raster.cpu.Preprocess.forward` |
 | binning + sort | `raster.cpu.RasterizeTiles.forward` minus its blend kernel (depth sort, packing, tile lists) |
@@ -55,7 +56,6 @@ import math
 import statistics
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -134,86 +134,38 @@ def params_hash(method) -> str:
     return h.hexdigest()
 
 
-# ---- timing hooks -------------------------------------------------------------------------------------
-class Clock:
+# ---- stage times ----------------------------------------------------------------------------------------
+class StepClock:
+    """A recorder of strings_bench.core.instrument: each stage's wall seconds, and the part of the backward that
+    is the loss's (from its start until the gradient of the rendered image arrives)."""
+
     def __init__(self):
         self.t: dict[str, float] = {}
-        self.marks: dict[str, float] = {}
+        self.color_grad_at: float | None = None
 
-    def add(self, key: str, dt: float) -> None:
-        self.t[key] = self.t.get(key, 0.0) + dt
+    def add(self, stage: str, start: float, seconds: float, cpu_seconds: float) -> None:
+        self.t[stage] = self.t.get(stage, 0.0) + seconds
+        if stage == "backward" and self.color_grad_at is not None:
+            self.t["loss.backward"] = self.t.get("loss.backward", 0.0) + self.color_grad_at - start
+            self.color_grad_at = None
 
-    def mark(self, key: str) -> None:
-        self.marks[key] = time.perf_counter()
+    def note(self, name: str, values: dict) -> None:
+        color = values.get("color") if name == "render" else None
+        if color is not None and color.requires_grad:
+            color.register_hook(self._color_grad)
 
-
-@contextmanager
-def instrumented(clock: Clock):
-    """Wrap the functions each stage runs in; every wrapper adds its wall time to `clock`."""
-    import strings_bench.raster.cpu as cpu
-    import strings_bench.raster.cpu_kernels as K
-    import strings_bench.raster.cpu_kernels_f32 as K32
-    from strings_bench.engine.optim import GaussianAdam
-
-    saved = []
-
-    def wrap(owner, name, key, static=False):
-        fn = getattr(owner, name)
-
-        def timed(*a, **kw):
-            t0 = time.perf_counter()
-            try:
-                return fn(*a, **kw)
-            finally:
-                clock.add(key, time.perf_counter() - t0)
-        saved.append((owner, name, owner.__dict__[name]))
-        setattr(owner, name, staticmethod(timed) if static else timed)
-
-    wrap(cpu.Preprocess, "forward", "pre_fwd", static=True)
-    wrap(cpu.Preprocess, "backward", "pre_bwd", static=True)
-    wrap(cpu.RasterizeTiles, "forward", "tiles_fwd", static=True)
-    wrap(cpu.RasterizeTiles, "backward", "tiles_bwd", static=True)
-    wrap(K, "forward", "blend_fwd")
-    wrap(K32, "forward", "blend_fwd")
-    wrap(GaussianAdam, "step", "adam")
-    orig_backward = torch.Tensor.backward
-
-    def timed_backward(self, *a, **kw):
-        clock.marks.pop("color_grad", None)
-        t0 = time.perf_counter()
-        try:
-            return orig_backward(self, *a, **kw)
-        finally:
-            clock.add("backward", time.perf_counter() - t0)
-            if "color_grad" in clock.marks:
-                clock.add("loss_bwd", clock.marks["color_grad"] - t0)
-    saved.append((torch.Tensor, "backward", orig_backward))
-    torch.Tensor.backward = timed_backward
-    try:
-        yield
-    finally:
-        for owner, name, orig in reversed(saved):
-            setattr(owner, name, orig)
+    def _color_grad(self, grad):
+        self.color_grad_at = time.perf_counter()
 
 
 def profile_steps(method, first_step: int, steps: int) -> dict:
-    """Run `steps` training steps from `first_step`; per-stage ms per step."""
-    clock = Clock()
-    loss_fn = method.loss
+    """Run `steps` training steps from `first_step`; per-stage ms per step (the stages the trainer and the
+    rasterizer mark, strings_bench/core/instrument.py)."""
+    from strings_bench.core.instrument import recording
 
-    def timed_loss(out, *a, **kw):
-        t0 = time.perf_counter()
-        try:
-            loss = loss_fn(out, *a, **kw)
-        finally:
-            clock.add("loss_fwd", time.perf_counter() - t0)
-        # The loss's backward ends when the gradient of the render arrives: mark it.
-        if out.color.requires_grad:
-            out.color.register_hook(lambda g: clock.mark("color_grad"))
-        return loss
-    method.loss = timed_loss
+    clock = StepClock()
     total = refine = 0.0
-    with instrumented(clock):
+    with recording(clock):
         for step in range(first_step, first_step + steps):
             t0 = time.perf_counter()
             method.train_step(step)
@@ -222,15 +174,14 @@ def profile_steps(method, first_step: int, steps: int) -> dict:
             t2 = time.perf_counter()
             total += t2 - t0
             refine += t2 - t1
-    del method.loss
     t = {k: v / steps * 1e3 for k, v in clock.t.items()}
     st = {
-        "projection+SH": t.get("pre_fwd", 0.0),
-        "binning+sort": t.get("tiles_fwd", 0.0) - t.get("blend_fwd", 0.0),
-        "forward blend": t.get("blend_fwd", 0.0),
-        "backward blend": t.get("tiles_bwd", 0.0),
-        "backward projection": t.get("pre_bwd", 0.0),
-        "loss+SSIM": t.get("loss_fwd", 0.0) + t.get("loss_bwd", 0.0),
+        "projection+SH": t.get("preprocess.forward", 0.0),
+        "binning+sort": t.get("tiles.forward", 0.0) - t.get("blend.forward", 0.0),
+        "forward blend": t.get("blend.forward", 0.0),
+        "backward blend": t.get("tiles.backward", 0.0),
+        "backward projection": t.get("preprocess.backward", 0.0),
+        "loss+SSIM": t.get("loss", 0.0) + t.get("loss.backward", 0.0),
         "Adam": t.get("adam", 0.0),
         "densification": refine / steps * 1e3,
     }
@@ -315,28 +266,16 @@ def _timed(fn) -> float:
 
 def count_pairs(method, view: int) -> tuple[int, int, int, int]:
     """(visible Gaussians, tile intersections, blended pixel-Gaussian pairs forward, pairs backward)
-    of one render of `view` at the current model: the work the blends cannot avoid."""
-    import strings_bench.raster.cpu_kernels as K
-    import strings_bench.raster.cpu_kernels_f32 as K32
+    of one render of `view` at the current model: the work the blends cannot avoid (from the blend's inputs,
+    which the rasterizer hands to an installed recorder: strings_bench/core/instrument.py)."""
+    from strings_bench.core.instrument import StageTimes, recording
 
-    got = {}
-    origs = {mod: mod.forward for mod in (K, K32)}
-
-    def spying(orig):
-        def spy(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
-            orig(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
-            got.update(V=P.shape[0], M=lst.shape[0],
-                       pairs=_blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last))
-        return spy
-    for mod, orig in origs.items():
-        mod.forward = spying(orig)
-    try:
-        with torch.no_grad():
-            method.render_raster(view, sh_degree=method.sh_degree_for_step(method.step))
-    finally:
-        for mod, orig in origs.items():
-            mod.forward = orig
-    return got["V"], got["M"], got["pairs"][0], got["pairs"][1]
+    times = StageTimes()
+    with recording(times), torch.no_grad():
+        method.render_raster(view, sh_degree=method.sh_degree_for_step(method.step))
+    b = times.notes["blend.forward"]
+    pairs = _blended_pairs(b["tile_start"], b["lst"], b["P"], b["BB"], b["W"], b["H"], b["tiles_x"], b["out_last"])
+    return b["P"].shape[0], b["lst"].shape[0], pairs[0], pairs[1]
 
 
 def _blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last):
