@@ -7,7 +7,7 @@ Stages (in order of value; `list` prints them):
                  built, the paper's schedule to 7K (checkpoints 3K, 7K): 3DGS, STRinGS and STRinGS without the
                  lock (strings-pos-lr), seed 0, each cell its own step; the scenes built on a CPU beforehand
                  and carried in STRINGS_BENCH_CACHE (`strings-bench datasets prepare captures/NAME`);
-  verify         versions, gsplat's first-use compilation (timed), pytest -m gpu, benchmarks/gpu.py
+  verify         versions, gsplat's first-use compilation (timed), pytest -m gpu, tools/gpu.py
                  (3dgs, strings) at 320x240 with the CPU backend's rows, strings then 3dgs on synthetic/books
                  at 1280x960 to 7K (paper schedule, checkpoints 3K and 7K) with the peak GPU memory of each
                  cell, and the benchmark at 1280x960 (CUDA rows only); it takes two rounds on an H200;
@@ -297,7 +297,7 @@ class Round:
             self.bank_results(run_dir / "results.csv", name)
 
     def benchmark(self, size: str, limit_s: float, with_cpu: bool) -> None:
-        """benchmarks/gpu.py for 3dgs and strings at one size (the CPU backend's rows beside it when
+        """tools/gpu.py for 3dgs and strings at one size (the CPU backend's rows beside it when
         `with_cpu`); banked when every (method, device) row of an earlier round is in a CSV."""
         if self.prepare:
             return
@@ -306,7 +306,7 @@ class Round:
         banked_in = banked_benchmark(self.out, self.stage, name, want, self.dry_run)
         rows_csv = self.runs / "logs" / f"{self.stage}_{name}.rows.csv"
         rows_csv.unlink(missing_ok=True)
-        argv = [self.py, "benchmarks/gpu.py", "--methods", ",".join(methods), "--csv", str(rows_csv)]
+        argv = [self.py, "tools/gpu.py", "--methods", ",".join(methods), "--csv", str(rows_csv)]
         argv += (["--device", "cpu", "--sizes", "64x48", "--steps", "2", "--no-lpips"] if self.dry_run
                  else ["--sizes", size, "--steps", "200", "--cpu-steps", "3"] + ([] if with_cpu else ["--no-cpu"]))
         self.step(name, argv, limit_s, banked_in=banked_in)

@@ -7,7 +7,7 @@
 #  1. gsplat's first-use CUDA compilation, timed (TORCH_CUDA_ARCH_LIST defaults to this GPU's
 #     capability, MAX_JOBS to the cores);
 #  2. pytest -m gpu (backend parity, every method 100 steps through `run --device cuda`, flat memory);
-#  3. benchmarks/gpu.py (steps/s, peak memory, evaluation share, next to the CPU backend);
+#  3. tools/gpu.py (steps/s, peak memory, evaluation share, next to the CPU backend);
 #  4. the paper regime as a command: strings and 3dgs on synthetic/books at 1280x960, preset paper,
 #     checkpoints 3K and 7K, on CUDA (--quick: x0.1 of the schedule, for a smoke check).
 # Each step's exit status is printed at the end; the script exits non-zero if any failed.
@@ -63,7 +63,7 @@ torch.cuda.synchronize()
 print(f'gsplat first use (compilation included): {time.perf_counter() - t0:.0f} s')
 "
 step pytest_gpu pytest_gpu.log $py -m pytest -m gpu -q -p no:cacheprovider
-step benchmark gpu_benchmark.log $py benchmarks/gpu.py
+step benchmark gpu_benchmark.log $py tools/gpu.py
 
 scale_args=()
 [[ $quick == 1 ]] && scale_args=(--steps-scale 0.1)

@@ -272,11 +272,11 @@ def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
     assert sorted(asked) == ["rapidocr", "rapidocr", "tesseract:lang=rus"]  # each job's engines, one by one
 
 
-# ---- the verdicts of the captures' comparison (benchmarks/captures_compare.py) -------------------------------
+# ---- the verdicts of the captures' comparison (tools/captures_compare.py) -------------------------------
 def _captures_compare():
-    from _scripts import load_benchmark
+    from _scripts import load_tool
 
-    return load_benchmark("captures_compare")
+    return load_tool("captures_compare")
 
 
 class _Numbers:
@@ -429,12 +429,12 @@ def test_a_capture_below_the_floor_is_held_to_the_count_claims_and_other_capture
 
 
 def test_banked_cells_compare_as_their_run_folder_and_a_conflict_is_an_error(tmp_path, capsys):
-    from _scripts import load_benchmark
+    from _scripts import load_tool
 
     from strings_bench.core.errors import StringsBenchError
     from strings_bench.reports.compare import collect
 
-    bank = load_benchmark("bank_cells")
+    bank = load_tool("bank_cells")
     run = tmp_path / "runs" / "cap-tum-seed1-3dgs"
     _capture_cell(run, "3dgs", "tum", "30K", 1500, seed=1, gaussians=2001)
     _capture_cell(run, "3dgs", "tum", "7K", 350, seed=1)
@@ -495,12 +495,12 @@ def _fake_strings_bench(tmp_path):
 
 
 def test_captures_cells_runs_what_is_not_banked_a_few_at_a_time_and_banks_each(tmp_path, capsys, monkeypatch):
-    """benchmarks/captures_cells.py against a stand-in for strings-bench: a banked cell is skipped, a finished run
+    """tools/captures_cells.py against a stand-in for strings-bench: a banked cell is skipped, a finished run
     folder is banked without a run, the capture is built once before its runs, a failed run is reported (rc 1)
     while the other cells still run and are banked; each run gets the regime's command and one thread."""
-    from _scripts import load_benchmark
+    from _scripts import load_tool
 
-    cells = load_benchmark("captures_cells")
+    cells = load_tool("captures_cells")
     fake, calls = _fake_strings_bench(tmp_path)
     runs, bank = tmp_path / "runs", tmp_path / "bank"
     for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
@@ -543,10 +543,10 @@ def test_captures_cells_leaves_a_cell_run_by_another_process_to_it_and_counts_it
     ends, then is banked if it finished, or resumed here first if it stopped before its last checkpoint."""
     import contextlib
 
-    from _scripts import load_benchmark
+    from _scripts import load_tool
     from strings_bench.store import run_folder_lock
 
-    cells = load_benchmark("captures_cells")
+    cells = load_tool("captures_cells")
     fake, calls = _fake_strings_bench(tmp_path)
     runs, bank = tmp_path / "runs", tmp_path / "bank"
     for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
@@ -587,9 +587,9 @@ def test_captures_cells_leaves_a_cell_run_by_another_process_to_it_and_counts_it
 def test_cells_of_other_scenes_run_at_the_schedules_size_with_the_default_engine_in_turn(tmp_path, capsys):
     """--scenes DATASET/SCENE: the cells of a seed run its methods in turn (A, B, A, B), without the captures'
     --downscale and --ocr, in RUNS/DATASET-SCENE-seedS-M; a scene given without its dataset is refused."""
-    from _scripts import load_benchmark
+    from _scripts import load_tool
 
-    cells = load_benchmark("captures_cells")
+    cells = load_tool("captures_cells")
     plan = cells.plan([], ["strings", "3dgs"], [0, 1], ["synthetic360-cpu/storeroom"])
     assert [c.folder_name for c in plan] == [
         "synthetic360-cpu-storeroom-seed0-strings", "synthetic360-cpu-storeroom-seed0-3dgs",

@@ -1,4 +1,4 @@
-"""`strings-bench compare` (reports/compare/; benchmarks/comparison.py passes its arguments on): the paper's
+"""`strings-bench compare` (reports/compare/): the paper's
 tables over run folders of one seed each (issue 27)."""
 
 from __future__ import annotations

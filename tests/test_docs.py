@@ -88,7 +88,7 @@ def _code_files():
     for path in sorted(pkg.rglob("*.py")):
         if path.relative_to(pkg).as_posix() not in PENDING:
             yield path
-    for folder in ("scripts", "benchmarks", "examples"):
+    for folder in ("scripts", "tools", "studies", "examples"):
         yield from sorted(p for p in (ROOT / folder).rglob("*") if p.suffix in (".py", ".sh", ".md", ".toml"))
 
 

@@ -344,11 +344,11 @@ def test_broken_import_inside_cards_surfaces(monkeypatch):
         registry.list_datasets()
 
 
-# ---- §4 benchmarks/baselines.py schedules ------------------------------------------------------------
+# ---- §4 tools/baselines.py schedules ------------------------------------------------------------
 def _load_script(name):
-    from _scripts import load_benchmark
+    from _scripts import load_tool
 
-    return load_benchmark(name)
+    return load_tool(name)
 
 
 def test_baselines_script_uses_the_suite_schedule_table():

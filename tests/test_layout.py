@@ -186,7 +186,13 @@ def test_size_rule_can_fail(tmp_path):
     assert oversized_without_reason({"long": long_module}) == []
 
 
-BENCHMARKS = PKG.parent / "benchmarks"
+TOOLS = PKG.parent / "tools"
+STUDIES = PKG.parent / "studies"
+
+
+def tool_and_study_scripts() -> list[Path]:
+    """The tools (tools/*.py) and the studies' scripts (studies/NAME/*.py)."""
+    return sorted([*TOOLS.glob("*.py"), *STUDIES.glob("*/*.py")])
 
 
 def private_imports(paths) -> list[str]:
@@ -207,8 +213,8 @@ def private_imports(paths) -> list[str]:
     return found
 
 
-def test_benchmarks_import_no_private_name():
-    assert private_imports(sorted(BENCHMARKS.glob("*.py"))) == []
+def test_tools_and_studies_import_no_private_name():
+    assert private_imports(tool_and_study_scripts()) == []
 
 
 def test_private_import_rule_can_fail(tmp_path):
@@ -308,9 +314,9 @@ def sys_path_edits(paths) -> list[str]:
     return [f"{name}:{line}" for name, line in sorted(found)]
 
 
-def test_no_sys_path_edits_in_the_package_benchmarks_and_scripts():
+def test_no_sys_path_edits_in_the_package_tools_studies_and_scripts():
     root = PKG.parent
-    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "scripts").glob("*.py")])
+    paths = sorted([*PKG.rglob("*.py"), *tool_and_study_scripts(), *(root / "scripts").glob("*.py")])
     assert sys_path_edits(paths) == []
 
 
@@ -321,15 +327,19 @@ def test_sys_path_rule_can_fail(tmp_path):
 
 
 def unlisted_scripts(folder: Path) -> list[str]:
-    """The files of `folder` (its README aside) that its README.md does not name as `NAME`."""
+    """The files and folders of `folder` (its README and `__pycache__` aside) that its README.md does not name as
+    `NAME` (a folder as `NAME/`)."""
     readme = (folder / "README.md").read_text(encoding="utf-8")
     return sorted(p.name for p in folder.iterdir()
-                  if p.is_file() and p.name != "README.md" and f"`{p.name}`" not in readme)
+                  if p.name not in ("README.md", "__pycache__") and f"`{p.name}{'/' * p.is_dir()}`" not in readme)
 
 
 def test_every_script_is_in_its_folders_readme():
     root = PKG.parent
-    assert unlisted_scripts(root / "benchmarks") == []
+    assert unlisted_scripts(root / "tools") == []
+    assert unlisted_scripts(root / "studies") == []
+    for study in sorted(p for p in (root / "studies").iterdir() if p.is_dir()):
+        assert unlisted_scripts(study) == [], study.name
     assert unlisted_scripts(root / "scripts") == []
 
 
@@ -337,7 +347,8 @@ def test_readme_rule_can_fail(tmp_path):
     (tmp_path / "README.md").write_text("| `a.py` | a |\n")
     (tmp_path / "a.py").write_text("")
     (tmp_path / "b.py").write_text("")
-    assert unlisted_scripts(tmp_path) == ["b.py"]
+    (tmp_path / "c").mkdir()
+    assert unlisted_scripts(tmp_path) == ["b.py", "c"]
 
 
 def function_lines(path: Path, name: str) -> int:
@@ -414,7 +425,7 @@ def positional_constructions(paths, names=("Job", "CellConfig", "CellRecord", "R
 
 def test_no_positional_construction_of_a_job_or_a_cell():
     root = PKG.parent
-    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "tests").glob("*.py")])
+    paths = sorted([*PKG.rglob("*.py"), *tool_and_study_scripts(), *(root / "tests").glob("*.py")])
     assert positional_constructions([p for p in paths if p.name != "test_layout.py"]) == []
 
 

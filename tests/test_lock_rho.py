@@ -1,4 +1,4 @@
-"""benchmarks/lock_rho.py: the lock's verdict per rho, the effective rho of a stand-in LR factor, the crossover."""
+"""studies/lock_rho/lock_rho.py: the lock's verdict per rho, the effective rho of a stand-in LR factor, the crossover."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _scripts import load_benchmark  # noqa: E402
+from _scripts import load_study  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def lock_rho():
-    return load_benchmark("lock_rho")
+    return load_study("lock_rho")
 
 
 def _run(root: Path, miniature: str, scale: float, cells: list[tuple], scene_path: str | None = None) -> Path:

@@ -141,9 +141,9 @@ def test_the_interval_floor_reaches_the_strategy_and_the_sh_schedule(tiny_scene_
 
 
 def _agreement_module():
-    from _scripts import load_benchmark
+    from _scripts import load_study
 
-    return load_benchmark("miniature")
+    return load_study("miniature")
 
 
 def _cells(cers: dict) -> list[dict]:

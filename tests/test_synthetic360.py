@@ -334,7 +334,7 @@ def test_cli_prepare_rejects_room_controls_on_synthetic_scenes(capsys):
 
 
 def _calibrate():
-    """`strings-bench calibrate` (strings_bench/cli/calibrate.py; benchmarks/calibrate.py passes its arguments on)."""
+    """`strings-bench calibrate` (strings_bench/cli/calibrate.py)."""
     import strings_bench.cli.calibrate as mod
 
     return mod

@@ -3,7 +3,7 @@
 The paper's 3DGS row on its STRinGS-360 captures is OCR-CER 0.736 at 7K and 0.148 at 30K: text is
 unreadable early and readable late. This script trains 3DGS with the paper's schedule on the
 `synthetic360` scenes built at each point of a grid of generator settings (docs/synthetic.md,
-"Difficulty controls"), through the suite's runner (`benchmarks/calibrate.py` is this command), and reports per scene and setting OCR-CER (the
+"Difficulty controls"), through the suite's runner, and reports per scene and setting OCR-CER (the
 paper's), known-text CER, the word-crop readability metrics (word_cer, text_nll), PSNR and the
 Gaussian count, then the mean over the scenes next to the paper's figures (within +-0.1 or not).
 

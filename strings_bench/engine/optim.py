@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError
+from strings_bench.core.instrument import stage
 
 ADAM_EPS = 1e-15  # 3DGS
 
@@ -122,6 +123,7 @@ class GaussianAdam:
         self.lrs[name] = float(lr)
 
     @torch.no_grad()
+    @stage("adam")
     def step(self, row_scale: Mapping[str, torch.Tensor] | None = None) -> None:
         """One Adam step on every group with a gradient. `row_scale[name]` (N,) multiplies the update
         of each row of that group (e.g. text vs non-text position LR)."""

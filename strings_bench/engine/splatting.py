@@ -44,6 +44,7 @@ import numpy as np
 import torch
 
 from strings_bench.core.errors import StringsBenchError, TrainingError
+from strings_bench.core.instrument import note, timed
 from strings_bench.core.settings import Setting, dataclass_settings
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.losses import gs_loss
@@ -563,14 +564,17 @@ class GaussianSplatting(Method):
         info = {"raster": out, "means2d": out.means2d, "radii": out.radii, "width": cam.width,
                 "height": cam.height, "n_cameras": 1, "view_idx": view, "camera": cam}
         strategy.step_pre_backward(model, opt, self.strategy_state, sstep, info)
-        loss = self.loss(out, self.target(view), view, step)
+        note("render", color=out.color)  # a profiling tool's mark: the loss's backward ends at this image's gradient
+        with timed("loss"):
+            loss = self.loss(out, self.target(view), view, step)
         extra = strategy.loss_terms(model, info, sstep)
         if torch.is_tensor(extra) or extra:
             loss = loss + extra
         value = float(loss.detach())
         if not math.isfinite(value):
             raise self._nonfinite_error(step, f"the loss is {value}")
-        loss.backward()
+        with timed("backward"):
+            loss.backward()
         grads = [p.grad for p in model.params.values() if p.grad is not None]
         # One reduction per group: a sum is non-finite when any element is, or when the gradients are so
         # large (> 3e38 in total) that the run has diverged anyway (sums_finite: on the numba threads).

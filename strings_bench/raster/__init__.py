@@ -41,7 +41,7 @@ def _ensure_numba_cache_dir() -> None:
 def _prefer_openmp_threads() -> None:
     """numba's OpenMP threading layer (its own default where no TBB is installed), with its threads sleeping as
     soon as a kernel ends (OMP_WAIT_POLICY=passive), rather than the workqueue layer. Measured on a 2-core Xeon
-    (benchmarks/threading_layer.py; docs/results/engine-speed.md, "numba's threads"), 3DGS training steps at 63k
+    (studies/threading_layer/threading_layer.py; docs/results/engine-speed.md, "numba's threads"), 3DGS training steps at 63k
     and 336k Gaussians: idle, workqueue 91 and 287 ms, OpenMP 55 and 232 ms; beside two other trainings,
     workqueue 190 and 619 ms, OpenMP 105 and 473 ms, the same bits in every arm. libgomp's default spin-wait is
     as fast when the cores are free but up to 2.8x slower than workqueue when they are not (its threads spin for

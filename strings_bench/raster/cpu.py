@@ -6,6 +6,7 @@ import numba
 import numpy as np
 import torch
 
+from strings_bench.core.instrument import active, note, stage, timed
 import strings_bench.raster.cpu_kernels as K
 import strings_bench.raster.cpu_kernels_f32 as K32
 
@@ -38,6 +39,7 @@ class RasterizeTiles(torch.autograd.Function):
     """
 
     @staticmethod
+    @stage("tiles.forward")
     def forward(ctx, means2d, conics, opacities, feats, radii, bbox, depths, width, height, absgrad_out,
                 precision="f32"):
         KB = BLEND_KERNELS[precision]
@@ -56,8 +58,11 @@ class RasterizeTiles(torch.autograd.Function):
         out_f = np.empty((H, W, K.NF), np.float32)
         out_T = np.empty((H, W), np.float32 if precision == "f32" else np.float64)
         out_last = np.empty((H, W), np.int32 if precision == "f32" else np.int64)
-        with numba.parallel_chunksize(CHUNK):
+        with numba.parallel_chunksize(CHUNK), timed("blend.forward"):
             KB.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
+        if active():  # the blend's inputs, for a profiling tool that counts its work
+            note("blend.forward", tile_start=tile_start, lst=lst, P=P, BB=BB, W=W, H=H, tiles_x=tiles_x,
+                 out_last=out_last)
         ctx.saved = (tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x)
         ctx.kernels = KB
         ctx.order = order
@@ -70,6 +75,7 @@ class RasterizeTiles(torch.autograd.Function):
         return feat_img, alpha
 
     @staticmethod
+    @stage("tiles.backward")
     def backward(ctx, grad_f, grad_alpha):
         tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x = ctx.saved
         W, H = ctx.size
@@ -110,6 +116,7 @@ class Preprocess(torch.autograd.Function):
     conics (N,3), opacities (N,), feats (N,4) = RGB and camera depth, radii (N,) int32, bbox (N,4)."""
 
     @staticmethod
+    @stage("preprocess.forward")
     def forward(ctx, means, quats, log_scales, opacity_logits, sh, deg, camera, mip, near, far, sh_rest=None):
         """sh (N, K, 3), or with `sh_rest`: sh (N, 1, 3) the DC band and sh_rest (N, K - 1, 3) the
         others (the model's sh0 and shN, read where they are: no concatenation, no split of the
@@ -147,6 +154,7 @@ class Preprocess(torch.autograd.Function):
                 torch.from_numpy(feats).to(dt), radii_t, bbox_t)
 
     @staticmethod
+    @stage("preprocess.backward")
     def backward(ctx, g_means2d, g_conics, g_opac, g_feats, _g_radii, _g_bbox):
         from strings_bench.raster.cpu_preprocess import preprocess_backward
 

@@ -1,5 +1,5 @@
 """Banked records: one compact row per cell, made from the cells' `result.json` committed under docs/results/data/
-(benchmarks/bank_cells.py banks them), so that every figure a verdict reads can be made again from the repository.
+(tools/bank_cells.py banks them), so that every figure a verdict reads can be made again from the repository.
 
 A record holds what a table reads of a cell and where it came from, not its renders: method, dataset, scene, draw,
 seed, checkpoint (its label and the steps trained), every scalar metric (OCR-CER with its GT characters and errors,

@@ -12,7 +12,7 @@ Three parts, read top to bottom:
   2. a time claim is judged on training CPU seconds, and only where the cells were run interleaved on one machine
      (the scale says so, and its cells' CPU kernel records agree); otherwise: "not judged";
   3. fewer than MIN_REPLICATES replicates (seeds x draws) on either side: "not judged" (with 2 a side the rule calls a
-     difference that is not there 1 time in 3; benchmarks/verdict_false_calls.py measures it);
+     difference that is not there 1 time in 3; tools/verdict_false_calls.py measures it);
   4. "holding" when STRinGS' replicate range lies on the claimed side of every compared method's range, apart (no
      overlap); "not holding" when some method's range lies apart on the other side; "not decided" otherwise;
      "not measured" when STRinGS or every method it is held against has no figure at that checkpoint.
@@ -289,7 +289,7 @@ def judge(claim: Claim, ref: Figure | None, others: dict[str, Figure], interleav
           min_replicates: int = MIN_REPLICATES) -> Verdict:
     """THE rule (module docstring), for one claim at one scale: STRinGS' figure and those of the methods of
     `claim.against` that the scale has. `min_replicates` is MIN_REPLICATES but for the simulation that measures
-    the range test below it (benchmarks/verdict_false_calls.py)."""
+    the range test below it (tools/verdict_false_calls.py)."""
     present = {m: f for m, f in others.items() if m in claim.against}
     if claim.metric in CER_METRICS:
         gt, best = signal(ref, present)

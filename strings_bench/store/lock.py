@@ -3,7 +3,7 @@
 A run trains each unfinished cell and saves its training state in the folder; two runs given the same `--out`
 at once would train the same cells twice and overwrite each other's states. `run_folder_lock` holds an exclusive
 lock on RUN_DIR/.run.lock while a run writes there, so the second run stops at once with an error that names the
-first; `run_folder_busy` tells another process (e.g. benchmarks/captures_cells.py) whether a run holds it.
+first; `run_folder_busy` tells another process (e.g. tools/captures_cells.py) whether a run holds it.
 
 The lock is the operating system's (flock): it ends with the process that holds it, however that process ends
 (kill -9 included), so a killed run never leaves a folder locked. The file itself stays (removing it would race

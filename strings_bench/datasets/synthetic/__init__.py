@@ -105,7 +105,7 @@ CARD = DatasetCard(
 def synthetic360_card(card_id: str = "synthetic360", settings: SyntheticSettings | None = None,
                       title: str | None = None) -> DatasetCard:
     """A `synthetic360` card whose scenes build with `settings` (default: SYNTHETIC360_DEFAULTS);
-    benchmarks/calibrate.py registers one per point of its difficulty grid. Its scenes have draws (ROOM@N: the
+    strings-bench calibrate registers one per point of its difficulty grid. Its scenes have draws (ROOM@N: the
     room at generator seed N; `with_draw`) unless `settings` set a generator seed of their own."""
     chosen = settings
 

@@ -70,7 +70,7 @@ def _rapidocr_version() -> str:
 
 # ONNX Runtime threads of one detector+recogniser read. 1: the runner reads a cell's views with
 # read_many, one read per core, which beat 2 threads x half the reads at once on a cell's 12 reads by
-# 1.51x at 320x240 and 1.13x at 1280x960 on 2 cores, with the same words (benchmarks/ocr_parallel.py).
+# 1.51x at 320x240 and 1.13x at 1280x960 on 2 cores, with the same words (studies/ocr_parallel/ocr_parallel.py).
 DEFAULT_THREADS = 1
 # The recogniser alone (word-crop readability) runs its crops in batches, one call at a time.
 REC_DEFAULT_THREADS = 2
