@@ -272,90 +272,11 @@ def test_a_run_reads_each_scene_with_its_own_gt_engine(tmp_path, monkeypatch):
     assert sorted(asked) == ["rapidocr", "rapidocr", "tesseract:lang=rus"]  # each job's engines, one by one
 
 
-# ---- the verdicts of the captures' comparison (tools/captures_compare.py) -------------------------------
+# ---- the captures' comparison (tools/captures_compare.py; the claims are judged by `strings-bench verdicts`) -------------------------------
 def _captures_compare():
     from _scripts import load_tool
 
     return load_tool("captures_compare")
-
-
-class _Numbers:
-    """A comparison's `get` over {(method, label, value): per-seed figures}."""
-
-    def __init__(self, figures):
-        self.figures = figures
-
-    def get(self, method, label, value):
-        xs = self.figures.get((method, label, value))
-        if xs is None:
-            return None
-        return {"mean": sum(xs) / len(xs), "min": min(xs), "max": max(xs), "seeds": len(xs), "draws": 1,
-                "replicates": len(xs)}
-
-
-def test_a_claim_holds_only_when_every_method_is_beaten_with_the_seeds_ranges_apart():
-    cc = _captures_compare()
-    apart = {("strings", "30K", "cer"): [0.40, 0.45, 0.42], ("3dgs", "30K", "cer"): [0.60, 0.55, 0.70],
-             ("edc-absgs", "30K", "cer"): [0.50, 0.52, 0.51], ("improved-gs", "30K", "cer"): [0.47, 0.60, 0.5]}
-    assert cc.claim(_Numbers(apart), "cer", "30K", cc.BASELINES)[0] == "holding"
-    overlap = {**apart, ("improved-gs", "30K", "cer"): [0.44, 0.60, 0.5]}
-    verdict, figures = cc.claim(_Numbers(overlap), "cer", "30K", cc.BASELINES)
-    assert verdict == "not decided" and figures.startswith("STRinGS 0.423 (3 seeds) against 3dgs 0.617")
-    fewer = {**overlap, ("edc-absgs", "30K", "cer"): [0.50]}  # a method with another count names its own
-    assert "edc-absgs 0.500 (1 seed)," in cc.claim(_Numbers(fewer), "cer", "30K", cc.BASELINES)[1]
-    # one method ahead of STRinGS with ranges apart outweighs the others
-    behind = {**overlap, ("edc-absgs", "30K", "cer"): [0.20, 0.25, 0.22]}
-    assert cc.claim(_Numbers(behind), "cer", "30K", cc.BASELINES)[0] == "not holding"
-    one_seed = {k: v[:1] for k, v in apart.items()}
-    assert cc.claim(_Numbers(one_seed), "cer", "30K", cc.BASELINES)[0] == "not decided"
-    assert cc.claim(_Numbers(apart), "cer", "30K", ("strings-no-td",))[0] == "not measured"
-
-
-def test_a_cer_claim_between_two_methods_that_read_nothing_is_not_decided():
-    """OCR-CERs of at least 0.99 on every seed on both sides (saharov32 at 30K: 1.006-1.012 against 1.018-1.030)
-    differ only by OCR's spurious characters: not decided, ranges apart or not. One side that reads decides as
-    before; the floor is for CERs only (Gaussian counts are never 'nothing read')."""
-    cc = _captures_compare()
-    nothing = {("strings", "30K", "cer"): [1.006, 1.012], ("strings-pos-lr", "30K", "cer"): [1.018, 1.030]}
-    assert cc.claim(_Numbers(nothing), "cer", "30K", ("strings-pos-lr",))[0] == "not decided"
-    reads = {**nothing, ("strings-pos-lr", "30K", "cer"): [0.898, 0.988]}
-    assert cc.claim(_Numbers(reads), "cer", "30K", ("strings-pos-lr",))[0] == "not holding"
-    barely = {**nothing, ("strings-pos-lr", "30K", "cer"): [0.985, 1.03]}  # one seed read a little
-    assert cc.claim(_Numbers(barely), "cer", "30K", ("strings-pos-lr",))[0] == "not decided"  # ranges overlap
-    counts = {("strings", "30K", "gaussians"): [1.006, 1.012], ("3dgs", "30K", "gaussians"): [1.018, 1.030]}
-    assert cc.claim(_Numbers(counts), "gaussians", "30K", ("3dgs",))[0] == "holding"
-
-
-def test_training_time_is_held_in_cpu_seconds_where_every_cell_it_needs_has_them():
-    """Wall seconds include the time a cell waited for a core or was stopped; CPU seconds do not, so the claim is
-    held in CPU seconds when every cell of STRinGS and 3DGS recorded them, and in wall seconds otherwise."""
-    cc = _captures_compare()
-    wall = {("strings", "30K", "train_seconds"): [900.0, 1000.0], ("3dgs", "30K", "train_seconds"): [950.0, 1300.0],
-            ("strings", "30K", "gaussians"): [1, 1], ("3dgs", "30K", "gaussians"): [1, 1]}
-    verdict, figures = cc.time_claim(_Numbers(wall))
-    assert verdict == "not decided" and figures == "wall seconds: STRinGS 950 (2 seeds) against 3dgs 1125"
-    cpu = {**wall, ("strings", "30K", "train_cpu_seconds"): [700.0, 720.0],
-           ("3dgs", "30K", "train_cpu_seconds"): [800.0, 820.0]}
-    assert cc.time_claim(_Numbers(cpu)) == ("holding", "CPU seconds: STRinGS 710 (2 seeds) against 3dgs 810")
-    part = {**cpu, ("3dgs", "30K", "train_cpu_seconds"): [800.0]}  # one 3DGS cell without them: wall seconds
-    assert cc.time_claim(_Numbers(part))[1].startswith("wall seconds: STRinGS 950")
-    assert cc.time_claim(_Numbers({}))[0] == "not measured"
-
-
-def test_the_real_captures_column_goes_before_flips_and_is_replaced_on_a_second_run(tmp_path):
-    cc = _captures_compare()
-    table = tmp_path / "verdicts.csv"
-    table.write_text("the paper's claim,x0.1,flips?\nfewer Gaussians,no,no\nless training time,no,yes\n")
-    verdicts = [{"claim": "fewer Gaussians", "capture": "bundler_et", "verdict": "not holding", "figures": "STRinGS 2"},
-                {"claim": "fewer Gaussians", "capture": "saharov32", "verdict": "not decided", "figures": ""}]
-    cc.set_column(table, verdicts)
-    cc.set_column(table, verdicts)
-    import csv
-
-    rows = list(csv.reader(table.open()))
-    assert rows[0] == ["the paper's claim", "x0.1", cc.REAL_CAPTURES_COLUMN, "flips?"]
-    assert rows[1] == ["fewer Gaussians", "no", "bundler_et: not holding (STRinGS 2); saharov32: not decided", "no"]
-    assert rows[2] == ["less training time", "no", "not measured", "yes"]
 
 
 def _capture_cell(run, method, scene, label, iteration, *, seed=0, cer=1.0, gaussians=1000, seconds=60.0,
@@ -384,17 +305,16 @@ def test_the_comparison_keeps_each_cells_largest_peak_memory_over_the_folders(tm
     assert cc.peak_memory(own + [tmp_path / "seed2"]) == {("3dgs", "bundler_et", "30K"): (1200.0, "process")}
 
 
-def test_a_capture_below_the_floor_is_held_to_the_count_claims_and_other_captures_keep_their_banked_rows(tmp_path,
+def test_a_capture_below_the_floor_is_compared_without_a_cer_and_other_captures_keep_their_banked_rows(tmp_path,
                                                                                                       capsys):
     """Cells of a capture whose GT reads below the floor (no OCR-CER), seeds 0-1 split over folders one method each
-    (as two lanes run them): its CER claims are `not scored`, its count claims judged by the seeds' ranges; the rows
-    of a capture compared before (already in --out) are kept, and the verdict table gets the scored verdicts only."""
+    (as two lanes run them): its rows have no OCR-CER and both seeds; the rows of a capture compared before (already
+    in --out) are kept; the tool writes no verdicts of its own (`strings-bench verdicts` judges the claims)."""
     cc = _captures_compare()
     import csv
 
     for seed in (0, 1):
         for label, it in (("3K", 150), ("7K", 350), ("30K", 1500)):
-            # STRinGS: fewer Gaussians (ranges apart), training time overlapping 3DGS's
             _capture_cell(tmp_path / f"s{seed}-strings", "strings", "tum", label, it, seed=seed, cer=None,
                           gaussians=1000 + seed, seconds=100.0 + 50 * seed)
             _capture_cell(tmp_path / f"s{seed}-3dgs", "3dgs", "tum", label, it, seed=seed, cer=None,
@@ -403,24 +323,15 @@ def test_a_capture_below_the_floor_is_held_to_the_count_claims_and_other_capture
     out.mkdir()
     (out / "comparison.csv").write_text("capture,method,checkpoint,seeds,OCR-CER\nbundler_et,3dgs,30K,3,0.957\n"
                                         "tum,3dgs,30K,1,\n")
-    (out / "verdicts.csv").write_text("claim,capture,verdict,figures\nfewer Gaussians,bundler_et,not holding,X\n")
-    table = tmp_path / "table.csv"
-    table.write_text("the paper's claim,x0.1\nfewer Gaussians,no\nless training time,no\nlower CER at 30K,no\n")
     folders = [tmp_path / f"s{s}-{m}" for s in (0, 1) for m in ("strings", "3dgs")]
-    assert cc.main([*map(str, folders), "--out", str(out), "--verdict-table", str(table)]) == 0
-    capsys.readouterr()
+    assert cc.main([*map(str, folders), "--out", str(out)]) == 0
+    assert "verdicts" not in capsys.readouterr().out
+    assert not (out / "verdicts.csv").exists()
     rows = list(csv.DictReader((out / "comparison.csv").open()))
     assert [(r["capture"], r["method"], r["checkpoint"]) for r in rows][:1] == [("bundler_et", "3dgs", "30K")]
     tum = [r for r in rows if r["capture"] == "tum"]
     assert len(tum) == 6 and all(r["seeds"] == "2" and r["OCR-CER"] == "" for r in tum)  # the old tum row replaced
-    verdicts = {(v["capture"], v["claim"]): v["verdict"] for v in csv.DictReader((out / "verdicts.csv").open())}
-    assert verdicts[("bundler_et", "fewer Gaussians")] == "not holding"  # kept
-    assert verdicts[("tum", "fewer Gaussians")] == "holding"
-    assert verdicts[("tum", "less training time")] == "not decided"  # 100-150 s against 120 s: ranges overlap
-    assert verdicts[("tum", "lower CER at 30K")] == verdicts[("tum", "the phase-1 position lock helps")] == "not scored"
-    col = {r[0]: r[2] for r in csv.reader(table.open())}
-    assert col["fewer Gaussians"].startswith("bundler_et: not holding (X); tum: holding (STRinGS 1000 (2 seeds)")
-    assert col["lower CER at 30K"] == "not measured"  # no scored capture in this bank
+    assert {r["Gaussians"] for r in tum if r["method"] == "strings"} == {"1000"}  # mean of 1000 and 1001, rounded
     cells = list(csv.DictReader((out / "cells.csv").open()))  # where each figure came from, a row per cell
     assert [(c["method"], c["seed"], c["checkpoint"]) for c in cells][:4] == [
         ("3dgs", "0", "3K"), ("3dgs", "0", "7K"), ("3dgs", "0", "30K"), ("3dgs", "1", "3K")]
