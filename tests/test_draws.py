@@ -278,3 +278,18 @@ def test_a_named_schedule_is_one_table_entry_for_run_and_calibrate(monkeypatch, 
     base = ["calibrate", "--dataset", "synthetic360-cpu", "--scenes", "pantry", "--out", str(tmp_path / "run")]
     assert cli_main([*base, "--regime", "cpu-test"]) == 0 and cli_main([*base, "--regime", "cpu", "--steps-scale", "0.2"]) == 0
     assert calls[0] == calls[1] and (calls[0]["schedule"], calls[0]["steps_scale"]) == ("paper", 0.2)
+
+
+def test_a_room_built_on_first_use_shows_its_bars_only_when_the_command_does(monkeypatch, tmp_path):
+    """`run --no-progress` (plan: `progress_bars(False)` around resolving the scenes) reaches the scene build that a
+    card's `locate(scene)` starts: the bars follow the command's switch, and the switch is restored after."""
+    from strings_bench.core.progress import progress_bars, progress_shown
+
+    calls = []
+    monkeypatch.setattr("strings_bench.datasets.synthetic.build_scene",
+                        lambda scene, settings, progress=True, force=False: calls.append(progress) or tmp_path)
+    resolve_scenes(["synthetic360-cpu/pantry"])
+    with progress_bars(False):
+        resolve_scenes(["synthetic360-cpu/pantry", "synthetic/books"])
+        assert not progress_shown()
+    assert progress_shown() and calls == [True, False, False]

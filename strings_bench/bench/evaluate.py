@@ -269,9 +269,11 @@ def _default_method(preds: Predictions, pred: Path) -> str:
 
 def _source(preds: Predictions, opts: EvaluateOptions, pred: Path) -> Source:
     if opts.scene:
+        from strings_bench.core.progress import progress_bars
         from strings_bench.datasets.registry import resolve_scenes
 
-        refs = resolve_scenes([opts.scene])
+        with progress_bars(opts.progress):  # a scene built on first use: its bars only when evaluate shows its own
+            refs = resolve_scenes([opts.scene])
         if len(refs) != 1:
             raise PredictionsError(f"--scene {opts.scene} names {len(refs)} scenes", hint="give one scene, e.g. synthetic/books")
         ref = refs[0]

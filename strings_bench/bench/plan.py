@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Iterable
 
+from strings_bench.core.progress import progress_bars
 from strings_bench.bench.budget import SETTING as CAP_SETTING
 from strings_bench.bench.budget import Budget, refuse_set
 from strings_bench.bench.executors import Job
@@ -175,7 +176,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         cap = cap.check(list(c.methods), specs, Path(c.run_dir), asdict(p), ds)
     given_settings = _given_settings(c, specs)
     planned = [_method_plan(specs[m], c, p, given_settings[m]) for m in c.methods]
-    refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
+    with progress_bars(c.progress):  # a scene built on first use shows its bars only if the run shows its own
+        refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
     if not refs:
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
     if cap is not None:  # the reference method's jobs first: the others' caps are its counts

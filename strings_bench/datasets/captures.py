@@ -221,8 +221,10 @@ def scene_settings(cap: Capture) -> dict:
 
 
 def locate(name: str) -> Path:
-    """The card's locate: build capture `name` on first use."""
-    return build_capture(name)
+    """The card's locate: build capture `name` on first use (with progress bars unless the command turned them off)."""
+    from strings_bench.core.progress import progress_shown
+
+    return build_capture(name, progress=progress_shown())
 
 
 def card():

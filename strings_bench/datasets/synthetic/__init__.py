@@ -17,6 +17,7 @@ from pathlib import Path
 
 from dataclasses import replace
 
+from strings_bench.core.progress import progress_shown
 from strings_bench.core.draws import REGISTERED_DRAWS, split_draw
 from strings_bench.core.errors import DatasetError
 from strings_bench.datasets.card import DatasetCard, SceneCard
@@ -86,7 +87,7 @@ def with_draw(scene: str, settings: SyntheticSettings) -> tuple[str, SyntheticSe
 
 
 def _locate(scene: str) -> Path:
-    return build_scene(scene, default_settings(scene), progress=True)
+    return build_scene(scene, default_settings(scene), progress=progress_shown())
 
 
 # Registered by strings_bench.datasets.registry (this package imports nothing of the registry).
@@ -111,7 +112,7 @@ def synthetic360_card(card_id: str = "synthetic360", settings: SyntheticSettings
 
     def locate(scene: str) -> Path:
         room, st = with_draw(scene, chosen if chosen is not None else default_settings(split_draw(scene)[0]))
-        return build_scene(room, st, progress=True)
+        return build_scene(room, st, progress=progress_shown())
 
     draws = () if chosen is not None and chosen.seed != 0 else REGISTERED_DRAWS
     registered = ", ".join(f"@{d}" for d in draws)
@@ -139,7 +140,7 @@ CARD_360_CPU = synthetic360_card(
 
 
 def _locate_multi(scene: str) -> Path:
-    return build_scene(scene, SyntheticSettings(), progress=True)
+    return build_scene(scene, SyntheticSettings(), progress=progress_shown())
 
 
 # One scene per script (multiscript.py): the same geometry families, real words of the language,
