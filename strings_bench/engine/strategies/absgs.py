@@ -10,7 +10,7 @@ averaged over the steps in which the Gaussian was visible, as in 3DGS.
 Clone: ordinary gradient >= `grow_grad2d` (2e-4) and largest scale <= `grow_scale3d` x extent.
 Split: absolute gradient >= `grow_grad2d_abs` (4e-4) and largest scale > `grow_scale3d` x extent.
 Everything else (schedule, pruning, opacity reset) is vanilla 3DGS (DefaultStrategy).
-With the Gaussian cap (run --budget), candidates grow in order of their statistic over its threshold (`_grow_scores`).
+With a Gaussian budget (run --budget), candidates grow in order of their statistic over its threshold (`_grow_scores`).
 """
 
 from __future__ import annotations

@@ -17,9 +17,9 @@ Every 100 iterations in (500, 15 000):
    non-zero sums are divided by their mean; the score is their mean over the views. After 14 500 the
    score is the mean absolute gradient instead.
 2. Growth control (the budget): the count may reach B sqrt((it - 500) / (14 500 - 500)), B from
-   14 500 on; B is the run's cap (`--budget`, `StrategyContext.cap`) if set, else `budget` (the release's
+   14 500 on; B is the run's Gaussian budget (`--budget`, `StrategyContext.budget`) if set, else `budget` (the release's
    per-scene `--budget`, budget.txt), else `budget_multiple` x the initial count (this suite's default
-   for scenes the release has no budget for, the rule this suite uses for MCMC's cap).
+   for scenes the release has no budget for, the rule this suite uses for MCMC's `cap_max`).
 3. Candidates: mean absolute gradient >= `grow_grad2d_abs` (3e-4; / 1.5 after 14 500 while below the
    budget). k = min(budget_t, N + candidates) - N of them, drawn without replacement with
    probability proportional to the score (`torch.multinomial`; candidates with score 0 are never
@@ -187,10 +187,10 @@ class ImprovedGSStrategy(Strategy):
 
     # ---- the budget ---------------------------------------------------------------------------
     def final_budget(self, state: dict) -> int:
-        """The final Gaussian budget B: the run's cap (the context's), else budget, else budget_multiple x the
+        """The final Gaussian budget B: the run's Gaussian budget (the context's), else this method's own `budget` setting, else budget_multiple x the
         initial count."""
-        if self.context.cap is not None:
-            return int(self.context.cap)
+        if self.context.budget is not None:
+            return int(self.context.budget)
         if self.budget is not None:
             return int(self.budget)
         return max(1, int(round(self.budget_multiple * int(state["n_initial"]))))

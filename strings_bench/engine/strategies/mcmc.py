@@ -114,8 +114,8 @@ class MCMCStrategy(Strategy):
     refine_stop_iter: int = 25_000  # last relocation step (nominal)
     refine_every: int = 100  # relocation interval (nominal)
     min_opacity: float = 0.005      # "dead" threshold
-    grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to the cap
-    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; the run's cap (max_gaussians) replaces it
+    grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to its cap (cap_max)
+    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; the run's Gaussian budget replaces it
     cap_multiple: float = 10.0  # cap = this x initial Gaussians when cap_max is None
     opacity_reg: float = 0.01  # weight of mean |opacity| in the loss
     scale_reg: float = 0.01  # weight of mean |scale| in the loss
@@ -136,8 +136,8 @@ class MCMCStrategy(Strategy):
         state = super().initialize_state(scene_extent, cameras)
         # The seeded generator is made at first use, on the model's device (a CPU generator cannot
         # drive torch.multinomial / torch.randn on CUDA tensors).
-        # The run's cap (run --budget) is MCMC's own: cap_max := the context's cap.
-        state.update(cap=self.cap_max if self.context.cap is None else int(self.context.cap), generator=None,
+        # The run's Gaussian budget (run --budget) is MCMC's own cap: cap_max := the context's budget.
+        state.update(cap=self.cap_max if self.context.budget is None else int(self.context.budget), generator=None,
                      n_relocated=0, n_added=0)
         return state
 

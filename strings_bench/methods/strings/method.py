@@ -47,21 +47,20 @@ class StringsSettings:
     # phase 1) or "phase2" (release: t = step - T1, i.e. 1 at the first phase-2 step), see docs/strings.md.
     gamma_counter: str = "global"  # counter of gamma: "global" (paper) or "phase2" (release)
     tau: int = 1  # text point: mask hits >= tau
-    n_max: int | None = None  # Eq. 1's cap; None: 15 (the release's default); per dataset: the spec's presets
+    n_max: int | None = None  # Eq. 1's N_max, the most children of a text point; None: 15 (the release's default); per dataset: the spec's presets
     equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
     text_densify: bool = True  # False = ablation "without text densification"
-    max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
+    max_text_gaussians: int = 10_000_000  # memory guard on Eq. 1's children (not the budget: more is an error)
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
     # This suite's variant, not the paper's: the phase-1 position LR follows the scene's rho (one early position step
     # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / (rho x position_lr_gain)) x the 3DGS
     # schedule, so that an early step, as taken (the gain multiplies every step), moves text at most this many
     # strokes. None: phase1_position_lr as given. A scene whose rho cannot be measured (no known words, no masks)
     # keeps phase1_position_lr (result extra['phase1_rho'] is then None).
-    phase1_step_strokes: float | None = None  # cap on a phase-1 text position step, in text strokes (None: off)
+    phase1_step_strokes: float | None = None  # the longest phase-1 text position step, in text strokes (None: off)
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
-    # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
-    # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
-    # Gaussians at the first refinement of phase 2 (measured on synthetic/books), see docs/strings.md.
+    # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations; "global" keeps the global
+    # counter (why not: docs/strings.md, "Why phase-2 schedules restart by default").
     phase2_schedules: str = "restart"  # "restart" (release) or "global" schedules in phase 2 (see above)
     mask_source: str = "dataset"  # text masks: "dataset" (masks/), "ocr" (detector polygons), "gt" (synthetic)
     mask_dilation_fraction: float = 0.05  # dilation kernel diameter / image width (paper 5 %)
@@ -144,7 +143,7 @@ class Strings(GaussianSplatting):
         self.segmentation = None  # segmentation.TextSegmentation of the SfM points
         self.masks_segmentation_seconds = 0.0
         self.t1 = 0  # phase 1's last step at this schedule
-        self.n_max = 15  # Eq. 1's cap in effect (resolve_n_max)
+        self.n_max = 15  # Eq. 1's N_max in effect (resolve_n_max)
         self.text_views: list[int] = []  # train views with text: phase 1 trains on these
         self.fallback: str | None = None  # why STRinGS ran as 3DGS ("no_text_points", ...), or None
         self.phase = 1
@@ -239,11 +238,11 @@ class Strings(GaussianSplatting):
                 factors = densification_factors(counts[is_text], self.n_max, st.equal_counts)
             # the children are sampled on the model's device, so the generator must live there too
             gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
-            # Under a cap Eq. 1 leaves room for the non-text points that join at T1 (reserved_gaussians)
-            cap = self.context.cap_in_force()
-            densify_text_model(model, factors, gen, memory_limit=st.max_text_gaussians, cap=cap)
-            if cap is not None:
-                stats["text_densify_budget"] = cap
+            # Under a budget Eq. 1 leaves the non-text points that join at T1 their share (budget_reserved)
+            budget_now = self.context.budget_now()
+            densify_text_model(model, factors, gen, memory_limit=st.max_text_gaussians, budget=budget_now)
+            if budget_now is not None:
+                stats["text_densify_budget"] = budget_now
         stats["text_gaussians_after_densify"] = len(model)
         if st.prune_outside_masks:
             outside = self.mask_hits(model) < st.tau
@@ -271,9 +270,9 @@ class Strings(GaussianSplatting):
         hits = count_mask_hits(xyz, ptr, views, cameras, self._seg_masks)
         return torch.from_numpy(hits).to(model.device)
 
-    def reserved_gaussians(self) -> int:
-        """Under a cap, phase 1 keeps room for the non-text SfM points that join at T1 (`_start_phase2`), so
-        phase 1's growth (Eq. 1 and 3DGS densification) stops at the cap less their number."""
+    def budget_reserved(self) -> int:
+        """Under a budget, phase 1 keeps free of it the non-text SfM points that join at T1 (`_start_phase2`), so
+        phase 1's growth (Eq. 1 and 3DGS densification) stops at the budget less their number."""
         if self.fallback or self.phase != 1 or self.segmentation is None:
             return 0
         return int((~self.segmentation.is_text).sum())
