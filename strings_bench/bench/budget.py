@@ -2,12 +2,13 @@
 
 One word, budget: the run's rule is a `Budget` (a count or a reference method); the count it sets for one job is
 that job's Gaussian budget (the method setting `gaussian_budget`, `StrategyContext.budget`, the cell's
-`config.budget.count`). `--budget N` holds every method of the run to N Gaussians. `--budget METHOD` makes METHOD the reference: it trains
-first, without a budget, and every other method is held to the Gaussian count METHOD's cell reaches on the same scene at
-the job's last checkpoint, read where the job runs from this run folder, or from `--budget-from`'s (a run folder
-whose METHOD cells were trained without a budget at the same schedule and image scale). A job's budget reaches its method as
-the `gaussian_budget` setting (engine/splatting.py, `TrainConfig`; its strategy gets it in its `StrategyContext`), never
-through `--set`; the plan puts a `--budget N` count into each job's settings (bench/plan.py).
+`config.budget.count`). `--budget N` holds every method of the run to N Gaussians. `--budget METHOD` makes METHOD
+the reference: it trains first, without a budget, and every other method is held to the Gaussian count METHOD's cell
+reaches on the same scene at the job's last checkpoint, read where the job runs from this run folder, or from
+`--budget-from`'s (a run folder whose METHOD cells were trained without a budget at the same schedule and image
+scale). A job's budget reaches its method as the `gaussian_budget` setting (engine/train_config.py, `TrainConfig`;
+its strategy gets it in its `StrategyContext`), never through `--set`; the plan puts a `--budget N` count into each
+job's settings (`Budget.for_job`).
 
 The life of a budget: `Budget.parse` (the command line), `check` (against the run's methods and folders, before any
 scene is built), `manifest` (what run.json records), and `record`, where a job runs: what its cells record
@@ -22,7 +23,7 @@ from pathlib import Path
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, is_finished
 
-SETTING = "gaussian_budget"  # the method setting (engine/splatting.py, TrainConfig) a job's budget reaches its method as
+SETTING = "gaussian_budget"  # the method setting (engine/train_config.py, TrainConfig) a job's budget reaches its method as
 OLD_SETTING = "max_gaussians"  # its name in cells, run.json and training states written before the rename; read, never written
 EXAMPLES = "e.g. --budget 40000, --budget 40k, or --budget 3dgs"
 
@@ -138,6 +139,13 @@ class Budget:
 
     def is_reference(self, method: str) -> bool:
         return method == self.reference
+
+    def for_job(self, method: str, settings: dict) -> tuple[dict, int | None]:
+        """(a job's final settings, its Gaussian budget) for `method`, as planned: under `--budget N` the count N,
+        also in the settings (as SETTING); the reference's and `--budget METHOD`'s other jobs get (settings, None),
+        the latter's count being read where the job runs (`record`)."""
+        count = None if self.is_reference(method) else self.count
+        return (settings if count is None else {**settings, SETTING: count}), count
 
     # ---- resolved where a job runs ------------------------------------------------------------------------------
     def reference_cell(self, dataset: str, scene: str, checkpoints) -> CellKey:
