@@ -24,7 +24,7 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, is_finished
 
 SETTING = "gaussian_budget"  # the method setting (engine/train_config.py, TrainConfig) a job's budget reaches its method as
-OLD_SETTING = "max_gaussians"  # its name in cells, run.json and training states written before the rename; read, never written
+OLD_SETTING = "max_gaussians"  # its name in cells and training states written before the rename; read, never written
 EXAMPLES = "e.g. --budget 40000, --budget 40k, or --budget 3dgs"
 
 
