@@ -1,4 +1,4 @@
-"""The equal Gaussian budget (issue 42): `Strategy.max_gaussians`, honoured by every trainable method at every step.
+"""The equal Gaussian budget (issue 42): the setting `gaussian_budget` (`StrategyContext.budget`), honoured by every trainable method at every step.
 
 The selection under a budget is checked against by-hand references (plain sorting of constructed statistics); the
 per-step test trains every registered trainable method a few dozen steps with densification made aggressive, so
@@ -19,10 +19,10 @@ import torch
 
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.engine.strategies import StrategyContext
-from strings_bench.engine.strategies.base import keep_within_cap
+from strings_bench.engine.strategies.base import keep_within_budget
 
 
-# ---- keep_within_cap against brute force --------------------------------------------------------------------
+# ---- keep_within_budget against brute force --------------------------------------------------------------------
 def _by_hand(candidates, scores, cost, room):
     order = sorted((i for i, c in enumerate(candidates) if c), key=lambda i: (-scores[i], i))
     kept, used = set(), 0
@@ -42,24 +42,24 @@ def test_keep_within_cap_matches_a_by_hand_greedy(seed):
     scores = np.round(rng.random(n), 1)  # ties on purpose: the lower index first
     cost = rng.integers(1, 3, n)
     room = int(rng.integers(0, 30))
-    got = keep_within_cap(torch.from_numpy(cand), torch.from_numpy(scores), torch.from_numpy(cost), room)
+    got = keep_within_budget(torch.from_numpy(cand), torch.from_numpy(scores), torch.from_numpy(cost), room)
     assert got.tolist() == _by_hand(cand.tolist(), scores.tolist(), cost.tolist(), room)
     assert int((torch.from_numpy(cost) * got).sum()) <= room
 
 
 def test_keep_within_cap_without_budget_or_with_room_keeps_every_candidate():
     cand = torch.tensor([True, False, True])
-    assert keep_within_cap(cand, torch.zeros(3), 1, None).tolist() == [True, False, True]
-    assert keep_within_cap(cand, torch.zeros(3), 1, 2).tolist() == [True, False, True]
-    assert keep_within_cap(cand, torch.zeros(3), 1, 0).tolist() == [False, False, False]
+    assert keep_within_budget(cand, torch.zeros(3), 1, None).tolist() == [True, False, True]
+    assert keep_within_budget(cand, torch.zeros(3), 1, 2).tolist() == [True, False, True]
+    assert keep_within_budget(cand, torch.zeros(3), 1, 0).tolist() == [False, False, False]
 
 
 def test_budget_must_be_a_positive_count():
     from strings_bench.engine.splatting import TrainConfig
 
     for bad in (0, -5, 2.5):
-        with pytest.raises(StringsBenchError, match="max_gaussians must be a positive"):
-            TrainConfig(max_gaussians=bad)
+        with pytest.raises(StringsBenchError, match="gaussian_budget must be a positive"):
+            TrainConfig(gaussian_budget=bad)
 
 
 # ---- each strategy's selection under a budget, on constructed statistics ----------------------------------------
@@ -80,14 +80,14 @@ def test_default_strategy_grows_the_largest_mean_gradients_first():
 
     n = 10
     model = _model(n, big=(1, 6))
-    strategy = DefaultStrategy(context=StrategyContext(cap=n + 3))
+    strategy = DefaultStrategy(context=StrategyContext(budget=n + 3))
     state = strategy.initialize_state(scene_extent=1.0)
     grad = [5, 9, 1, 8, 0.5, 7, 6, 0.1, 4, 3]  # x 1e-4; threshold 2e-4 -> candidates 0,1,3,5,6,8,9
     state.update(grad2d=torch.tensor(grad) * 1e-4 * 2, count=torch.full((n,), 2.0), max_radii=torch.ones(n))
-    clone, split = strategy._fit_cap(model, state, 600, *strategy._select(model, state, 600))
+    clone, split = strategy._fit_budget(model, state, 600, *strategy._select(model, state, 600))
     # by hand: candidates by decreasing mean gradient: 1 (split), 3, 5, 6 (split), ...; room 3, each costs 1
     assert clone.nonzero().squeeze(1).tolist() == [3, 5] and split.nonzero().squeeze(1).tolist() == [1]
-    assert strategy.dropped_for_cap == 7 - 3
+    assert strategy.dropped_for_budget == 7 - 3
 
 
 def test_absgs_ranks_clones_and_splits_by_their_statistic_over_its_threshold():
@@ -95,13 +95,13 @@ def test_absgs_ranks_clones_and_splits_by_their_statistic_over_its_threshold():
 
     n = 6
     model = _model(n, big=(0, 1, 2))
-    strategy = AbsGSStrategy(context=StrategyContext(cap=n + 2))
+    strategy = AbsGSStrategy(context=StrategyContext(budget=n + 2))
     state = strategy.initialize_state(scene_extent=1.0)
     # large (0-2) split on |grad| >= 4e-4; small (3-5) clone on grad >= 2e-4
     grad = torch.tensor([0, 0, 0, 3e-4, 5e-4, 2.2e-4])
     absgrad = torch.tensor([9e-4, 5e-4, 4.4e-4, 0, 0, 0])
     state.update(grad2d=grad, grad2d_abs=absgrad, count=torch.ones(n), max_radii=torch.ones(n))
-    clone, split = strategy._fit_cap(model, state, 600, *strategy._select(model, state, 600))
+    clone, split = strategy._fit_budget(model, state, 600, *strategy._select(model, state, 600))
     # over threshold: 0: 2.25, 1: 1.25, 2: 1.1, 3: 1.5, 4: 2.5, 5: 1.1 -> the two best: 4 (clone), 0 (split)
     assert clone.nonzero().squeeze(1).tolist() == [4] and split.nonzero().squeeze(1).tolist() == [0]
 
@@ -112,36 +112,36 @@ def test_edc_ranks_by_the_absolute_gradient_it_selects_on(release):
 
     n = 5
     model = _model(n)
-    strategy = EDCStrategy(context=StrategyContext(cap=n + 2), release_schedule=release)
+    strategy = EDCStrategy(context=StrategyContext(budget=n + 2), release_schedule=release)
     state = strategy.initialize_state(scene_extent=1.0)
     count = torch.tensor([1.0, 100, 1, 1, 1])
     absgrad = torch.tensor([9e-4, 5e-4, 8e-4, 4e-4, 2e-4]) * count
     state.update(grad2d=torch.zeros(n), grad2d_abs=absgrad, count=count, max_radii=torch.ones(n))
-    clone, split = strategy._fit_cap(model, state, 20_000, *strategy._select(model, state, 20_000))
+    clone, split = strategy._fit_budget(model, state, 20_000, *strategy._select(model, state, 20_000))
     assert not clone.any()
     # mean |grad|: 9, 5, 8, 4, 2 (e-4); the release multiplies the 100-view one by 1.3 -> 6.5 (still below 8)
     assert split.nonzero().squeeze(1).tolist() == [0, 2]
     strategy.grow_grad2d_abs = 1e-5
-    clone, split = strategy._fit_cap(model, state, 20_000, *strategy._select(model, state, 20_000))
+    clone, split = strategy._fit_budget(model, state, 20_000, *strategy._select(model, state, 20_000))
     assert split.nonzero().squeeze(1).tolist() == [0, 2]
 
 
 def test_mcmc_takes_the_budget_as_its_cap():
     from strings_bench.engine.strategies.mcmc import MCMCStrategy
 
-    assert MCMCStrategy(context=StrategyContext(cap=1234), cap_max=99).initialize_state(1.0)["cap"] == 1234
+    assert MCMCStrategy(context=StrategyContext(budget=1234), cap_max=99).initialize_state(1.0)["cap"] == 1234
     assert MCMCStrategy(cap_max=99).initialize_state(1.0)["cap"] == 99
 
 
 def test_eq1_under_a_budget_densifies_the_least_observed_points_first():
-    from strings_bench.methods.strings.densify import fit_factors_to_cap
+    from strings_bench.methods.strings.densify import fit_factors_to_budget
 
     k = np.array([3, 15, 1, 8, 15, 2])
     # 6 Gaussians, budget 25 -> 19 children to spare: 15 (index 1, +14) then 15 (index 4, +14) does not fit: stop
-    assert fit_factors_to_cap(k, 25).tolist() == [1, 15, 1, 1, 1, 1]
-    assert fit_factors_to_cap(k, 34).tolist() == [1, 15, 1, 1, 15, 1]
-    assert fit_factors_to_cap(k, 1000).tolist() == k.tolist()
-    assert fit_factors_to_cap(k, None).tolist() == k.tolist()
+    assert fit_factors_to_budget(k, 25).tolist() == [1, 15, 1, 1, 1, 1]
+    assert fit_factors_to_budget(k, 34).tolist() == [1, 15, 1, 1, 15, 1]
+    assert fit_factors_to_budget(k, 1000).tolist() == k.tolist()
+    assert fit_factors_to_budget(k, None).tolist() == k.tolist()
 
 
 # ---- every trainable method, every step -------------------------------------------------------------------------
@@ -172,7 +172,7 @@ def _train_capped(name, cap, steps=STEPS):
     spec = get_method(name)
     keys = {s.name for s in spec.settings()}
     settings = {k: v for k, v in DENSIFY_FAST.items() if k in keys}
-    method = spec.build(max_gaussians=cap, **settings)
+    method = spec.build(gaussian_budget=cap, **settings)
     method.progress = False
     torch.manual_seed(0)
     method.setup(Scene.load(tiny_scene()), device="cpu", seed=0)
@@ -183,7 +183,7 @@ def _train_capped(name, cap, steps=STEPS):
         counts.append(method.num_gaussians())
         method.refine(step)
         counts.append(method.num_gaussians())
-        method.dropped.append(getattr(method.strategy, "dropped_for_cap", 0))
+        method.dropped.append(getattr(method.strategy, "dropped_for_budget", 0))
     return method, counts
 
 
@@ -282,15 +282,16 @@ def test_budget_from_goes_with_a_method_name_only(value):
 
 
 def test_budget_records_and_caps():
-    from strings_bench.bench.budget import Budget, cap_of
+    from strings_bench.bench.budget import Budget, budget_of
 
     count = Budget.parse("40k")
     assert count.manifest() == {"budget": 40000}
     rec = count.record("absgs", "d", "s", (10, 20), "unused")
-    assert rec == {"rule": "40000", "max_gaussians": 40000, "reference": None} and cap_of(rec) == 40000
+    assert rec == {"rule": "40000", "count": 40000, "reference": None} and budget_of(rec) == 40000
+    assert budget_of({"rule": "40000", "max_gaussians": 40000, "reference": None}) == 40000  # a cell before the rename
     ref = Budget.parse("3dgs", "/runs/seed0")
     assert ref.manifest() == {"budget": "3dgs", "budget_from": "/runs/seed0"}
-    assert ref.record("3dgs", "d", "s", (10, 20), "unused") == "reference" and cap_of("reference") is None
+    assert ref.record("3dgs", "d", "s", (10, 20), "unused") == "reference" and budget_of("reference") is None
     assert ref.is_reference("3dgs") and not ref.is_reference("absgs") and not count.is_reference("absgs")
     assert ref.reference_cell("d", "s", (10, 20)).iteration == 20
 
@@ -298,12 +299,12 @@ def test_budget_records_and_caps():
 def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path):
     out = _run(tmp_path, ["absgs", "3dgs"], "3dgs")
     ref, capped = _cell(out, "3dgs"), _cell(out, "absgs")
-    assert ref["config"]["budget"] == "reference" and "max_gaussians" not in ref["config"]["method"]["settings"]
+    assert ref["config"]["budget"] == "reference" and "gaussian_budget" not in ref["config"]["method"]["settings"]
     n = ref["gaussians"]
     assert n > 1429  # 3DGS grew past the SfM points, so the budget is its own count
-    assert capped["config"]["budget"] == {"rule": "3dgs", "max_gaussians": n,
+    assert capped["config"]["budget"] == {"rule": "3dgs", "count": n,
                                           "reference": {"method": "3dgs", "iteration": 20}}
-    assert capped["config"]["method"]["settings"]["max_gaussians"] == n  # in the training state's fingerprint too
+    assert capped["config"]["method"]["settings"]["gaussian_budget"] == n  # in the training state's fingerprint too
     assert capped["gaussians"] <= n
     import json
 
@@ -317,7 +318,7 @@ def test_budget_3dgs_trains_3dgs_first_and_caps_the_others_at_its_count(tmp_path
         _run(tmp_path, ["absgs"], 1600)
     # the reference's cells are in the folder: a run of another method alone resumes under the same budget
     _run(tmp_path, ["edc-absgs"], "3dgs")
-    assert _cell(out, "edc-absgs")["config"]["budget"]["max_gaussians"] == n
+    assert _cell(out, "edc-absgs")["config"]["budget"]["count"] == n
 
 
 def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
@@ -332,9 +333,9 @@ def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
     assert n > 1429
     out = _run(tmp_path, ["absgs"], "3dgs", out="seed1", budget_from=ref_dir)
     capped = _cell(out, "absgs")
-    assert capped["config"]["budget"] == {"rule": "3dgs", "max_gaussians": n, "reference": {
+    assert capped["config"]["budget"] == {"rule": "3dgs", "count": n, "reference": {
         "method": "3dgs", "iteration": 20, "folder": str(ref_dir.resolve())}}
-    assert capped["config"]["method"]["settings"]["max_gaussians"] == n and capped["gaussians"] <= n
+    assert capped["config"]["method"]["settings"]["gaussian_budget"] == n and capped["gaussians"] <= n
     assert not (out / "cells" / "3dgs").exists()  # the reference is not trained again
     assert json.loads((out / "run.json").read_text())["budget_from"] == str(ref_dir.resolve())
     # the folder resumes only with the same reference folder
@@ -363,7 +364,7 @@ def test_budget_from_reads_the_reference_count_from_another_folder(tmp_path):
     with pytest.raises(StringsBenchError, match="--steps-scale 0.02; this run asks for 0.05"):
         plan_run(["absgs"], [scene], run_dir=tmp_path / "e5", schedule="tiny", steps_scale=0.05,
                         budget="3dgs", budget_from=ref_dir)
-    with pytest.raises(StringsBenchError, match="were capped"):  # a budgeted folder's counts are no reference
+    with pytest.raises(StringsBenchError, match="were trained under a budget"):  # a budgeted folder's counts are no reference
         plan(run_dir=tmp_path / "e6", budget="3dgs", budget_from=_run(tmp_path, ["3dgs"], 1500, out="capped"))
 
 
@@ -371,8 +372,8 @@ def test_numeric_budget_caps_every_method(tmp_path):
     out = _run(tmp_path, ["3dgs", "mcmc"], 1600)
     for m in ("3dgs", "mcmc"):
         cell = _cell(out, m)
-        assert cell["config"]["budget"] == {"rule": "1600", "max_gaussians": 1600, "reference": None}
-        assert cell["config"]["method"]["settings"]["max_gaussians"] == 1600
+        assert cell["config"]["budget"] == {"rule": "1600", "count": 1600, "reference": None}
+        assert cell["config"]["method"]["settings"]["gaussian_budget"] == 1600
         assert 1429 < cell["gaussians"] <= 1600
         assert cell["gaussians"] <= cell["extra"]["peak_gaussians"] <= 1600
     rows = pd.read_csv(out / "results.csv").set_index("method")
@@ -387,6 +388,9 @@ def test_budget_errors_are_clear(tmp_path):
     with pytest.raises(StringsBenchError, match="needs 3dgs among the run's methods"):
         plan_run(["absgs"], [scene], run_dir=tmp_path / "r1", schedule="tiny", budget="3dgs")
     with pytest.raises(StringsBenchError, match="set with --budget, not --set"):
+        plan_run(["absgs"], [scene], run_dir=tmp_path / "r2", schedule="tiny",
+                        method_overrides={"absgs": {"gaussian_budget": 5}})
+    with pytest.raises(StringsBenchError, match=r"max_gaussians is set with --budget.*called gaussian_budget now"):
         plan_run(["absgs"], [scene], run_dir=tmp_path / "r2", schedule="tiny",
                         method_overrides={"absgs": {"max_gaussians": 5}})
     with pytest.raises(StringsBenchError, match="method ply takes no Gaussian budget"):
@@ -467,3 +471,14 @@ def test_compare_refuses_folders_of_different_budgets(tmp_path):
         (tmp_path / name / "run.json").write_text(json.dumps(manifest))
     with pytest.raises(StringsBenchError, match="different Gaussian budgets.*b: --budget 3dgs"):
         compare([tmp_path / "a", tmp_path / "b"])
+
+
+def test_a_training_state_saved_before_the_budget_was_renamed_still_matches():
+    """A state saved with the setting max_gaussians is read as one of gaussian_budget (trainer.RENAMED_SETTINGS);
+    any other difference still refuses it."""
+    from strings_bench.engine.trainer import Trainer
+
+    old = {"version": 1, "settings": {"max_gaussians": 40000, "seed": 0}, "scene": "s"}
+    assert Trainer._renamed(old) == {"version": 1, "settings": {"gaussian_budget": 40000, "seed": 0}, "scene": "s"}
+    assert Trainer._renamed({"settings": {"seed": 0}}) == {"settings": {"seed": 0}}
+    assert Trainer._renamed(None) is None

@@ -640,7 +640,8 @@ def test_rows_then_is_indexing_then_concatenation(shape, dtype):
 
 
 # ---- a strategy's context: given once, never in its state --------------------------------------------------------
-SETTING_KEYS = {"steps_scale", "interval_floor", "reserved_gaussians", "budget_dropped", "max_gaussians", "cap"}
+SETTING_KEYS = {"steps_scale", "interval_floor", "budget", "budget_reserved", "budget_dropped", "gaussian_budget",
+                "max_gaussians", "cap"}
 
 
 def _strategy_classes():
@@ -665,7 +666,7 @@ def test_a_strategys_state_holds_no_settings(cls):
     from strings_bench.engine.strategies import StrategyContext
     from strings_bench.scene.camera import Camera
 
-    context = StrategyContext(steps_scale=0.05, interval_floor=7, cap=1234, reserved=lambda: 34)
+    context = StrategyContext(steps_scale=0.05, interval_floor=7, budget=1234, budget_reserved=lambda: 34)
     strategy = cls(context=context)
     cams = [Camera(fx=40.0, fy=40.0, cx=24.0, cy=16.0, width=48, height=32, R=np.eye(3), t=np.zeros(3))]
     state = strategy.initialize_state(2.0, cams)
@@ -674,7 +675,7 @@ def test_a_strategys_state_holds_no_settings(cls):
     assert not leaked, leaked
     assert "context" in fields and strategy.context is context
     assert strategy.at(1000) == 50 and strategy.every(1000) == 50 and strategy.every(100) == 7
-    assert context.cap_in_force() == 1200
+    assert context.budget_now() == 1200
 
 
 def test_the_method_and_its_strategy_share_one_context():
@@ -684,8 +685,8 @@ def test_the_method_and_its_strategy_share_one_context():
     from strings_bench.engine.splatting import GaussianSplatting, TrainConfig
     from strings_bench.engine.strategies import StrategyContext
 
-    method = GaussianSplatting(TrainConfig(steps_scale=0.05, interval_floor=10, max_gaussians=50_000))
-    assert method.strategy.context is method.context and method.context.cap == 50_000
+    method = GaussianSplatting(TrainConfig(steps_scale=0.05, interval_floor=10, gaussian_budget=50_000))
+    assert method.strategy.context is method.context and method.context.budget == 50_000
     for nominal in (100, 1000, 3000, 15_000):
         assert method.at(nominal) == method.strategy.at(nominal)
     assert method.every(1000) == method.strategy.every(1000) == 50

@@ -143,9 +143,9 @@ def test_final_budget_sources():
     state = {"n_initial": 30}
     assert ImprovedGSStrategy().final_budget(state) == 300  # budget_multiple 10 x initial
     assert ImprovedGSStrategy(budget=120).final_budget(state) == 120  # the release's per-scene --budget
-    assert ImprovedGSStrategy(budget=120, context=StrategyContext(cap=50)).final_budget(state) == 50  # the cap wins
-    with pytest.raises(Exception, match="max_gaussians"):
-        ImprovedGSStrategy(context=StrategyContext(cap=0))
+    assert ImprovedGSStrategy(budget=120, context=StrategyContext(budget=50)).final_budget(state) == 50  # the cap wins
+    with pytest.raises(Exception, match="gaussian_budget"):
+        ImprovedGSStrategy(context=StrategyContext(budget=0))
 
 
 def test_selection_draws_scored_candidates_in_proportion():
@@ -175,19 +175,19 @@ def _grid_model(n=20, opacity=0.5):
     return model, GaussianAdam(model.params, {k: 1e-3 for k in model.params})
 
 
-def test_round_splits_up_to_the_budget_and_max_gaussians():
+def test_round_splits_up_to_the_budget_and_the_runs_budget():
     from strings_bench.engine.strategies import StrategyContext
 
     model, opt = _grid_model()
-    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(cap=26)), model)
+    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(budget=26)), model)
     state = strategy.initialize_state(1.0)
     state["n_initial"] = 20
     state.update(grad2d_abs=torch.full((20,), 1e-3), count=torch.ones(20))
-    strategy.densify(model, opt, state, step=14_500)  # the ramp is over: budget = max_gaussians = 26
+    strategy.densify(model, opt, state, step=14_500)  # the ramp is over: budget = the run's budget = 26
     assert len(model) == 26 and state["n_split"] == 6
     # halfway through the ramp's square root: budget int(sqrt(0.25) x 26) = 13 < N: nothing grows
     model, opt = _grid_model()
-    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(cap=26)), model)
+    strategy = _attached(ImprovedGSStrategy(context=StrategyContext(budget=26)), model)
     state = strategy.initialize_state(1.0)
     state["n_initial"] = 20
     state.update(grad2d_abs=torch.full((20,), 1e-3), count=torch.ones(20))
@@ -292,7 +292,7 @@ def test_improved_gs_trains_within_its_budget(tmp_path):
     # scale 0.01: densification in (5, 150), the budget ramp ends at 145, multi-step updates after 150;
     # a low threshold so that the 32x24 views' small gradients select candidates
     method = get_method("improved-gs").build(None, steps_scale=0.01, sh_degree=0, refine_every=1, score_views=2,
-                                             grow_grad2d_abs=1e-6, max_gaussians=200)
+                                             grow_grad2d_abs=1e-6, gaussian_budget=200)
     results = eh.train(method, scene, [100, 160])
     state = method.strategy_state
     assert state["n_refine"] > 0 and state["n_split"] > 0  # it densified ...

@@ -40,7 +40,7 @@ def test_strings_criterion_is_unchanged():
     method = _build("strings")
     assert type(method.strategy) is DefaultStrategy
     assert method.strategy.get_raster_kwargs(100) == {}  # the rasterizer computes no absolute gradient
-    assert (method.strategy.grow_grad2d, method.strategy.grow_scale3d, method.context.cap) == (2e-4, 0.01, None)
+    assert (method.strategy.grow_grad2d, method.strategy.grow_scale3d, method.context.budget) == (2e-4, 0.01, None)
     n = 6
     model = _small_model(n, big=(0, 1))
     state = method.strategy.initialize_state(scene_extent=1.0)

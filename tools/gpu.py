@@ -29,9 +29,9 @@ def _sizes(text: str) -> list[tuple[int, int]]:
     return [tuple(int(v) for v in item.lower().split("x")) for item in text.split(",") if item.strip()]
 
 
-def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: str, with_lpips: bool,
+def measure(name: str, size: tuple[int, int], steps: int, device: str, ocr: str, with_lpips: bool,
             run_dir: Path) -> dict:
-    """Train `method` for `steps` steps on books at `size` on `device`, then evaluate the checkpoint."""
+    """Train method `name` for `steps` steps on books at `size` on `device`, then evaluate the checkpoint."""
     import torch
 
     from strings_bench.eval.protocol import Evaluator
@@ -43,15 +43,15 @@ def measure(method: str, size: tuple[int, int], steps: int, device: str, ocr: st
 
     w, h = size
     scene = Scene.load(build_scene("books", settings_with(width=w, height=h), progress=False), name="books")
-    adapter = get_method(method).build(steps_scale=get_schedule("paper").steps_scale)  # the paper's schedule; the run is cut at `steps`
+    method = get_method(name).build(steps_scale=get_schedule("paper").steps_scale)  # the paper's schedule; the run is cut at `steps`
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
-    (result,) = list(Trainer(adapter, scene, [steps], device=device, progress=False).train())
+    (result,) = list(Trainer(method, scene, [steps], device=device, progress=False).train())
     evaluator = Evaluator.for_scene(scene, get_backend(ocr), 1.0, with_lpips=with_lpips, device=device)
     t0 = time.perf_counter()
-    evaluator.evaluate(method, result.renders)
+    evaluator.evaluate(name, result.renders)
     eval_s = time.perf_counter() - t0
-    return {"method": method, "size": f"{w}x{h}", "device": device, "steps": steps,
+    return {"method": name, "size": f"{w}x{h}", "device": device, "steps": steps,
             "steps_per_s": steps / max(result.train_seconds, 1e-9), "train_s": result.train_seconds,
             "eval_s": eval_s, "eval_share": eval_s / (eval_s + result.train_seconds),
             "peak_mb": peak_memory_mb(device), "gaussians": result.gaussians}

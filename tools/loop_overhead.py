@@ -36,7 +36,7 @@ HUGE = 10 ** 9
 
 
 def make_method(steps_scale: float, densify: bool):
-    from strings_bench.engine.splatting import TrainConfig
+    from strings_bench.engine.train_config import TrainConfig
     from strings_bench.engine.strategies.default import DefaultStrategy
     from strings_bench.methods.gs3d import GS3D
 

@@ -120,7 +120,7 @@ def point_clouds(sizes: list[int], work: Path) -> dict[int, Path]:
 
 def ours_worker(scene_dir: str, steps: int) -> int:
     """Train this suite's 3DGS (densification off) for `steps` on the project; print JSON."""
-    from strings_bench.engine.splatting import TrainConfig
+    from strings_bench.engine.train_config import TrainConfig
     from strings_bench.engine.strategies.default import DefaultStrategy
     from strings_bench.engine.trainer import Trainer
     from strings_bench.methods.gs3d import GS3D

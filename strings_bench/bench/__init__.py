@@ -1,4 +1,4 @@
-"""Running the benchmark: a run planned (plan.py, with its equal Gaussian cap in budget.py), its jobs executed
+"""Running the benchmark: a run planned (plan.py, with its equal Gaussian budget in budget.py), its jobs executed
 (runner.py, executors.py, ray_executor.py), predictions made elsewhere evaluated (evaluate.py), and the methods'
 self-check (check.py).
 

@@ -1,17 +1,18 @@
 """The equal Gaussian budget of a run (`run --budget N|METHOD`, `--budget-from FOLDER`), in one value: `Budget`.
 
-Two words: the *budget* is the rule (a count or a reference method); the *cap* is the number of Gaussians it sets
-for one job (the method setting `max_gaussians`, `StrategyContext.cap`). `--budget N` caps every method of the run
-at N Gaussians. `--budget METHOD` makes METHOD the reference: it trains
-first, uncapped, and every other method is capped at the Gaussian count METHOD's cell reaches on the same scene at
-the job's last checkpoint, read where the job runs from this run folder, or from `--budget-from`'s (a run folder
-whose METHOD cells were trained uncapped at the same schedule and image scale). A cap reaches a method as its
-`max_gaussians` setting (engine/splatting.py, `TrainConfig`; its strategy gets it in its `StrategyContext`), never
-through `--set`; the plan puts a `--budget N` cap into each job's settings (bench/plan.py).
+One word, budget: the run's rule is a `Budget` (a count or a reference method); the count it sets for one job is
+that job's Gaussian budget (the method setting `gaussian_budget`, `StrategyContext.budget`, the cell's
+`config.budget.count`). `--budget N` holds every method of the run to N Gaussians. `--budget METHOD` makes METHOD
+the reference: it trains first, without a budget, and every other method is held to the Gaussian count METHOD's cell
+reaches on the same scene at the job's last checkpoint, read where the job runs from this run folder, or from
+`--budget-from`'s (a run folder whose METHOD cells were trained without a budget at the same schedule and image
+scale). A job's budget reaches its method as the `gaussian_budget` setting (engine/train_config.py, `TrainConfig`;
+its strategy gets it in its `StrategyContext`), never through `--set`; the plan puts a `--budget N` count into each
+job's settings (`Budget.for_job`).
 
 The life of a budget: `Budget.parse` (the command line), `check` (against the run's methods and folders, before any
 scene is built), `manifest` (what run.json records), and `record`, where a job runs: what its cells record
-(results.csv's `budget` column), from which `cap_of` reads the cap its method is built with.
+(results.csv's `budget` column), from which `budget_of` reads the count its method is built with.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from pathlib import Path
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.core.results import CellKey, is_finished
 
-SETTING = "max_gaussians"  # the strategy field a cap reaches every method as
+SETTING = "gaussian_budget"  # the method setting (engine/train_config.py, TrainConfig) a job's budget reaches its method as
+OLD_SETTING = "max_gaussians"  # its name in cells and training states written before the rename; read, never written
 EXAMPLES = "e.g. --budget 40000, --budget 40k, or --budget 3dgs"
 
 
@@ -91,7 +93,7 @@ class Budget:
 
             made_from = (read_manifest(run_dir) or {}).get("budget_from") if Path(run_dir).is_dir() else None
             raise StringsBenchError(
-                f"--budget {self.reference} needs {self.reference} among the run's methods: it trains first, uncapped, "
+                f"--budget {self.reference} needs {self.reference} among the run's methods: it trains first, without a budget, "
                 f"and its Gaussian count on each scene is the others' budget",
                 hint=(f"{run_dir} was made with --budget-from {made_from}: give it again to resume" if made_from
                       else f"add it: --methods {self.reference},{','.join(methods)}"))
@@ -103,7 +105,7 @@ class Budget:
         return checked
 
     def _check_folder(self, folder: Path, schedule: dict, downscale: float) -> Path:
-        """`--budget-from FOLDER`: a run folder whose reference cells were trained uncapped, at this run's schedule
+        """`--budget-from FOLDER`: a run folder whose reference cells were trained without a budget, at this run's schedule
         and image scale (so that a count at an iteration means the same model size). Returns it resolved."""
         from strings_bench.store import read_manifest
 
@@ -117,9 +119,9 @@ class Budget:
             raise StringsBenchError(f"--budget-from {folder} holds no {ref} cells",
                                     hint=f"the folder must hold {ref}'s cells (--budget {ref})")
         if old.get("budget") not in (None, ref):
-            raise StringsBenchError(f"--budget-from {folder}: its {ref} cells were capped (--budget "
+            raise StringsBenchError(f"--budget-from {folder}: its {ref} cells were trained under a budget (--budget "
                                     f"{old.get('budget')}), so their counts are no reference",
-                                    hint="give a folder where the reference method trained uncapped")
+                                    hint="give a folder where the reference method trained without a budget")
         was = old.get("schedule") or {}
         for key, option in (("steps_scale", "--steps-scale"), ("name", "--schedule")):
             if was.get(key) != schedule.get(key):
@@ -138,20 +140,27 @@ class Budget:
     def is_reference(self, method: str) -> bool:
         return method == self.reference
 
+    def for_job(self, method: str, settings: dict) -> tuple[dict, int | None]:
+        """(a job's final settings, its Gaussian budget) for `method`, as planned: under `--budget N` the count N,
+        also in the settings (as SETTING); the reference's and `--budget METHOD`'s other jobs get (settings, None),
+        the latter's count being read where the job runs (`record`)."""
+        count = None if self.is_reference(method) else self.count
+        return (settings if count is None else {**settings, SETTING: count}), count
+
     # ---- resolved where a job runs ------------------------------------------------------------------------------
     def reference_cell(self, dataset: str, scene: str, checkpoints) -> CellKey:
-        """The cell whose Gaussian count caps a job on (dataset, scene) with these checkpoints under
+        """The cell whose Gaussian count is the budget of a job on (dataset, scene) with these checkpoints under
         `--budget METHOD`: the reference's cell at the job's last checkpoint."""
         return CellKey(str(self.reference), dataset, scene, max(checkpoints))
 
     def record(self, method: str, dataset: str, scene: str, checkpoints, run_dir: str | Path) -> dict | str:
-        """What a cell of `method` records as its budget: {"rule", "max_gaussians", "reference"}, or "reference" for
-        the reference method's own (uncapped) cells. Under `--budget METHOD` the reference's cell (in `run_dir` or
+        """What a cell of `method` records as its budget: {"rule", "count", "reference"}, or "reference" for
+        the reference method's own cells (trained without a budget). Under `--budget METHOD` the reference's cell (in `run_dir` or
         `--budget-from`'s folder) must be finished, with a Gaussian count."""
         if self.is_reference(method):
             return "reference"
         if self.count is not None:
-            return {"rule": str(self.count), "max_gaussians": self.count, "reference": None}
+            return {"rule": str(self.count), "count": self.count, "reference": None}
         from strings_bench.store import read_cell
 
         folder = Path(self.folder or run_dir)
@@ -162,24 +171,29 @@ class Budget:
                 f"--budget {self.reference}: {method} on {dataset}/{scene} needs {self.reference}'s cell at iteration "
                 f"{ref.iteration} ({ref.path(folder)}), which is not in {where}",
                 hint=(f"train {self.reference} on this scene into {folder} first" if self.folder else
-                      f"add {self.reference} to --methods (its jobs run first, uncapped), or give a number: --budget N"))
+                      f"add {self.reference} to --methods (its jobs run first, without a budget), or give a number: --budget N"))
         count = (read_cell(folder, ref) or {}).get("gaussians")
         if not count:
             raise StringsBenchError(f"--budget {self.reference}: the reference cell {ref.path(folder)} records no "
                                     "Gaussian count", hint="the reference must be a method that trains Gaussians")
-        return {"rule": self.reference, "max_gaussians": int(count),
+        return {"rule": self.reference, "count": int(count),
                 "reference": {"method": ref.method, "iteration": ref.iteration,
                               **({"folder": str(folder)} if self.folder else {})}}
 
 
 def refuse_set(overrides: dict[str, dict]) -> None:
-    """A cap is given with --budget, never with --set, with or without a budget (`overrides`: method, or the
-    all-methods key, -> its --set values)."""
-    if any(SETTING in s for s in overrides.values()):
-        raise StringsBenchError(f"{SETTING} is set with --budget, not --set",
-                                hint="--budget N caps every method of the run at N Gaussians (docs/guide/running.md)")
+    """A Gaussian budget is given with --budget, never with --set, under its name or its old one (`overrides`:
+    method, or the all-methods key, -> its --set values)."""
+    for name in (SETTING, OLD_SETTING):
+        if any(name in s for s in overrides.values()):
+            raise StringsBenchError(f"{name} is set with --budget, not --set"
+                                    + (f" (and is called {SETTING} now)" if name == OLD_SETTING else ""),
+                                    hint="--budget N holds every method of the run to N Gaussians (docs/guide/running.md)")
 
 
-def cap_of(record: dict | str | None) -> int | None:
-    """The Gaussian cap a cell's budget record sets: its max_gaussians; None for the reference and without one."""
-    return int(record["max_gaussians"]) if isinstance(record, dict) else None
+def budget_of(record: dict | str | None) -> int | None:
+    """The Gaussian budget, a count, that a cell's budget record sets (its "count"; "max_gaussians" in cells written
+    before the rename); None for the reference and without one."""
+    if not isinstance(record, dict):
+        return None
+    return int(record["count"] if "count" in record else record[OLD_SETTING])

@@ -238,7 +238,7 @@ class CheckContext:
     work: Path
     settings: dict = dataclasses.field(default_factory=dict)
     note: str = ""
-    adapter: bool = False
+    is_adapter: bool = False
     renders: dict = dataclasses.field(default_factory=dict)  # device -> renders
     trained: dict = dataclasses.field(default_factory=dict)  # device -> trained method
     states: dict = dataclasses.field(default_factory=dict)  # device -> saved training state
@@ -282,7 +282,7 @@ def check_builds(ctx: CheckContext) -> str:
     ctx.settings = {**extra, **ctx.overrides}
     obj = ctx.build()
     json.dumps(obj.describe(), default=str)
-    ctx.adapter = isinstance(obj, MethodAdapter)
+    ctx.is_adapter = isinstance(obj, MethodAdapter)
     kind = "Method (trained by the framework's loop)" if isinstance(obj, Method) else "MethodAdapter"
     return f"{type(obj).__name__}: a {kind}" + (f"; {ctx.note}" if ctx.note else "")
 
@@ -466,14 +466,14 @@ def check_method(method: str | Any, overrides: dict | None = None, *, devices: l
         out.run("settings", (), lambda: check_settings(ctx))
         out.run("builds", (), lambda: check_builds(ctx))
         for device in devices:
-            if device != "cpu" and ctx.adapter:
+            if device != "cpu" and ctx.is_adapter:
                 out.record(CheckResult(f"trains ({device})", SKIP, "an adapter: it picks its own device"))
                 continue
             out.run(f"trains ({device})", ("builds",), lambda d=device: check_trains(ctx, d))
             out.run(f"renders ({device})", (f"trains ({device})",), lambda d=device: check_renders(ctx.renders[d], ctx.scene))
             if device != "cpu":
                 continue
-            if ctx.adapter:
+            if ctx.is_adapter:
                 for name in ("save/load", "re-save"):
                     out.record(CheckResult(name, SKIP, "an adapter: the suite keeps no training state of it"))
             else:

@@ -43,7 +43,7 @@ class Job:
     steps_scale: float
     method_settings: dict = field(default_factory=dict)  # the method's --set values, the all-methods ones included
     # the method's final settings, built with as they are: its spec's defaults, presets, steps scale, --set values
-    # and a --budget N cap
+    # and a --budget N count
     settings: dict = field(default_factory=dict)
     method_presets: tuple[str, ...] = ()  # the method's presets in order (recorded): dataset-conditional, then --presets
     cer_profile: str = "paper"  # strings_bench.eval.cer.PROFILES; the authors' rules by default
@@ -56,10 +56,10 @@ class Job:
     # (Evaluator.evaluate_words); () when there are none or the run asked for --dense-eval full
     dense_checkpoints: tuple[int, ...] = ()
     lpips_checkpoints: tuple[int, ...] = ()  # of `checkpoints`, those scored with LPIPS too (--lpips-at)
-    budget: Budget | None = None  # the run's equal Gaussian cap rule (bench/budget.py), recorded with each cell
-    # the cap in Gaussians where the plan knows it (--budget N; also in settings); None without a cap, for
-    # the reference method, and under --budget METHOD, whose count is read where the job runs
-    cap: int | None = None
+    budget: Budget | None = None  # the run's equal Gaussian budget rule (bench/budget.py), recorded with each cell
+    # the job's budget in Gaussians where the plan knows it (--budget N; also in settings); None without a budget,
+    # for the reference method, and under --budget METHOD, whose count is read where the job runs
+    budget_count: int | None = None
 
     def state_path(self) -> Path:
         """The resumable training state of this (method, scene)."""

@@ -4,7 +4,7 @@ and its record (`RunPlan.manifest`, written to run.json).
 `plan_run(config)` parses, checks and resolves every value of a run once, before any scene is built or method
 trained: method names, `--set` keys, `--presets` names, the OCR engines and profile, the device (resolved here
 when jobs run in this process; a distributed executor's workers resolve their own), `--save-every`, the executor's
-options, the equal Gaussian cap and the LPIPS checkpoints; then it resolves the scenes and makes
+options, the equal Gaussian budget and the LPIPS checkpoints; then it resolves the scenes and makes
 one frozen `Job` per (method, scene) holding the method's final settings. The runner and the trainer take a job
 as it is. run.json is the plan's record, never read back as configuration: a resumed run compares it with its
 new plan and refuses a mismatch (store/manifest.py, `check_manifest`).
@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Iterable
 
 from strings_bench.core.progress import progress_bars
-from strings_bench.bench.budget import SETTING as CAP_SETTING
 from strings_bench.bench.budget import Budget, refuse_set
 from strings_bench.bench.executors import Job
 from strings_bench.core.errors import StringsBenchError
@@ -75,8 +74,8 @@ class RunConfig:
         lpips_at: "last" (each job's last checkpoint) or "all".
         progress: show progress bars.
         write_report: write report/ at the end.
-        budget: the equal Gaussian cap, `--budget N|METHOD` (bench/budget.py).
-        budget_from: `--budget-from FOLDER`: the cap from an earlier run's Gaussian counts.
+        budget: `--budget N|METHOD`, the equal Gaussian count of every method (bench/budget.py).
+        budget_from: `--budget-from FOLDER`: the reference's counts from an earlier run folder.
     """
 
     methods: list[str] = field(default_factory=list)
@@ -135,7 +134,7 @@ class MethodPlan:
 
 @dataclass(frozen=True, kw_only=True)
 class RunPlan:
-    """A planned run: its folder, its jobs (a cap's reference method first), where they run and its record
+    """A planned run: its folder, its jobs (the reference method's first), where they run and its record
     (run.json).
 
     device: the device its jobs train on, resolved on this machine when they run in this process (`in_process`);
@@ -170,19 +169,19 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
     specs = {m: get_method(m) for m in c.methods}  # fails early on an unknown name
     _check_names(c)
     ds = float(c.downscale if c.downscale is not None else p.downscale)
-    cap = Budget.parse(c.budget, c.budget_from)
+    rule = Budget.parse(c.budget, c.budget_from)
     refuse_set(c.method_overrides or {})
-    if cap is not None:
-        cap = cap.check(list(c.methods), specs, Path(c.run_dir), asdict(p), ds)
+    if rule is not None:
+        rule = rule.check(list(c.methods), specs, Path(c.run_dir), asdict(p), ds)
     given_settings = _given_settings(c, specs)
     planned = [_method_plan(specs[m], c, p, given_settings[m]) for m in c.methods]
     with progress_bars(c.progress):  # a scene built on first use shows its bars only if the run shows its own
         refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
     if not refs:
         raise StringsBenchError(f"no scenes found for {datasets}", hint="see `strings-bench datasets list`")
-    if cap is not None:  # the reference method's jobs first: the others' caps are its counts
-        planned.sort(key=lambda mp: not cap.is_reference(mp.name))
-    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=_scene_ocr(ocr, ref), downscale=ds, cap=cap, device=device,
+    if rule is not None:  # the reference method's jobs first: the others' counts are its
+        planned.sort(key=lambda mp: not rule.is_reference(mp.name))
+    jobs = [_job(c, p, mp, specs[mp.name], ref, ocr=_scene_ocr(ocr, ref), downscale=ds, rule=rule, device=device,
                  save_every=save_every) for mp in planned for ref in refs]
     manifest = {
         "schedule": asdict(p), "downscale": ds, "ocr": ocr, "cer_profile": c.cer_profile,
@@ -195,8 +194,8 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         "methods": {m: _method_entry(specs[m]) for m in c.methods},
         "datasets": datasets,
         "device": c.device,  # as asked; execute() adds where it resolved to on this machine
-        # absent without a cap, so that folders made before caps existed keep resuming
-        **(cap.manifest() if cap is not None else {}),
+        # absent without one, so that folders made before it existed keep resuming
+        **(rule.manifest() if rule is not None else {}),
     }
     return RunPlan(run_dir=Path(c.run_dir), jobs=jobs, manifest=manifest, device=device, in_process=in_process)
 
@@ -319,20 +318,18 @@ def _scene_ocr(ocr, ref) -> tuple[str, ...]:
     return tuple(engines.split(","))
 
 
-def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale: float, cap,
+def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale: float, rule,
          device: str, save_every) -> Job:
     """The job of one method on one scene. Its presets: those that apply to the scene by themselves, then the
-    chosen ones; its settings final (a cap of a count included); its checkpoints follow from its steps scale, or
-    from the method (e.g. the ply adapter: the model's own iteration). The method is built once, by the job
+    chosen ones; its settings final (with a Gaussian count given as a number); its checkpoints follow from its steps
+    scale, or from the method (e.g. the ply adapter: the model's own iteration). The method is built once, by the job
     (bench/runner.py)."""
     presets = tuple(spec.presets_for(ref.dataset, ref.scene)) + mp.presets
     settings = method_settings(spec, presets, mp.steps_scale, mp.settings)
     fixed = spec.fixed_checkpoints(settings)
     steps = tuple(fixed or p.checkpoints(mp.steps_scale))
     dense = () if fixed or c.dense_eval == "full" else tuple(p.dense_checkpoints(mp.steps_scale))
-    count = None if cap is None or cap.is_reference(mp.name) else cap.count  # a reference's count: read where the job runs
-    if count is not None:
-        settings = {**settings, CAP_SETTING: count}
+    settings, count = (settings, None) if rule is None else rule.for_job(mp.name, settings)
     lpips = () if not c.with_lpips else steps if c.lpips_at == "all" else (max(steps),)
     return Job(run_dir=str(c.run_dir), method=mp.name, dataset=ref.dataset, scene=ref.scene, scene_path=str(ref.path),
                scene_settings=dict(ref.settings), checkpoints=steps,
@@ -340,7 +337,7 @@ def _job(c: RunConfig, p: Schedule, mp: MethodPlan, spec, ref, *, ocr, downscale
                ocr=ocr, steps_scale=mp.steps_scale, method_settings=dict(mp.settings), settings=settings,
                method_presets=presets,
                cer_profile=c.cer_profile, device=device, save_every=save_every, keep_models=bool(c.keep_models),
-               dense_checkpoints=dense, lpips_checkpoints=tuple(lpips), budget=cap, cap=count)
+               dense_checkpoints=dense, lpips_checkpoints=tuple(lpips), budget=rule, budget_count=count)
 
 
 def _method_entry(spec) -> dict:

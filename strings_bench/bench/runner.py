@@ -23,7 +23,7 @@ Run folder (see docs/guide/running.md):
       report/                           tables, figures, index.html (strings_bench.reports.write_report)
 
 The run's configuration is one `RunConfig` (bench/plan.py), planned into jobs by `plan_run`, which resolves
-every value (device, OCR engines, save schedule, final method settings, cap, LPIPS checkpoints) once: the runner
+every value (device, OCR engines, save schedule, final method settings, Gaussian budget, LPIPS checkpoints) once: the runner
 takes a job as it is and reads run.json only to compare it with the plan (a resume). The schedules are
 core/schedules.py; `strings_bench.bench.run` plans and executes. The run folder is written and read
 through the store (strings_bench/store/). Execution goes through an `Executor` (bench/executors.py:
@@ -42,8 +42,8 @@ from concurrent.futures import FIRST_COMPLETED, wait
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from strings_bench.bench.budget import SETTING as CAP_SETTING
-from strings_bench.bench.budget import cap_of
+from strings_bench.bench.budget import SETTING as BUDGET_SETTING
+from strings_bench.bench.budget import budget_of
 from strings_bench.bench.executors import Executor, Job, executor_factory
 from strings_bench.bench.plan import RunPlan
 from strings_bench.bench.records import device_info, versions, write_gt_pngs, write_run_report
@@ -60,12 +60,12 @@ log = logging.getLogger(__name__)
 
 
 # ---- running ------------------------------------------------------------------------------------
-def build_method(job: Job, cap: int | None = None):
-    """The job's method, built once from its final settings (bench/plan.py); `cap`: a Gaussian cap known only
-    where the job runs (`--budget METHOD`: the reference's count), added to them."""
+def build_method(job: Job, budget_count: int | None = None):
+    """The job's method, built once from its final settings (bench/plan.py); `budget_count`: a Gaussian budget known
+    only where the job runs (`--budget METHOD`: the reference's count), added to them."""
     from strings_bench.methods.registry import get_method
 
-    settings = job.settings if cap is None else {**job.settings, CAP_SETTING: int(cap)}
+    settings = job.settings if budget_count is None else {**job.settings, BUDGET_SETTING: int(budget_count)}
     return get_method(job.method).instantiate(settings)
 
 
@@ -102,11 +102,11 @@ class Runner:
         if not todo:
             job.state_path().unlink(missing_ok=True)  # left by a run killed after its last cell was written
             return []
-        # the cap its cells record (a --budget METHOD reference's count is read here, where the job runs)
+        # the budget its cells record (a --budget METHOD reference's count is read here, where the job runs)
         budget = None if job.budget is None else job.budget.record(job.method, job.dataset, job.scene,
                                                                     job.checkpoints, job.run_dir)
         scene = _load_scene(job)
-        method = build_method(job, None if job.cap is not None else cap_of(budget))
+        method = build_method(job, None if job.budget_count is not None else budget_of(budget))
         method.progress = self.progress is not False  # --no-progress reaches the training and mask bars
         from strings_bench.eval.ocr import get_engine
 
@@ -288,7 +288,7 @@ def _execute(plan: RunPlan, ocr, executor, progress: bool, write_report: bool, e
         for stage in stages:
             if stage:
                 _run_stage(ex, stage, errors, in_process, run_dir, cells, bar)
-                if ex.detach:  # submitted, not waited for: a later stage (a --budget's capped methods) reads this
+                if ex.detach:  # submitted, not waited for: a later stage (a --budget's budgeted methods) reads this
                     break      # one's cells, so a later run submits it
     except KeyboardInterrupt:
         ex.cancel()

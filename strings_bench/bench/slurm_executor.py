@@ -24,7 +24,7 @@ Slurm is followed with `squeue` and `scontrol` only (no accounting database is n
 come from `sacct`, which many clusters and the single-node Slurm of scripts/slurm_local.sh do not have).
 submitit is an optional dependency (`pip install -e '.[slurm]'`), imported only when this executor is used.
 
-Size (~560 lines): one executor read top to bottom: its options and their checks, the callable a task runs, the
+Size (~570 lines): one executor read top to bottom: its options and their checks, the callable a task runs, the
 submission of arrays, and the following of tasks through squeue, scontrol and their result files.
 """
 

@@ -233,8 +233,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     ap.add_argument("--methods", default="3dgs", help="3dgs to calibrate; strings once the settings are frozen")
     ap.add_argument("--ocr", default="rapidocr")
     ap.add_argument("--budget", default=None, metavar="N|METHOD",
-                    help="cap every method at N Gaussians, or at the count METHOD (e.g. 3dgs, trained first, uncapped) "
-                         "reaches on the same scene at the last checkpoint; a budget needs its own --out folder "
+                    help="hold every method to a Gaussian budget of N, or to the count METHOD (e.g. 3dgs, trained "
+                         "first without a budget) reaches on the same scene at the last checkpoint; a budget needs its "
+                         "own --out folder "
                          "(docs/guide/running.md, \"Equal Gaussian budget\")")
     ap.add_argument("--out", default=None, help="run folder (default: the regime's)")
     ap.add_argument("--target", choices=sorted(TARGET_NAMES), default=None,

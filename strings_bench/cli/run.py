@@ -108,15 +108,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "the run, METHOD.KEY=VALUE for one (it wins over the former), e.g. --set lr_means=1e-3 "
                         "--set ply.ply_path=/models/{scene}/point_cloud.ply; repeatable")
     p.add_argument("--budget", default=None, metavar="N|METHOD",
-                   help="equal Gaussian budget: cap every method at N Gaussians (40000 or 40k), or at the count METHOD "
-                        "reaches on the same scene at the last checkpoint (--budget 3dgs: 3dgs trains first, uncapped, "
-                        "as the reference; it must be in --methods or its cells in the run folder). Each method keeps "
+                   help="equal Gaussian budget: hold every method to N Gaussians (40000 or 40k), or to the count "
+                        "METHOD reaches on the same scene at the last checkpoint (--budget 3dgs: 3dgs trains first, "
+                        "without a budget, as the reference; it must be in --methods or its cells in the run folder). "
+                        "Each method keeps "
                         "to it by its own rules (docs/baselines.md); recorded in run.json and every result.json, and a "
                         "run folder holds one budget (docs/guide/running.md)")
     p.add_argument("--budget-from", default=None, metavar="FOLDER",
                    help="with --budget METHOD: read METHOD's counts from the cells of another run folder (trained "
-                        "there uncapped, same schedule and image scale) instead of training METHOD in this run, e.g. "
-                        "other seeds at the count 3DGS reached at seed 0")
+                        "there without a budget, same schedule and image scale) instead of training METHOD in this "
+                        "run, e.g. other seeds at the count 3DGS reached at seed 0")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as n/a)")
     p.add_argument("--lpips-at", default=LPIPS_AT[0], choices=LPIPS_AT,
                    help="LPIPS at each method x scene's last checkpoint (default; the paper reports it at 30K) or at all")

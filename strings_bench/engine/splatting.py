@@ -1,6 +1,7 @@
 """3D Gaussian Splatting as a `Method`: the reference implementation every built-in method extends.
 
-Size (~560 lines): one method, 3DGS, with its hooks in the order the loop calls them and their docstrings; a hook split off into another file would be read out of that order.
+Size (~620 lines): one method, 3DGS, with its hooks in the order the loop calls them and their docstrings; a hook
+split off into another file would be read out of that order. Its settings are engine/train_config.py.
 
 `GaussianSplatting(config, strategy)` holds the model, the optimizer and the strategy state, and
 implements the method protocol (`strings_bench.core.method.Method`); the framework's loop
@@ -37,7 +38,6 @@ import dataclasses
 import logging
 import math
 import os
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -51,8 +51,10 @@ from strings_bench.engine.losses import gs_loss
 from strings_bench.engine.motion import motion_record, new_motion_log, note_motion
 from strings_bench.engine.optim import GaussianAdam, LearningRates, exponential_lr
 from strings_bench.engine.optim_kernels import sums_finite
-from strings_bench.engine.strategies.base import MIN_SCALED_INTERVAL, Strategy, StrategyContext
+from strings_bench.engine.strategies.base import Strategy, StrategyContext
 from strings_bench.engine.strategies.default import DefaultStrategy
+# the settings, apart so that they read without a method; imported from here too (engine.splatting.TrainConfig)
+from strings_bench.engine.train_config import TrainConfig, config_from_settings, settings_keys  # noqa: F401
 from strings_bench.core.method import Method
 
 if TYPE_CHECKING:
@@ -60,85 +62,6 @@ if TYPE_CHECKING:
     from strings_bench.scene.scene import Scene
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class TrainConfig:
-    """The 3DGS training settings (flat `--set` keys of every Gaussian method, with `lr_<group>`)."""
-
-    steps_scale: float = 1.0  # multiplies every iteration number (quick runs)
-    seed: int = 0  # seeds the view order and torch/numpy/random
-    sh_degree: int = 3  # highest spherical-harmonics degree
-    sh_increase_every: int = 1_000  # the SH degree rises by one every this many (nominal) steps
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 3DGS default (black)
-    lrs: LearningRates = field(default_factory=LearningRates)
-    position_lr_steps: int = 30_000  # nominal length of the position-LR decay
-    # A shrunk schedule's miniature `lr-sum` sets 1/steps_scale, so that the LR's sum over a run (how far a
-    # Gaussian can move) is the paper's.
-    position_lr_gain: float = 1.0  # x the position LR at every step (1: the paper's; miniature lr-sum: 1/steps_scale)
-    # The miniature `rounds` sets 1, so that a shrunk run refines as many times as the paper's (an interval of 100
-    # at x0.1 is 10 steps) instead of at least every 50 steps.
-    interval_floor: int = MIN_SCALED_INTERVAL  # shortest refinement / SH interval of a shrunk run, in steps
-    max_gaussians: int | None = None  # the run's equal Gaussian cap (run --budget; never --set); None: no cap
-    lambda_dssim: float = 0.2  # loss = (1 - l) L1 + l (1 - SSIM)
-    init_opacity: float = 0.1  # opacity of the initial Gaussians
-    backend: str = "auto"  # rasterizer backend: auto, cpu (float32 blends), cpu-f64 (float64 reference), gsplat
-
-    def __post_init__(self):
-        if self.steps_scale <= 0:
-            raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
-        if not (math.isfinite(self.position_lr_gain) and self.position_lr_gain > 0):
-            raise StringsBenchError(f"position_lr_gain must be a finite number > 0, got {self.position_lr_gain}")
-        if isinstance(self.interval_floor, bool) or int(self.interval_floor) != self.interval_floor \
-                or self.interval_floor < 1:
-            raise StringsBenchError(f"interval_floor must be a whole number of steps >= 1, got {self.interval_floor}")
-        StrategyContext(cap=self.max_gaussians)  # refuses a cap that is not a positive whole number
-
-
-def settings_keys(strategy_cls: type[Strategy] = DefaultStrategy) -> dict[str, str]:
-    """Every flat setting a Gaussian method takes -> where it goes ("train", "lr", "strategy")."""
-    from dataclasses import fields as dc_fields
-
-    keys = {f.name: "train" for f in dc_fields(TrainConfig) if f.name != "lrs"}
-    keys.update({f"lr_{f.name}": "lr" for f in dc_fields(LearningRates)})
-    for f in dc_fields(strategy_cls):
-        if not f.metadata.get("setting", True):  # the strategy's context: given by the method
-            continue
-        keys[f.name] = "train+strategy" if keys.get(f.name) == "train" else "strategy"
-    return keys
-
-
-def config_from_settings(settings: dict, strategy_cls: type[Strategy] = DefaultStrategy,
-                         ignore: tuple[str, ...] = ()) -> tuple[TrainConfig, Strategy]:
-    """Split a flat settings dict into (TrainConfig, strategy).
-
-    Keys: TrainConfig fields (steps_scale, seed, sh_degree, background, ...), learning rates as
-    `lr_<group>` (lr_means, lr_means_final, lr_opacity_logits, ...), and fields of `strategy_cls`
-    (grow_grad2d, refine_every, ...). Unknown keys are an error (typos must not pass silently);
-    keys in `ignore` are left to the caller. A key that is both a TrainConfig and a strategy field
-    (`seed`: the trainer's seed and MCMC's sampling generator) goes to both.
-    """
-    where = settings_keys(strategy_cls)
-    cfg_kw, lr_kw, strat_kw, unknown = {}, {}, {}, []
-    for key, value in settings.items():
-        if key in ignore:
-            continue
-        dest = where.get(key)
-        if dest is None:
-            unknown.append(key)
-            continue
-        if "train" in dest:
-            cfg_kw[key] = value
-        if "strategy" in dest:
-            strat_kw[key] = value
-        if dest == "lr":
-            lr_kw[key[3:]] = float(value)
-    if unknown:
-        raise StringsBenchError(f"unknown setting(s) {', '.join(sorted(unknown))}",
-                                hint=f"valid settings: {', '.join(sorted(set(where) | set(ignore)))}")
-    if "background" in cfg_kw:
-        cfg_kw["background"] = tuple(float(x) for x in cfg_kw["background"])
-    return TrainConfig(lrs=LearningRates(**lr_kw), **cfg_kw), strategy_cls(**strat_kw)
 
 
 def _state_to_cpu(obj):
@@ -197,9 +120,9 @@ class GaussianSplatting(Method):
     def __init__(self, config: TrainConfig | None = None, strategy: Strategy | None = None,
                  model: GaussianModel | None = None):
         self.config = config or TrainConfig()
-        # the schedule scale and the cap, told once to the strategy (and used by the method's own at/every)
+        # the schedule scale and the Gaussian budget, told once to the strategy (and used by the method's own at/every)
         self.context = StrategyContext(steps_scale=self.config.steps_scale, interval_floor=self.config.interval_floor,
-                                       cap=self.config.max_gaussians, reserved=self.reserved_gaussians)
+                                       budget=self.config.gaussian_budget, budget_reserved=self.budget_reserved)
         self.strategy = (strategy if strategy is not None else self.strategy_cls(context=self.context)).bind(self.context)
         self.settings: dict = {}
         self.method_settings = self.method_settings_cls() if self.method_settings_cls is not None else None
@@ -219,7 +142,7 @@ class GaussianSplatting(Method):
         self.step = 0
         self.last_loss = float("nan")
         # The model's size over training, for the cell's record: the most Gaussians it held, and the first step at
-        # which it filled the Gaussian budget in force then (run --budget; STRinGS' phase 1 keeps room free)
+        # which it filled the Gaussian budget in force then (run --budget; STRinGS' phase 1 keeps part of it free)
         self.size_log: dict = {"peak_gaussians": 0, "budget_reached_at": None}
         self.motion_log: dict = new_motion_log()
 
@@ -430,15 +353,15 @@ class GaussianSplatting(Method):
         extra = {"steps_scale": self.config.steps_scale, "paper_iteration": round(step / self.config.steps_scale),
                  "sh_degree": self.sh_degree_for_step(step), "last_loss": self.last_loss,
                  "peak_gaussians": int(self.size_log["peak_gaussians"]), **motion_record(self.motion_log)}
-        if self.context.cap is not None:
+        if self.context.budget is not None:
             extra["budget_reached_at"] = self.size_log["budget_reached_at"]  # a step, or None: never filled
         return extra
 
     def note_model_size(self, step: int) -> None:
         """Update `size_log` after the model may have grown (a refinement, a phase switch): the peak count, and the first
-        step at which the cap in force held the model (`Strategy.cap_holds`)."""
+        step at which the budget now in force held the model (`Strategy.budget_holds`)."""
         self.size_log["peak_gaussians"] = max(int(self.size_log["peak_gaussians"]), len(self.model))
-        if self.strategy.cap_holds(self.model) and self.size_log["budget_reached_at"] is None:
+        if self.strategy.budget_holds(self.model) and self.size_log["budget_reached_at"] is None:
             self.size_log["budget_reached_at"] = int(step)
 
     # ---- model / optimizer ---------------------------------------------------------------------
@@ -464,22 +387,22 @@ class GaussianSplatting(Method):
         self.model = model
         self.optimizer = self.make_optimizer(model)
         self.strategy_state = self.strategy.initialize_state(self.extent, [self.camera(i) for i in self.train_views()])
-        in_force = self.context.cap_in_force()  # the cap less what the method keeps free
-        if in_force is not None and len(model) > in_force:
-            cap, reserved = self.context.cap, self.reserved_gaussians()
+        budget_now = self.context.budget_now()  # the budget less what the method keeps free
+        if budget_now is not None and len(model) > budget_now:
+            budget, reserved = self.context.budget, self.budget_reserved()
             more = f" and {reserved} it adds later" if reserved else ""
             raise StringsBenchError(
-                f"the budget of {cap} Gaussians is below what {self.name} starts from on {self.scene.name}: "
+                f"the budget of {budget} Gaussians is below what {self.name} starts from on {self.scene.name}: "
                 f"{len(model)} Gaussians{more}; a budget stops densification, it cannot remove initial Gaussians",
                 hint="give a larger --budget (at least the scene's SfM point count)")
         self.note_model_size(self.step)
 
-    def reserved_gaussians(self) -> int:
-        """Gaussians this method will add by itself later (outside the strategy), kept free of the cap
-        (`StrategyContext.cap_in_force`). Called by `set_model`.
+    def budget_reserved(self) -> int:
+        """Gaussians this method will add by itself later (outside the strategy), kept free of the budget
+        (`StrategyContext.budget_now`). Called by `set_model`.
 
         Returns:
-            a count, 0 here; STRinGS' phase 1 keeps room for the non-text points that join at T1.
+            a count, 0 here; STRinGS' phase 1 keeps the non-text points that join at T1.
         """
         return 0
 

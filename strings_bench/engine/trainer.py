@@ -49,6 +49,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STATE_VERSION = 1
+# Settings renamed since training states were first saved: old name -> today's (a state keeps the names it was saved
+# with; `Trainer._renamed` reads them as today's). max_gaussians: the Gaussian budget (`TrainConfig.gaussian_budget`).
+RENAMED_SETTINGS = {"max_gaussians": "gaussian_budget"}
 
 # torch's intra-op threads while a method trains on the CPU. The CPU rasterizer's numba
 # kernels use every core already; torch's own threads (SSIM convolutions, small element-wise ops)
@@ -285,6 +288,16 @@ class Trainer:
         return {"version": STATE_VERSION, "method": self.method.name, "checkpoints": self.checkpoints,
                 "downscale": self.downscale, "scene": self.scene.name, **self.fingerprint}
 
+    @staticmethod
+    def _renamed(fingerprint):
+        """A saved state's fingerprint with the settings renamed since it was saved under today's names
+        (RENAMED_SETTINGS), so that a state saved before a rename still resumes."""
+        settings = fingerprint.get("settings") if isinstance(fingerprint, dict) else None
+        if not isinstance(settings, dict) or not set(settings) & set(RENAMED_SETTINGS):
+            return fingerprint
+        renamed = {RENAMED_SETTINGS.get(k, k): v for k, v in settings.items()}
+        return {**fingerprint, "settings": dict(sorted(renamed.items()))}
+
     # ---- state -------------------------------------------------------------------------------------
     def save_state(self, step: int, train_seconds: float, preprocess_seconds: float,
                    train_cpu_seconds: float | None = None) -> None:
@@ -308,7 +321,7 @@ class Trainer:
         except Exception as exc:  # noqa: BLE001 - a truncated or foreign file
             raise StringsBenchError(f"training state {self.state_path} is unreadable: {exc}",
                                     hint="delete it to train this method and scene from the start") from exc
-        if not isinstance(state, dict) or state.get("fingerprint") != self._fingerprint():
+        if not isinstance(state, dict) or self._renamed(state.get("fingerprint")) != self._fingerprint():
             got = state.get("fingerprint") if isinstance(state, dict) else None
             raise StringsBenchError(f"training state {self.state_path} was made with other settings ({got}); "
                                     f"this run is {self._fingerprint()}",

@@ -21,7 +21,7 @@ Three parts, read top to bottom:
 numbers), findings.csv (claim x scale pivot, the results landing page) and readme.csv (the README's paragraph), all
 under docs/results/data/verdicts/; `docs refresh` renders the pages' tables from them.
 
-Size (~470 lines): the claims, the scales' readers, the rule and the tables it writes stay in one module, so that
+Size (~490 lines): the claims, the scales' readers, the rule and the tables it writes stay in one module, so that
 what is judged, on what, and how can be read top to bottom in one place.
 """
 

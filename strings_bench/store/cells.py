@@ -48,8 +48,8 @@ class CellConfig:
     scene: {"path", "settings", "test_views"} (an evaluation: no path).
     versions, metrics: the software versions (bench/records.py) and the metrics' description (eval.metrics).
     A run's cell: method (the method's describe()), method_presets, checkpoints (the job's) and budget (the equal
-    Gaussian budget: {"rule", "max_gaussians", "reference"}, "reference" for the uncapped reference of
-    `--budget METHOD`, None without one). An evaluation's cell: evaluate (what was evaluated) in their place.
+    Gaussian budget: {"rule", "count", "reference"}, "max_gaussians" for "count" before the rename; "reference" for
+    the reference of `--budget METHOD`, trained without a budget; None without one). An evaluation's cell: evaluate (what was evaluated) in their place.
     """
 
     schedule: str | None

@@ -47,11 +47,11 @@ def readability_columns(rec: dict) -> dict:
 
 
 def budget_column(rec: dict) -> int | str:
-    """results.csv's `budget`: the cell's Gaussian cap (run --budget), "reference" for the uncapped reference of
-    --budget METHOD, "" without a budget (and for cells written before budgets existed)."""
+    """results.csv's `budget`: the cell's Gaussian budget, a count (run --budget), "reference" for the
+    reference of --budget METHOD (trained without one), "" without a budget (and for cells written before budgets existed)."""
     b = (rec.get("config") or {}).get("budget")
     if isinstance(b, dict):
-        return int(b["max_gaussians"])
+        return int(b["count"] if "count" in b else b["max_gaussians"])  # "max_gaussians": cells before the rename
     return b if b == "reference" else ""
 
 

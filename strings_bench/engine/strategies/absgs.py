@@ -10,7 +10,7 @@ averaged over the steps in which the Gaussian was visible, as in 3DGS.
 Clone: ordinary gradient >= `grow_grad2d` (2e-4) and largest scale <= `grow_scale3d` x extent.
 Split: absolute gradient >= `grow_grad2d_abs` (4e-4) and largest scale > `grow_scale3d` x extent.
 Everything else (schedule, pruning, opacity reset) is vanilla 3DGS (DefaultStrategy).
-With the Gaussian cap (run --budget), candidates grow in order of their statistic over its threshold (`_grow_scores`).
+With a Gaussian budget (run --budget), candidates grow in order of their statistic over its threshold (`_grow_scores`).
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ from strings_bench.engine.strategies.default import DefaultStrategy, ndc_norm  #
 
 
 def raster_absgrad(info: dict) -> torch.Tensor:
+    """The step's (N, 2) absolute screen-space gradient in pixels, after backward (`info["raster"].absgrad`); a clear
+    error when the render was not asked for it (`get_raster_kwargs`)."""
     out = info.get("raster")
     absgrad = getattr(out, "absgrad", None)
     if absgrad is None:
@@ -36,13 +38,18 @@ def raster_absgrad(info: dict) -> torch.Tensor:
 
 @dataclass
 class AbsGSStrategy(DefaultStrategy):
+    """AbsGS: 3DGS densification that clones on the ordinary screen-space gradient and splits on the absolute one
+    (the module docstring). State: `DefaultStrategy`'s plus grad2d_abs, (N,) float or None, the sum
+    over steps of the absolute-gradient norm (NDC)."""
     grow_grad2d: float = 2e-4       # clone threshold, ordinary gradient
     grow_grad2d_abs: float = 4e-4   # split threshold, absolute gradient
 
     def get_raster_kwargs(self, step: int) -> dict:
+        """{"compute_absgrad": True} at every step: the rasterizer's absolute gradient feeds `_update_state`."""
         return {"compute_absgrad": True}
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        """`DefaultStrategy.initialize_state` plus grad2d_abs = None (made at the first step)."""
         state = super().initialize_state(scene_extent, cameras)
         state["grad2d_abs"] = None
         return state

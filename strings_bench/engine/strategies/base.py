@@ -2,7 +2,7 @@
 
 A strategy is a dataclass whose fields are its settings (flat `--set` keys of the method that uses
 it), plus a `StrategyContext` given once at construction: the run's steps scale and interval floor,
-and the Gaussian cap with what the method keeps free of it. `engine.splatting.GaussianSplatting`
+and the Gaussian budget with what the method keeps free of it. `engine.splatting.GaussianSplatting`
 builds both and drives the strategy; per training step (1-based) it calls:
 
     state = strategy.initialize_state(scene_extent, cameras)        # at every set_model(): the initial
@@ -55,39 +55,39 @@ MIN_SCALED_INTERVAL = 50
 MIN_SCALED_RESET_INTERVAL = 200
 
 
-def keep_within_cap(candidates: torch.Tensor, scores: torch.Tensor, cost: torch.Tensor | int,
-                       room: int | None) -> torch.Tensor:
-    """The candidates that fit in `room` new Gaussians, highest `scores` first (Taming-3DGS' budgeted densification).
+def keep_within_budget(candidates: torch.Tensor, scores: torch.Tensor, cost: torch.Tensor | int,
+                       headroom: int | None) -> torch.Tensor:
+    """The candidates that fit in `headroom` new Gaussians, highest `scores` first (Taming-3DGS' budgeted densification).
 
     Args:
         candidates: (N,) bool, the Gaussians a strategy selected to grow.
         scores: (N,) float, the strategy's score (higher grows first); ties go to the lower index.
         cost: (N,) int or an int, the Gaussians each candidate adds (a clone 1, a 3DGS split n_split - 1).
-        room: how many Gaussians may be added; None: no budget (every candidate is kept).
+        headroom: how many Gaussians may be added; None: no budget (every candidate is kept).
 
     Returns:
-        (N,) bool, a subset of `candidates` whose total cost is at most `room`: the longest prefix of the candidates
+        (N,) bool, a subset of `candidates` whose total cost is at most `headroom`: the longest prefix of the candidates
         sorted by decreasing score that fits (a candidate that does not fit stops the growth; none after it is tried,
         so a cheaper low-scoring one never overtakes a costlier high-scoring one).
 
     Example:
         >>> import torch
-        >>> from strings_bench.engine.strategies.base import keep_within_cap
+        >>> from strings_bench.engine.strategies.base import keep_within_budget
         >>> cand = torch.tensor([True, True, False, True])
-        >>> keep_within_cap(cand, torch.tensor([0.1, 0.9, 5.0, 0.5]), 1, room=2).tolist()
+        >>> keep_within_budget(cand, torch.tensor([0.1, 0.9, 5.0, 0.5]), 1, headroom=2).tolist()
         [False, True, False, True]
     """
     candidates = torch.as_tensor(candidates, dtype=torch.bool)
-    if room is None:
+    if headroom is None:
         return candidates
     cost = torch.as_tensor(cost, device=candidates.device).to(torch.int64).expand(candidates.shape)
     idx = candidates.nonzero().squeeze(1)
-    if idx.numel() == 0 or int(cost[idx].sum()) <= room:
+    if idx.numel() == 0 or int(cost[idx].sum()) <= headroom:
         return candidates
     s = scores.detach()[idx].to(torch.float64)
     s = torch.where(torch.isnan(s), torch.tensor(-math.inf, dtype=s.dtype, device=s.device), s)
     order = torch.sort(-s, stable=True).indices  # decreasing score, ties by index
-    fits = torch.cumsum(cost[idx][order], 0) <= int(room)
+    fits = torch.cumsum(cost[idx][order], 0) <= int(headroom)
     n_fit = int(fits.long().cumprod(0).sum())  # the longest prefix that fits
     keep = torch.zeros_like(candidates)
     keep[idx[order[:n_fit]]] = True
@@ -108,30 +108,30 @@ def _no_reserve() -> int:
 @dataclass(frozen=True)
 class StrategyContext:
     """What a method tells its strategy once, at construction: how nominal iteration numbers map to
-    the run's steps, and the Gaussian cap. The method's own schedule (`GaussianSplatting.at/every`) is
+    the run's steps, and the Gaussian budget. The method's own schedule (`GaussianSplatting.at/every`) is
     the same object, so the method and its strategy scale alike.
 
     steps_scale: the run's schedule scale (1.0 = the paper's 30 000 steps).
     interval_floor: the shortest refinement / SH interval of a scaled-down run, in steps (the
         miniature `rounds` lowers it to 1).
-    cap: the run's equal Gaussian cap (`run --budget`); None: none.
-    reserved: () -> how many of the cap the method keeps free now for Gaussians it adds itself
+    budget: the run's equal Gaussian budget, in Gaussians (`run --budget`; the setting `gaussian_budget`); None: none.
+    budget_reserved: () -> how many of the budget the method keeps free now for Gaussians it adds itself
         (STRinGS' phase 1: the non-text points that join at T1); 0 by default.
     """
 
     steps_scale: float = 1.0
     interval_floor: int = MIN_SCALED_INTERVAL
-    cap: int | None = None
-    reserved: Callable[[], int] = field(default=_no_reserve, compare=False, repr=False)
+    budget: int | None = None
+    budget_reserved: Callable[[], int] = field(default=_no_reserve, compare=False, repr=False)
 
     def __post_init__(self):
         from strings_bench.core.errors import StringsBenchError
 
         if not self.steps_scale > 0:
             raise StringsBenchError(f"steps_scale must be > 0, got {self.steps_scale}")
-        if self.cap is not None and (isinstance(self.cap, bool) or int(self.cap) != self.cap or self.cap < 1):
-            raise StringsBenchError(f"max_gaussians must be a positive number of Gaussians, got {self.cap!r}",
-                                    hint="leave it unset (None) for no cap")
+        if self.budget is not None and (isinstance(self.budget, bool) or int(self.budget) != self.budget or self.budget < 1):
+            raise StringsBenchError(f"gaussian_budget must be a positive number of Gaussians, got {self.budget!r}",
+                                    hint="leave it unset (None) for no budget")
 
     def at(self, nominal: float) -> int:
         """The step of nominal iteration `nominal`: round(nominal x steps_scale).
@@ -161,15 +161,15 @@ class StrategyContext:
         which `interval_floor` does not lower."""
         return scaled_interval(nominal, self.steps_scale, MIN_SCALED_RESET_INTERVAL)
 
-    def cap_in_force(self) -> int | None:
-        """The most Gaussians the model may hold now: `cap` less what the method keeps free; None without a cap.
+    def budget_now(self) -> int | None:
+        """The most Gaussians the model may hold now: `budget` less `budget_reserved()`; None without a budget.
 
         Example:
             >>> from strings_bench.engine.strategies import StrategyContext
-            >>> StrategyContext(cap=1000, reserved=lambda: 300).cap_in_force(), StrategyContext().cap_in_force()
+            >>> StrategyContext(budget=1000, budget_reserved=lambda: 300).budget_now(), StrategyContext().budget_now()
             (700, None)
         """
-        return None if self.cap is None else int(self.cap) - int(self.reserved())
+        return None if self.budget is None else int(self.budget) - int(self.budget_reserved())
 
 
 @dataclass
@@ -243,7 +243,7 @@ class Strategy:
     """
 
     raster_kwargs = {}  # class attribute (not a setting); subclasses may make it a field
-    # the run's schedule scale and Gaussian cap, given once (not a setting: dataclass_settings skips it)
+    # the run's schedule scale and Gaussian budget, given once (not a setting: dataclass_settings skips it)
     context: StrategyContext = field(default_factory=StrategyContext, kw_only=True, repr=False, compare=False,
                                      metadata={"setting": False})
 
@@ -324,26 +324,26 @@ class Strategy:
             info: this step's info dict.
         """
 
-    # ---- the Gaussian cap ------------------------------------------------------------------------
-    def room(self, model: GaussianModel) -> int | None:
-        """How many Gaussians may still be added (>= 0) under the cap in force
-        (`StrategyContext.cap_in_force`), or None without a cap.
+    # ---- the Gaussian budget ---------------------------------------------------------------------
+    def headroom(self, model: GaussianModel) -> int | None:
+        """How many Gaussians may still be added (>= 0) under the budget now in force
+        (`StrategyContext.budget_now`), or None without a budget.
 
         Args:
             model: the model (its current size is read).
         """
-        cap = self.context.cap_in_force()
-        return None if cap is None else max(0, cap - len(model))
+        budget = self.context.budget_now()
+        return None if budget is None else max(0, budget - len(model))
 
-    def cap_holds(self, model: GaussianModel) -> bool:
-        """Whether the cap has held the model back: it is at the cap in force (a strategy that drops
-        candidates for the cap says so too: `DefaultStrategy`). False without a cap.
+    def budget_holds(self, model: GaussianModel) -> bool:
+        """Whether the budget has held the model back: it is at the budget now in force (a strategy that drops
+        candidates for the budget says so too: `DefaultStrategy`). False without a budget.
 
         Args:
             model: the model (its current size is read).
         """
-        cap = self.context.cap_in_force()
-        return cap is not None and len(model) >= cap
+        budget = self.context.budget_now()
+        return budget is not None and len(model) >= budget
 
     # ---- the schedule (the context's) -----------------------------------------------------------
     def at(self, nominal: float) -> int:

@@ -9,8 +9,8 @@ children (scales / (0.8 n)); prune opacity < prune_opa and, after `screen_prune_
 > prune_scale3d x extent (and screen radius > prune_screen_px, off by default); then clear the statistics.
 Every `reset_every` steps (before refine_stop_iter): opacity <- min(opacity, reset_value).
 
-With a Gaussian cap (run --budget, `StrategyContext.cap`): when the clones and splits of a round would pass it, the ones with
-the largest mean gradient grow and the rest wait (Taming-3DGS' rule: stop densifying at the cap); pruning is
+With a Gaussian budget (run --budget, `StrategyContext.budget`): when the clones and splits of a round would pass it, the ones with
+the largest mean gradient grow and the rest wait (Taming-3DGS' rule: stop densifying at the budget); pruning is
 unchanged.
 """
 
@@ -26,7 +26,7 @@ from strings_bench.core.errors import TrainingError
 from strings_bench.engine.gaussians import GaussianModel
 from strings_bench.engine.optim import GaussianAdam
 import strings_bench.engine.strategies.ops as ops
-from strings_bench.engine.strategies.base import Strategy, keep_within_cap
+from strings_bench.engine.strategies.base import Strategy, keep_within_budget
 
 
 @dataclass
@@ -71,7 +71,7 @@ class DefaultStrategy(Strategy):
     reset_value: float = 0.01  # opacity after a reset: min(opacity, this)
     screen_prune_after: int = 3_000  # big-Gaussian prunes start after this step (nominal)
     n_split: int = 2  # children of a split
-    # a memory guard, not the cap: growth past it fails clearly, where the cap stops growth quietly
+    # a memory guard, not the budget: growth past it fails clearly, where the budget stops growth quietly
     memory_limit_gaussians: int = 20_000_000  # refuse to grow past this (memory); a run that hits it fails clearly
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
@@ -83,16 +83,16 @@ class DefaultStrategy(Strategy):
         """
         state = super().initialize_state(scene_extent, cameras)
         state.update(grad2d=None, count=None, max_radii=None, n_refine=0)
-        self.dropped_for_cap = 0  # candidates the cap held back since this state began (`cap_holds`)
+        self.dropped_for_budget = 0  # candidates the budget held back since this state began (`budget_holds`)
         return state
 
-    def cap_holds(self, model: GaussianModel) -> bool:
-        """At the cap in force, or growth already cut by it (a round that prunes too may end a little under it).
+    def budget_holds(self, model: GaussianModel) -> bool:
+        """At the budget now in force, or growth already cut by it (a round that prunes too may end a little under it).
 
         Args:
             model: the model (its current size is read).
         """
-        return super().cap_holds(model) or (self.context.cap is not None and self.dropped_for_cap > 0)
+        return super().budget_holds(model) or (self.context.budget is not None and self.dropped_for_budget > 0)
 
     # ---- hooks ------------------------------------------------------------------------------
     def step_pre_backward(self, model, optimizer, state, step, info) -> None:
@@ -140,7 +140,7 @@ class DefaultStrategy(Strategy):
             step: the step the strategy sees (for the prune schedule and messages).
 
         Raises:
-            TrainingError: growth past `max_gaussians`, or a prune that would remove every Gaussian.
+            TrainingError: growth past `memory_limit_gaussians`, or a prune that would remove every Gaussian.
         """
         if self._has_statistics(state):
             self._grow_gs(model, optimizer, state, step)
@@ -217,27 +217,27 @@ class DefaultStrategy(Strategy):
         """Gaussians one split adds (n_split children replace the parent)."""
         return self.n_split - 1
 
-    def _fit_cap(self, model: GaussianModel, state: dict, step: int, clone: torch.Tensor,
+    def _fit_budget(self, model: GaussianModel, state: dict, step: int, clone: torch.Tensor,
                     split: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(clone, split) cut to the room the cap leaves (`Strategy.room`), highest `_grow_scores` first."""
-        room = self.room(model)
-        if room is None:
+        """(clone, split) cut to the headroom the budget leaves (`Strategy.headroom`), highest `_grow_scores` first."""
+        headroom = self.headroom(model)
+        if headroom is None:
             return clone, split
         cost = torch.where(split, self._split_cost(), 1)
-        keep = keep_within_cap(clone | split, self._grow_scores(model, state, step), cost, room)
-        self.dropped_for_cap = getattr(self, "dropped_for_cap", 0) + int((clone | split).sum() - keep.sum())
+        keep = keep_within_budget(clone | split, self._grow_scores(model, state, step), cost, headroom)
+        self.dropped_for_budget = getattr(self, "dropped_for_budget", 0) + int((clone | split).sum() - keep.sum())
         return clone & keep, split & keep
 
     @torch.no_grad()
     def _grow_gs(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
-        """`_select`, cut to the cap (`_fit_cap`), refuse growth past `memory_limit_gaussians`, `_grow`, and
+        """`_select`, cut to the budget (`_fit_budget`), refuse growth past `memory_limit_gaussians`, `_grow`, and
         record what was done."""
-        clone, split = self._fit_cap(model, state, step, *self._select(model, state, step))
+        clone, split = self._fit_budget(model, state, step, *self._select(model, state, step))
         grow = int(clone.sum()) + int(split.sum()) * self._split_cost()
         if len(model) + grow > self.memory_limit_gaussians:
             raise TrainingError(f"densification at step {step} would make {len(model) + grow} Gaussians "
                                 f"(more than memory_limit_gaussians={self.memory_limit_gaussians})",
-                                hint="raise memory_limit_gaussians or the gradient threshold(s), or set a cap "
+                                hint="raise memory_limit_gaussians or the gradient threshold(s), or set a budget "
                                      "(run --budget)")
         self._grow(model, optimizer, state, clone, split)
         state["last_clone"], state["last_split"] = int(clone.sum()), int(split.sum())

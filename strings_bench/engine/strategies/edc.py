@@ -65,6 +65,9 @@ def long_axis_split(model: GaussianModel, optimizer: GaussianAdam | None, mask: 
 
 @dataclass
 class EDCStrategy(AbsGSStrategy):
+    """EDC on AbsGS: selection on the absolute gradient alone, every candidate replaced by a long-axis split
+    (`long_axis_split`), and recovery-aware pruning below `recovery_prune_opa` `recovery_delay` steps after each opacity
+    reset (the module docstring). State: `AbsGSStrategy`'s plus n_recovery_prune, int."""
     grow_grad2d_abs: float = 3.5e-4
     prune_screen_px: float = math.inf  # no screen-size pruning
     split_offset: float = 1.5  # children at +-this x s_max along the longest axis
@@ -107,6 +110,8 @@ class EDCStrategy(AbsGSStrategy):
         long_axis_split(model, optimizer, split, state, self.split_offset, self.other_axes_factor, self.opacity_factor)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:
+        """`DefaultStrategy.step_post_backward`, with the release's early prune (opacity < 0.02 at 300, `release_schedule`)
+        before it and the recovery-aware prune (`recovery_step`) after it."""
         if self.release_schedule and step == self.at(300):
             self._prune_below(model, optimizer, state, 0.02)
         super().step_post_backward(model, optimizer, state, step, info)

@@ -17,9 +17,9 @@ Every 100 iterations in (500, 15 000):
    non-zero sums are divided by their mean; the score is their mean over the views. After 14 500 the
    score is the mean absolute gradient instead.
 2. Growth control (the budget): the count may reach B sqrt((it - 500) / (14 500 - 500)), B from
-   14 500 on; B is the run's cap (`--budget`, `StrategyContext.cap`) if set, else `budget` (the release's
+   14 500 on; B is the run's Gaussian budget (`--budget`, `StrategyContext.budget`) if set, else `budget` (the release's
    per-scene `--budget`, budget.txt), else `budget_multiple` x the initial count (this suite's default
-   for scenes the release has no budget for, the rule this suite uses for MCMC's cap).
+   for scenes the release has no budget for, the rule this suite uses for MCMC's `cap_max`).
 3. Candidates: mean absolute gradient >= `grow_grad2d_abs` (3e-4; / 1.5 after 14 500 while below the
    budget). k = min(budget_t, N + candidates) - N of them, drawn without replacement with
    probability proportional to the score (`torch.multinomial`; candidates with score 0 are never
@@ -130,7 +130,8 @@ class ImprovedGSStrategy(Strategy):
     refine_start_iter: int = 500  # statistics and densification after this step (nominal)
     refine_stop_iter: int = 15_000  # ... and before this one (nominal)
     refine_every: int = 100  # densification interval (nominal)
-    budget: int | None = None  # final Gaussian budget (the release's --budget, per scene in budget.txt); None: budget_multiple
+    # this method's own final count B (the release's --budget, per scene in budget.txt); the run's Gaussian budget replaces it
+    budget: int | None = None  # final Gaussian count B (the release's --budget); None: budget_multiple
     budget_multiple: float = 10.0  # with budget unset: final budget = this x the initial number of Gaussians
     growth_full_iter: int = 14_500  # growth control reaches the final budget here (release: densify_until - 500)
     score_views: int = 10  # training views rendered for each edge-aware score (release --cams)
@@ -173,24 +174,28 @@ class ImprovedGSStrategy(Strategy):
                        "backend": backend}
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        """`Strategy.initialize_state` plus the statistics (grad2d_abs, count), the initial count n_initial (set at the
+        first step), the score views' stack and the round counters."""
         state = super().initialize_state(scene_extent, cameras)
         state.update(grad2d_abs=None, count=None, n_initial=None, view_stack=[], all_views_done=[],
                      n_refine=0, n_split=0, n_recovery_prune=0, last_budget=None)
         return state
 
     def get_raster_kwargs(self, step: int) -> dict:
+        """{"compute_absgrad": True}: candidates are chosen on the absolute gradient."""
         return {"compute_absgrad": True}
 
     def step_pre_backward(self, model, optimizer, state, step, info) -> None:
+        """Keep the gradient of `info["means2d"]` (when it is in the graph) for the statistics."""
         if info["means2d"].requires_grad:
             info["means2d"].retain_grad()
 
     # ---- the budget ---------------------------------------------------------------------------
     def final_budget(self, state: dict) -> int:
-        """The final Gaussian budget B: the run's cap (the context's), else budget, else budget_multiple x the
-        initial count."""
-        if self.context.cap is not None:
-            return int(self.context.cap)
+        """The final count B: the run's Gaussian budget (the context's), else this method's own `budget` setting, else
+        budget_multiple x the initial count."""
+        if self.context.budget is not None:
+            return int(self.context.budget)
         if self.budget is not None:
             return int(self.budget)
         return max(1, int(round(self.budget_multiple * int(state["n_initial"]))))
@@ -203,6 +208,8 @@ class ImprovedGSStrategy(Strategy):
     # ---- the schedule ---------------------------------------------------------------------------
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
+        """The early prune, then inside (refine_start_iter, refine_stop_iter): the statistics, a densification round
+        every `refine_every`, the opacity resets and the recovery-aware prunes (see the module docstring)."""
         if state.get("n_initial") is None:
             state["n_initial"] = len(model)
         if step == self.at(self.early_prune_iter):

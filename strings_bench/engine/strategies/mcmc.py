@@ -110,12 +110,18 @@ def position_noise(model: GaussianModel, position_lr: float, noise_lr: float = 5
 
 @dataclass
 class MCMCStrategy(Strategy):
+    """3DGS-MCMC: dead Gaussians relocated onto live ones (`relocate`, eq. 9), growth by `grow_rate` up to its cap
+    (`grow`), opacity and scale L1 in the loss, position noise (the module docstring).
+
+    Its cap is `cap_max`, else `cap_multiple` x the initial count; the run's Gaussian budget (`StrategyContext.budget`)
+    replaces it. State: cap, int (None until the first step without `cap_max`), generator (the seeded sampler or
+    None), n_relocated and n_added, int totals."""
     refine_start_iter: int = 500  # first relocation step (nominal)
     refine_stop_iter: int = 25_000  # last relocation step (nominal)
     refine_every: int = 100  # relocation interval (nominal)
     min_opacity: float = 0.005      # "dead" threshold
-    grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to the cap
-    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; the run's cap (max_gaussians) replaces it
+    grow_rate: float = 0.05  # grow the count by this fraction per refinement, up to its cap (cap_max)
+    cap_max: int | None = None      # None: cap_multiple x the initial number of Gaussians; the run's Gaussian budget replaces it
     cap_multiple: float = 10.0  # cap = this x initial Gaussians when cap_max is None
     opacity_reg: float = 0.01  # weight of mean |opacity| in the loss
     scale_reg: float = 0.01  # weight of mean |scale| in the loss
@@ -133,11 +139,12 @@ class MCMCStrategy(Strategy):
             raise StringsBenchError(f"MCMC n_max must be in [1, 200], got {self.n_max}")
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        """`Strategy.initialize_state` plus cap (the run's budget, else `cap_max`), generator, n_relocated, n_added."""
         state = super().initialize_state(scene_extent, cameras)
         # The seeded generator is made at first use, on the model's device (a CPU generator cannot
         # drive torch.multinomial / torch.randn on CUDA tensors).
-        # The run's cap (run --budget) is MCMC's own: cap_max := the context's cap.
-        state.update(cap=self.cap_max if self.context.cap is None else int(self.context.cap), generator=None,
+        # The run's Gaussian budget (run --budget) is MCMC's own cap: cap_max := the context's budget.
+        state.update(cap=self.cap_max if self.context.budget is None else int(self.context.budget), generator=None,
                      n_relocated=0, n_added=0)
         return state
 
@@ -148,6 +155,7 @@ class MCMCStrategy(Strategy):
         return state.get("generator")
 
     def loss_terms(self, model: GaussianModel, info: dict, step: int):
+        """opacity_reg x mean |opacity| + scale_reg x mean |scale| over the model's Gaussians (a scalar in the graph)."""
         terms = 0.0
         if self.opacity_reg:
             terms = terms + self.opacity_reg * model.opacities.abs().mean()
@@ -157,6 +165,8 @@ class MCMCStrategy(Strategy):
 
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
+        """Every `refine_every` inside (refine_start_iter, refine_stop_iter): `relocate`, then `grow`; at every step
+        the position noise (`position_noise`), scaled by the step's position LR."""
         if state.get("cap") is None:
             state["cap"] = max(len(model), int(round(self.cap_multiple * len(model))))
         if (self.at(self.refine_start_iter) < step < self.at(self.refine_stop_iter)
@@ -180,6 +190,8 @@ class MCMCStrategy(Strategy):
 
     @torch.no_grad()
     def relocate(self, model: GaussianModel, optimizer: GaussianAdam, state: dict) -> int:
+        """Move every dead Gaussian (opacity <= min_opacity) onto a live one sampled by opacity, eq. 9 updating the
+        sources' opacity and scale. Returns the number relocated."""
         opacity = model.opacities
         dead = opacity <= self.min_opacity
         n_dead = int(dead.sum())
@@ -199,6 +211,8 @@ class MCMCStrategy(Strategy):
 
     @torch.no_grad()
     def grow(self, model: GaussianModel, optimizer: GaussianAdam, state: dict) -> int:
+        """Add min(cap, N (1 + grow_rate)) - N Gaussians, copies of sources sampled by opacity (eq. 9 on the sources).
+        Returns the number added."""
         n = len(model)
         target = min(int(state["cap"]), int(n * (1.0 + self.grow_rate)))
         n_new = max(0, target - n)

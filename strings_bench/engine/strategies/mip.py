@@ -92,6 +92,7 @@ def filtered_params(log_scales: torch.Tensor, opacity_logits: torch.Tensor,
 
 
 def model_sigma(model: GaussianModel) -> torch.Tensor:
+    """The model's (N,) 3D filter sigma, in world units (`extras["mip_filter3d"]`); a clear error without one."""
     if FILTER_KEY not in model.extras:
         raise StringsBenchError("this model has no Mip-Splatting 3D filter (extras['mip_filter3d'])",
                                 hint="compute it with strategies.mip.update_filter(model, cameras)")
@@ -101,6 +102,8 @@ def model_sigma(model: GaussianModel) -> torch.Tensor:
 @torch.no_grad()
 def update_filter(model: GaussianModel, cameras: Sequence, near: float = 0.2, frustum_margin: float = 0.15,
                   sigma_scale: float = SIGMA_SCALE) -> None:
+    """Recompute the model's (N,) 3D filter sigma from the training `cameras` (`filter_sigma`) into
+    `model.extras["mip_filter3d"]`."""
     model.extras[FILTER_KEY] = filter_sigma(model.means, cameras, near, frustum_margin, sigma_scale)
 
 
@@ -163,14 +166,17 @@ class MipStrategy(DefaultStrategy):
     frustum_margin: float = 0.15  # fraction of the image size added on each side
     sigma_scale: float = SIGMA_SCALE  # 3D filter variance factor (sqrt(0.2) in the paper)
     def get_raster_kwargs(self, step: int) -> dict:
+        """{"mip_filter": True} with `mip_2d` (the rasterizer's 2D mip filter), else {}."""
         return {"mip_filter": True} if self.mip_2d else {}
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        """`DefaultStrategy.initialize_state` plus train_cameras, the training cameras the 3D filter is computed from."""
         state = super().initialize_state(scene_extent, cameras)
         state["train_cameras"] = list(cameras or [])
         return state
 
     def update_filter(self, model: GaussianModel, state: dict) -> None:
+        """`update_filter` over the state's training cameras, with this strategy's near plane, margin and scale."""
         cams = state.get("train_cameras")
         if not cams:
             raise StringsBenchError("MipStrategy has no training cameras in its state",
@@ -178,6 +184,7 @@ class MipStrategy(DefaultStrategy):
         update_filter(model, cams, self.near, self.frustum_margin, self.sigma_scale)
 
     def step_post_backward(self, model, optimizer, state, step, info) -> None:
+        """3DGS' refinement until `refine_stop_iter`; after it the 3D filter is recomputed every `filter_every` steps."""
         if step >= self.at(self.refine_stop_iter):  # after densification: the 3D filter's upkeep only
             if step % self.every(self.filter_every) == 0:
                 self.update_filter(model, state)
@@ -186,6 +193,7 @@ class MipStrategy(DefaultStrategy):
 
     @torch.no_grad()
     def densify(self, model, optimizer, state, step) -> None:
+        """A 3DGS round, then the 3D filter recomputed (new Gaussians need theirs)."""
         super().densify(model, optimizer, state, step)
         self.update_filter(model, state)  # at every densification step (docs/sources.md §4)
 

@@ -150,6 +150,8 @@ class PerceptualGSStrategy(DefaultStrategy):
         return self._views
 
     def initialize_state(self, scene_extent: float, cameras=None) -> dict:
+        """`DefaultStrategy.initialize_state` plus trans, the sensitivity's Adam moments and step, the scene's class
+        (split_only, sparse, classified) and the HD / MD counters."""
         state = super().initialize_state(scene_extent, cameras)
         state.update(trans=None, sens_exp_avg=None, sens_exp_avg_sq=None, sens_step=0, split_only=False,
                      sparse=False, classified=False, n_hd=0, n_md=0)
@@ -216,13 +218,17 @@ class PerceptualGSStrategy(DefaultStrategy):
 
     # ---- statistics and schedule ---------------------------------------------------------------
     def is_hd_round(self, state: dict, step: int) -> bool:
+        """Whether `step` is a high-sensitivity densification round (every `hd_interval` from `hd_md_from`)."""
         return step >= self.at(self.hd_md_from) and step % self.every(self.hd_interval) == 0
 
     def is_md_round(self, state: dict, step: int) -> bool:
+        """Whether `step` is a medium-sensitivity densification round (every `md_interval` from `hd_md_from`)."""
         return step >= self.at(self.hd_md_from) and step % self.every(self.md_interval) == 0
 
     def step_post_backward(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int,
                            info: dict) -> None:
+        """The sensitivity's Adam step, trans before HD / MD rounds, the scene classification at `classify_iter`,
+        then 3DGS' refinement with the HD / MD densification (`densify`)."""
         self._sensitivity_adam_step(model, state)
         self.sensitivity_logits(model)
         if step <= self.at(self.sensitivity_until) and (self.is_hd_round(state, step)
@@ -308,6 +314,7 @@ class PerceptualGSStrategy(DefaultStrategy):
 
     @torch.no_grad()
     def densify(self, model: GaussianModel, optimizer: GaussianAdam, state: dict, step: int) -> None:
+        """A 3DGS round with HD / MD densification (`_grow`); trans is cleared after an HD or MD round."""
         super().densify(model, optimizer, state, step)
         if self.is_hd_round(state, step) or self.is_md_round(state, step):
             state["trans"] = None

@@ -1,6 +1,6 @@
 """Local default OCR: RapidOCR 3.x (PP-OCR models shipped inside the package) on ONNX Runtime.
 
-Size (~540 lines): one backend, RapidOCR: loading, line reads, word boxes and their check, rotated text; each part is RapidOCR-specific.
+Size (~550 lines): one backend, RapidOCR: loading, line reads, word boxes and their check, rotated text; each part is RapidOCR-specific.
 
 Word boxes: RapidOCR detects text *lines*. With `return_word_box=True` it also returns word boxes
 (for Latin/digit lines: one box per space-separated word; for CJK: one box per character), placed

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from strings_bench.engine.gaussians import GaussianModel
 
 DEFAULT_N_MAX = 15
-DEFAULT_MAX_GAUSSIANS = 10_000_000  # refuse to build more (memory); a setting of the method
+DEFAULT_MAX_TEXT_GAUSSIANS = 10_000_000  # refuse to build more (memory); a setting of the method
 
 
 def densification_factors(counts: np.ndarray, n_max: int, equal_counts: str = "n_max") -> np.ndarray:
@@ -55,29 +55,29 @@ def densification_factors(counts: np.ndarray, n_max: int, equal_counts: str = "n
     return np.clip(np.floor(x + 0.5), 1, n_max).astype(np.int64)
 
 
-def fit_factors_to_cap(n_children: np.ndarray, cap: int | None) -> np.ndarray:
-    """Eq. 1's factors cut to the Gaussian cap (run --budget): when sum(N_i) exceeds `cap`, the parents with the
+def fit_factors_to_budget(n_children: np.ndarray, budget: int | None) -> np.ndarray:
+    """Eq. 1's factors cut to the Gaussian budget (run --budget): when sum(N_i) exceeds `budget`, the parents with the
     largest N_i (the least observed text points, Eq. 1's own priority; ties: the lower index) keep their N_i while
     the total fits, every later one keeps N_i = 1 (itself, undensified). None: unchanged."""
     k = np.asarray(n_children, dtype=np.int64).reshape(-1)
-    if cap is None or int(k.sum()) <= cap:
+    if budget is None or int(k.sum()) <= budget:
         return k
-    from strings_bench.engine.strategies.base import keep_within_cap
+    from strings_bench.engine.strategies.base import keep_within_budget
 
-    keep = keep_within_cap(torch.from_numpy(k > 1), torch.from_numpy(k.astype(np.float64)),
-                              torch.from_numpy(k - 1), max(0, int(cap) - len(k)))
+    keep = keep_within_budget(torch.from_numpy(k > 1), torch.from_numpy(k.astype(np.float64)),
+                              torch.from_numpy(k - 1), max(0, int(budget) - len(k)))
     return np.where(keep.numpy(), k, 1)
 
 
 def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Tensor,
                        generator: torch.Generator | None = None,
-                       memory_limit: int = DEFAULT_MAX_GAUSSIANS, cap: int | None = None) -> "GaussianModel":
+                       memory_limit: int = DEFAULT_MAX_TEXT_GAUSSIANS, budget: int | None = None) -> "GaussianModel":
     """Replace Gaussian i of `model` by n_children[i] samples of itself, in place (n = 1 keeps it).
 
     Children are drawn by `strategies.ops.sample_children` from N(mean, R S^2 R^T) of the parent
     (unshrunk scales), log-scales reduced by log(0.8 n), other parameters and extras copied.
     Row order afterwards: the kept (n = 1) Gaussians, then the children grouped by parent.
-    `cap`: at most this many Gaussians afterwards (`fit_factors_to_cap`); `memory_limit` is the memory guard
+    `budget`: at most this many Gaussians afterwards (`fit_factors_to_budget`); `memory_limit` is the memory guard
     (more is an error: the setting max_text_gaussians).
     """
     from strings_bench.engine.strategies import ops
@@ -88,8 +88,8 @@ def densify_text_model(model: "GaussianModel", n_children: np.ndarray | torch.Te
         raise StringsBenchError(f"{k.shape[0]} densification factors for {n} Gaussians")
     if n and int(k.min()) < 1:
         raise StringsBenchError("densification factors must be >= 1")
-    if cap is not None:
-        k = torch.from_numpy(fit_factors_to_cap(k.cpu().numpy(), cap)).to(model.device)
+    if budget is not None:
+        k = torch.from_numpy(fit_factors_to_budget(k.cpu().numpy(), budget)).to(model.device)
     total = int(k.sum())
     if total > memory_limit:
         raise TrainingError(

@@ -47,21 +47,20 @@ class StringsSettings:
     # phase 1) or "phase2" (release: t = step - T1, i.e. 1 at the first phase-2 step), see docs/strings.md.
     gamma_counter: str = "global"  # counter of gamma: "global" (paper) or "phase2" (release)
     tau: int = 1  # text point: mask hits >= tau
-    n_max: int | None = None  # Eq. 1's cap; None: 15 (the release's default); per dataset: the spec's presets
+    n_max: int | None = None  # Eq. 1's N_max, the most children of a text point; None: 15 (the release's default); per dataset: the spec's presets
     equal_counts: str = "n_max"  # Eq. 1 with all counts equal: "n_max" or "one" (docs/strings.md)
     text_densify: bool = True  # False = ablation "without text densification"
-    max_text_gaussians: int = 10_000_000  # cap on Eq. 1's children (memory)
+    max_text_gaussians: int = 10_000_000  # memory guard on Eq. 1's children (not the budget: more is an error)
     phase1_position_lr: float = 0.0  # x the 3DGS schedule in phase 1; 0 = locked (paper), 1 = ablation
     # This suite's variant, not the paper's: the phase-1 position LR follows the scene's rho (one early position step
     # in text strokes, docs/difficulty.md): min(1, phase1_step_strokes / (rho x position_lr_gain)) x the 3DGS
     # schedule, so that an early step, as taken (the gain multiplies every step), moves text at most this many
     # strokes. None: phase1_position_lr as given. A scene whose rho cannot be measured (no known words, no masks)
     # keeps phase1_position_lr (result extra['phase1_rho'] is then None).
-    phase1_step_strokes: float | None = None  # cap on a phase-1 text position step, in text strokes (None: off)
+    phase1_step_strokes: float | None = None  # the longest phase-1 text position step, in text strokes (None: off)
     # "restart" (default, as the release): densification, opacity-reset and SH schedules count from the
-    # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations. "global" keeps the
-    # global counter; then the big-Gaussian prunes (due after 3K) remove ~90 % of the new non-text
-    # Gaussians at the first refinement of phase 2 (measured on synthetic/books), see docs/strings.md.
+    # start of phase 2, so the fresh non-text Gaussians get 3DGS' early iterations; "global" keeps the global
+    # counter (why not: docs/strings.md, "Why phase-2 schedules restart by default").
     phase2_schedules: str = "restart"  # "restart" (release) or "global" schedules in phase 2 (see above)
     mask_source: str = "dataset"  # text masks: "dataset" (masks/), "ocr" (detector polygons), "gt" (synthetic)
     mask_dilation_fraction: float = 0.05  # dilation kernel diameter / image width (paper 5 %)
@@ -108,6 +107,7 @@ class StringsSettings:
                 raise StringsBenchError(f"{name} must be one of {', '.join(map(repr, allowed))}, got {getattr(self, name)!r}")
 
     def mask_settings(self):
+        """The text-mask settings (eval.text_masks.MaskSettings) these settings ask for."""
         from strings_bench.eval.text_masks import MaskSettings
 
         return MaskSettings(source=self.mask_source, dilation_fraction=self.mask_dilation_fraction,
@@ -124,6 +124,8 @@ def text_lr_factor(step: float, alpha: float, beta: float, gamma: float) -> floa
 
 
 def resolve_n_max(st: StringsSettings, scene: "Scene") -> int:
+    """Eq. 1's N_max for `scene`: the setting n_max, else DEFAULT_N_MAX (15, the release's default); the
+    per-dataset values come as presets of methods/strings/spec.py."""
     from strings_bench.methods.strings.densify import DEFAULT_N_MAX
 
     # The per-dataset values are the spec's @apply presets (methods/strings/spec.py); scenes carry none.
@@ -144,7 +146,7 @@ class Strings(GaussianSplatting):
         self.segmentation = None  # segmentation.TextSegmentation of the SfM points
         self.masks_segmentation_seconds = 0.0
         self.t1 = 0  # phase 1's last step at this schedule
-        self.n_max = 15  # Eq. 1's cap in effect (resolve_n_max)
+        self.n_max = 15  # Eq. 1's N_max in effect (resolve_n_max)
         self.text_views: list[int] = []  # train views with text: phase 1 trains on these
         self.fallback: str | None = None  # why STRinGS ran as 3DGS ("no_text_points", ...), or None
         self.phase = 1
@@ -153,10 +155,14 @@ class Strings(GaussianSplatting):
 
     @property
     def st(self) -> StringsSettings:
+        """The STRinGS settings (`method_settings`)."""
         return self.method_settings
 
     # ---- preprocessing: masks and Algorithm 1 (timed as preprocess_seconds by the loop) ---------
     def prepare(self, scene: "Scene") -> None:
+        """Preprocessing, timed as preprocess_seconds: the training views' text masks, Algorithm 1 over the SfM points
+        (`segmentation`), T1 and N_max at this schedule, phase 1's views and position factor; the 3DGS fallback when no
+        SfM point is text."""
         from strings_bench.eval.text_masks import text_masks
         from strings_bench.methods.strings.segmentation import segment_text_points
 
@@ -202,9 +208,12 @@ class Strings(GaussianSplatting):
 
     # ---- phases --------------------------------------------------------------------------------
     def in_phase1(self, step: int) -> bool:
+        """Whether `step` (1-based, actual) is in phase 1 (step <= T1), the fallback never being."""
         return self.fallback is None and step <= self.t1
 
     def initial_model(self, scene: "Scene"):
+        """Phase 1's model: the text SfM points' Gaussians (scales per init_scales_from), densified by Eq. 1 (text_densify)
+        and pruned outside the masks (prune_outside_masks); in the fallback, the 3DGS initial model, no Gaussian text."""
         from strings_bench.engine.gaussians import GaussianModel
         from strings_bench.engine.strategies import ops
         from strings_bench.methods.strings.densify import densification_factors, densify_text_model
@@ -239,11 +248,11 @@ class Strings(GaussianSplatting):
                 factors = densification_factors(counts[is_text], self.n_max, st.equal_counts)
             # the children are sampled on the model's device, so the generator must live there too
             gen = torch.Generator(device=self.device).manual_seed(self.config.seed)
-            # Under a cap Eq. 1 leaves room for the non-text points that join at T1 (reserved_gaussians)
-            cap = self.context.cap_in_force()
-            densify_text_model(model, factors, gen, memory_limit=st.max_text_gaussians, cap=cap)
-            if cap is not None:
-                stats["text_densify_budget"] = cap
+            # Under a budget Eq. 1 leaves the non-text points that join at T1 their share (budget_reserved)
+            budget_now = self.context.budget_now()
+            densify_text_model(model, factors, gen, memory_limit=st.max_text_gaussians, budget=budget_now)
+            if budget_now is not None:
+                stats["text_densify_budget"] = budget_now
         stats["text_gaussians_after_densify"] = len(model)
         if st.prune_outside_masks:
             outside = self.mask_hits(model) < st.tau
@@ -271,9 +280,9 @@ class Strings(GaussianSplatting):
         hits = count_mask_hits(xyz, ptr, views, cameras, self._seg_masks)
         return torch.from_numpy(hits).to(model.device)
 
-    def reserved_gaussians(self) -> int:
-        """Under a cap, phase 1 keeps room for the non-text SfM points that join at T1 (`_start_phase2`), so
-        phase 1's growth (Eq. 1 and 3DGS densification) stops at the cap less their number."""
+    def budget_reserved(self) -> int:
+        """Under a budget, phase 1 keeps free of it the non-text SfM points that join at T1 (`_start_phase2`), so
+        phase 1's growth (Eq. 1 and 3DGS densification) stops at the budget less their number."""
         if self.fallback or self.phase != 1 or self.segmentation is None:
             return 0
         return int((~self.segmentation.is_text).sum())
@@ -298,15 +307,19 @@ class Strings(GaussianSplatting):
         self.set_model(GaussianModel.concat([self.model, extra]))
 
     def on_step_start(self, step: int) -> None:
+        """At the first step after T1, phase 2 starts: the non-text Gaussians join (`_start_phase2`)."""
         if self.phase == 1 and step > self.t1:
             self._start_phase2()
 
     def train_views(self) -> list[int]:
+        """Phase 1: the training views whose text mask is non-empty; phase 2: every training view."""
         if self.phase == 1:
             return self.text_views
         return super().train_views()
 
     def loss(self, out, gt: torch.Tensor, view_idx: int, step: int) -> torch.Tensor:
+        """Phase 1: L1 inside the view's text mask, a mean over the whole image, no SSIM; phase 2: the 3DGS loss. A scalar in
+        the graph (the render clamped to [0, 1] first with clamp_render)."""
         from strings_bench.engine.losses import gs_loss, masked_l1
 
         pred = out.color.clamp(0, 1) if self.st.clamp_render else out.color
@@ -327,6 +340,8 @@ class Strings(GaussianSplatting):
 
     # ---- learning rates ---------------------------------------------------------------------------
     def position_lr(self, step: int) -> float:
+        """The position LR at `step`: phase 1, the phase-1 factor (phase1_position_lr, or from rho with
+        phase1_step_strokes) x the 3DGS schedule; phase 2, the 3DGS schedule shifted by T1 (eta_opt); the fallback, 3DGS'."""
         if self.fallback:
             return super().position_lr(step)
         if self.in_phase1(step):
@@ -342,6 +357,8 @@ class Strings(GaussianSplatting):
         return text, float(self.st.alpha)
 
     def position_lr_scale(self, step: int):
+        """Phase 2's per-row factor eta_r on the position step, (N,): alpha for non-text Gaussians, the text factor
+        `text_lr_factor` for text ones; None in phase 1."""
         if self.fallback or self.in_phase1(step):
             return None
         text, non_text = self.lr_factors(step)
@@ -355,12 +372,16 @@ class Strings(GaussianSplatting):
         return step
 
     def strategy_step(self, step: int) -> int:
+        """The step the strategy sees: in phase 2 with `phase2_schedules="restart"`, counted from T1; else `step`."""
         return self._schedule_step(step)
 
     def sh_degree_for_step(self, step: int) -> int:
+        """The SH degree at `step`, on the same counter as the strategy (`strategy_step`)."""
         return super().sh_degree_for_step(self._schedule_step(step))
 
     def checkpoint_extra(self, step: int) -> dict:
+        """`GaussianSplatting.checkpoint_extra` plus STRinGS' record: the phase, T1, N_max, the segmentation and
+        densification statistics, the fallback, masks_segmentation_seconds."""
         extra = {
             **super().checkpoint_extra(step),
             "phase": self.phase,
@@ -380,9 +401,11 @@ class Strings(GaussianSplatting):
 
     # ---- resumable state: the phase (the model, optimizer and generators are the base's) ---------
     def extra_state(self) -> dict:
+        """The resumable state of the method itself: {"phase": 1 or 2, "densify_stats": Eq. 1's record}."""
         return {"phase": self.phase, "densify_stats": dict(self.densify_stats)}
 
     def load_extra_state(self, state: dict) -> None:
+        """Restore the phase and Eq. 1's record saved by `extra_state`."""
         self.phase = int(state.get("phase", self.phase))
         self.densify_stats = dict(state.get("densify_stats", self.densify_stats))
 

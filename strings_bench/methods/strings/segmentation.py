@@ -29,12 +29,15 @@ if TYPE_CHECKING:
 
 @dataclass
 class TextSegmentation:
+    """Algorithm 1's result over M SfM points: is_text, (M,) bool, hits >= tau; hits, (M,) int, per point the views
+    of its track whose text mask holds its projection; tau, the threshold."""
     is_text: np.ndarray  # (M,) bool
     hits: np.ndarray  # (M,) int: images in which the point lands inside the text mask
     tau: int
 
     @property
     def num_text(self) -> int:
+        """How many SfM points are text."""
         return int(self.is_text.sum())
 
 
@@ -102,6 +105,8 @@ def inherited_tracks(track_ptr: np.ndarray, track_view: np.ndarray, point_ids: n
 
 
 def segment_text_points_arrays(xyz, track_ptr, track_view, cameras, masks, tau: int = 1) -> TextSegmentation:
+    """Algorithm 1 on arrays (no Scene): a point is text when at least tau views of its track hold its projection
+    in their text mask. Returns a `TextSegmentation`."""
     if tau < 0:
         raise StringsBenchError(f"text-point threshold tau must be >= 0, got {tau}", hint="the paper uses tau = 1")
     hits = count_mask_hits(xyz, track_ptr, track_view, cameras, masks)

@@ -6,7 +6,7 @@ STRINGS_PAPER = "STRinGS: Selective Text Refinement in Gaussian Splatting (WACV 
 
 
 def _n_max(dataset: str, value: int, scenes=None) -> dict:
-    """A preset that sets STRinGS' Eq. 1 cap N_max on `dataset` (its `scenes`, or all of them)."""
+    """A preset that sets STRinGS' Eq. 1 N_max (the most children of a text point) on `dataset` (its `scenes`, or all of them)."""
     conds = [{"dataset": dataset}] if scenes is None else [{"dataset": dataset, "scene": s} for s in scenes]
     return {"@apply": conds, "n_max": value}
 
