@@ -1,5 +1,12 @@
 """Shared pytest setup.
 
+Layout: one folder per layer of strings_bench/ (tests/core/ ... tests/cli/), plus tests/docs/, tests/tools/
+(benchmarks/ and scripts/), tests/integration/ (end to end) and tests/lint/ (the layout and docs rules). Every
+folder is a package (`tests.engine.test_engine`), so a module's basename may repeat across folders and a test
+imports another folder's test module by its full name (`from tests.raster.test_raster import random_scene`).
+The helper modules of this folder (runner_fakes, _engine_helpers, ...) are imported by their plain names from
+any folder: this file appends tests/ to sys.path (appended, so that tests/tools/ never shadows the repository's
+own top-level names).
 - STRINGS_BENCH_CACHE points at a per-session temporary folder unless the caller already set it,
   so tests never write into (or read stale scenes from) the user's cache.
 - `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
@@ -17,10 +24,15 @@ import strings_bench.bench as bench
 
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
 import pytest
+
+TESTS = Path(__file__).resolve().parent
+if str(TESTS) not in sys.path:
+    sys.path.append(str(TESTS))
 
 # Compiled numba kernels are safe to share and slow to build (tens of seconds): keep them in the
 # user's persistent cache even though everything else goes to the per-session folder.

@@ -23,7 +23,7 @@ import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.bench.evaluate import EvaluateOptions, PredictionsError, detect_layout, evaluate
 from strings_bench.core.errors import StringsBenchError
-from test_cer import ref_image_cer
+from tests.eval.test_cer import ref_image_cer
 
 WORDS = ["HELLO", "ATLAS", "OPTICS"]
 TW, TH = 240, 96

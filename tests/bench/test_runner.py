@@ -152,7 +152,7 @@ def test_interrupted_subprocess_keeps_finished_cells(tmp_path, scene_dir):
 
     out = tmp_path / "run"
     code = f"""
-import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
+import sys; sys.path.insert(0, {str(Path(__file__).parents[1])!r})
 import runner_fakes as rf
 import strings_bench.bench as bench
 from strings_bench.methods.registry import MethodSpec, register_method

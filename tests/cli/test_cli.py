@@ -12,7 +12,7 @@ import pytest
 
 import strings_bench.cli as cli
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 PROBE = """
 import json, sys

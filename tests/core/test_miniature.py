@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError  # noqa: E402

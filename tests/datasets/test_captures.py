@@ -1,5 +1,5 @@
 """The captures dataset on the real photographs in ../shared/data (fast cases; the whole builds are in
-tests/test_captures_slow.py): where the data is looked for, EXIF orientation and sideways frames, PNG frames
+tests/datasets/test_captures_slow.py): where the data is looked for, EXIF orientation and sideways frames, PNG frames
 named by timestamp with known intrinsics and a photo that does not register, the split of a sparse capture,
 and the floor on GT characters below which OCR-CER is not scored."""
 

@@ -1,7 +1,7 @@
 """Each scene of the captures dataset built whole from ../shared/data through the registry, as a run builds it
 (slow; opt-in):
 
-    pytest -m slow tests/test_captures_slow.py -s          # -k bundler_et for one capture
+    pytest -m slow tests/datasets/test_captures_slow.py -s          # -k bundler_et for one capture
 
 Per capture: the scene passes `datasets check`; photos SfM did not register are listed in the record, not fatal;
 the split holds out at least 3 views; the record counts the characters OCR reads on the held-out GT and measures

@@ -19,10 +19,10 @@ from strings_bench.datasets.check import check_path, check_scene, check_target, 
 from strings_bench.core.errors import DatasetError
 from strings_bench.scene.scene import Scene, default_split
 
-# The capture sits in ../shared/data beside the repository (as for tests/test_realdata_slow.py);
+# The capture sits in ../shared/data beside the repository (as for tests/integration/test_realdata_slow.py);
 # STRINGS_BENCH_MOUSE_COLMAP=DIR points elsewhere.
 MOUSE = Path(os.environ.get("STRINGS_BENCH_MOUSE_COLMAP",
-                            Path(__file__).resolve().parents[2] / "shared" / "data" / "mouse_colmap"))
+                            Path(__file__).resolve().parents[3] / "shared" / "data" / "mouse_colmap"))
 DOWN = 8  # 1440x1920 -> 180x240
 pytestmark = pytest.mark.skipif(not (MOUSE / "sparse" / "0").is_dir(),
                                 reason=f"shared mouse_colmap data not present at {MOUSE}")

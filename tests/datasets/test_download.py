@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import io
 import os
 import tarfile
 import threading
@@ -13,6 +12,7 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
+from _archives import tar_of, zip_of
 
 from strings_bench.datasets.download import (
     DownloadError,
@@ -162,37 +162,10 @@ def test_http_404_is_a_clear_error(server, tmp_path):
 
 
 # ---- archives -------------------------------------------------------------------------------
-def _zip(path: Path, members: dict[str, bytes]) -> Path:
-    with zipfile.ZipFile(path, "w") as zf:
-        for name, data in members.items():
-            zf.writestr(name, data)
-    return path
-
-
-def _tar(path: Path, members: list[tarfile.TarInfo | tuple[str, bytes]]) -> Path:
-    with tarfile.open(path, "w:gz") as tf:
-        for m in members:
-            if isinstance(m, tarfile.TarInfo):
-                tf.addfile(m)
-            else:
-                info = tarfile.TarInfo(m[0])
-                info.size = len(m[1])
-                tf.addfile(info, io.BytesIO(m[1]))
-    return path
-
-
-def _symlink_zip(path: Path) -> Path:
-    with zipfile.ZipFile(path, "w") as zf:
-        info = zipfile.ZipInfo("scene/link")
-        info.external_attr = (0o120777 << 16)  # S_IFLNK
-        zf.writestr(info, "/etc/passwd")
-    return path
-
-
 def test_download_and_extract_good_archives(server, tmp_path):
     root, url, _ = server
-    _zip(root / "good.zip", {"tandt/truck/images/a.jpg": b"x", "tandt/truck/sparse/0/cameras.bin": b"y"})
-    _tar(root / "good.tar.gz", [("scene/images/a.jpg", b"x"), ("scene/sparse/0/points3D.bin", b"z")])
+    zip_of(root / "good.zip", {"tandt/truck/images/a.jpg": b"x", "tandt/truck/sparse/0/cameras.bin": b"y"})
+    tar_of(root / "good.tar.gz", [("scene/images/a.jpg", b"x"), ("scene/sparse/0/points3D.bin", b"z")])
     for name, probe in (("good.zip", "tandt/truck/images/a.jpg"), ("good.tar.gz", "scene/sparse/0/points3D.bin")):
         res = download_file(f"{url}/{name}", tmp_path / "dl" / name, progress=False, echo=lambda s: None)
         out = safe_extract(res.path, tmp_path / f"x_{name}", progress=False)
@@ -206,11 +179,11 @@ def test_malicious_archives_are_refused(server, tmp_path, kind):
     root, url, _ = server
     outside = tmp_path / "evil"
     if kind == "zip_slip":
-        arc = _zip(root / "a.zip", {"ok.txt": b"fine", "../evil": b"pwned"})
+        arc = zip_of(root / "a.zip", {"ok.txt": b"fine", "../evil": b"pwned"})
     elif kind == "zip_absolute":
-        arc = _zip(root / "a.zip", {"ok.txt": b"fine", str(outside): b"pwned"})
+        arc = zip_of(root / "a.zip", {"ok.txt": b"fine", str(outside): b"pwned"})
     elif kind == "zip_symlink":
-        arc = _symlink_zip(root / "a.zip")
+        arc = zip_of(root / "a.zip", {"scene/link": b"/etc/passwd"}, modes={"scene/link": 0o120777})  # S_IFLNK
     else:
         members: list = [("ok.txt", b"fine")]
         if kind == "tar_slip":
@@ -226,7 +199,7 @@ def test_malicious_archives_are_refused(server, tmp_path, kind):
             else:
                 info.type = tarfile.CHRTYPE
             members.append(info)
-        arc = _tar(root / "a.tar.gz", members)
+        arc = tar_of(root / "a.tar.gz", members)
     got = download_file(f"{url}/{arc.name}", tmp_path / "dl" / arc.name, progress=False, echo=lambda s: None)
     target = tmp_path / "work" / "target"
     with pytest.raises(UnsafeArchiveError):
@@ -238,7 +211,7 @@ def test_malicious_archives_are_refused(server, tmp_path, kind):
 
 
 def test_extract_refuses_existing_target(tmp_path):
-    arc = _zip(tmp_path / "a.zip", {"x": b"1"})
+    arc = zip_of(tmp_path / "a.zip", {"x": b"1"})
     (tmp_path / "t").mkdir()
     with pytest.raises(Exception, match="already exists"):
         safe_extract(arc, tmp_path / "t", progress=False)

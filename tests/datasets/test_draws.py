@@ -1,7 +1,7 @@
 """Scene draws (issue 40): a synthetic360 room at another generator seed, registered as a scene ROOM@N of every
 synthetic360 card; draw 0 is the room itself, with the cache keys (and so the figures) it had before draws; the
 draws reach `datasets list/prepare`, `run`, `evaluate` (resolve_scenes) and `calibrate --draws`, whose tables give the
-mean over draws with the draws' range. The comparison tool's side is tests/test_comparison_tables.py."""
+mean over draws with the draws' range. The comparison tool's side is tests/reports/test_comparison_tables.py."""
 
 from __future__ import annotations
 

@@ -29,9 +29,9 @@ from strings_bench.datasets.synthetic.photometric import (ViewPhotometry, apply_
                                                           motion_kernel)
 from strings_bench.scene.scene import Scene
 
-from test_synthetic import surface_point  # the independent surface parametrisation, one copy
+from tests.datasets.test_synthetic import surface_point  # the independent surface parametrisation, one copy
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def box_height(polygon: np.ndarray) -> float:

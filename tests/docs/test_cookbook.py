@@ -2,7 +2,7 @@
 says, and its page shows the file's own code, the command and the output it prints (numbers aside).
 
 Each recipe's `main()` runs in this process on a tiny scene and schedule; the CPU seconds it took are printed
-(`pytest tests/test_cookbook.py -s`), the figures the pages' "Cost" lines state."""
+(`pytest tests/docs/test_cookbook.py -s`), the figures the pages' "Cost" lines state."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 COOKBOOK = ROOT / "examples" / "cookbook"
 PAGES = ROOT / "docs" / "cookbook"
 

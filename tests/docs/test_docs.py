@@ -17,7 +17,7 @@ from strings_bench.cli import build_parser
 from strings_bench.cli.docs import cli_reference, refresh
 from strings_bench.reports.doc_tables import BLOCK_RE, refresh_page, refresh_text
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 GUIDE = sorted((DOCS / "guide").glob("*.md"))
 DESIGN = sorted(p for p in DOCS.glob("*.md") if p.name != "README.md")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 # cli.md is generated from the parsers (its text is --help's, checked by test_docs.py)
 GUIDE = sorted(p for p in (DOCS / "guide").glob("*.md") if p.name != "cli.md")

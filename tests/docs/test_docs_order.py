@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 ORDER = (
     ("docs/miniature.md", "1ecaa37", "9211ae4", "provisional agreement scores committed before the rule"),

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install -e '.[docs]')")
 pytest.importorskip("mkdocstrings", reason="the docs extra is not installed (pip install -e '.[docs]')")
 
@@ -48,7 +48,7 @@ def test_site_builds_in_strict_mode(site):
 
 def test_api_reference_has_every_object(site):
     """Every object docs/reference/api.md names is rendered with its own heading (mkdocstrings' id is its path)."""
-    from test_docs_api import api_objects
+    from tests.docs.test_docs_api import api_objects
 
     html = (site / "reference" / "api.html").read_text(encoding="utf-8")
     missing = [obj for obj in api_objects() if f'id="{obj}"' not in html]

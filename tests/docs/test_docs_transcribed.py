@@ -8,7 +8,7 @@ from pathlib import Path
 from strings_bench.cli import main
 from strings_bench.cli.docs import HISTORY_MARK, refresh, transcribed_reads
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TABLE = "<!-- table (strings-bench docs refresh): data/tables/t.csv -->\n| a |\n|---|\n| 1 |\n<!-- end table -->\n"
 
 

@@ -5,15 +5,12 @@ from __future__ import annotations
 from strings_bench.core.schedules import get_schedule
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-sys.path.insert(0, str(Path(__file__).parent))  # tests/_engine_helpers
 
 import _engine_helpers as eh  # noqa: E402
 from strings_bench.scene.camera import Camera

@@ -22,7 +22,6 @@ import pytest
 import torch
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 import runner_fakes as rf  # noqa: E402
 from _engine_helpers import make_tiny_scene  # noqa: E402

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene, train  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError, TrainingError  # noqa: E402

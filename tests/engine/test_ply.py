@@ -1,7 +1,6 @@
 """PLY in the 3DGS layout: bitwise round trip, property order and channel-major f_rest, a model
 written by the trainer, malformed files, and the `render` CLI."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +8,6 @@ import pytest
 import torch
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 from _engine_helpers import make_tiny_scene  # noqa: E402
 
 from strings_bench.core.errors import StringsBenchError  # noqa: E402

@@ -14,7 +14,6 @@ import json
 import math
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,6 @@ import pytest
 import torch
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 from _engine_helpers import look_at, make_tiny_scene  # noqa: E402
 from strings_bench.core.errors import TrainingError  # noqa: E402

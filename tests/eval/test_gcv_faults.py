@@ -16,13 +16,11 @@ import logging
 import sys
 import time
 from http.server import BaseHTTPRequestHandler
-from pathlib import Path
 
 import numpy as np
 import pytest
 from _local_http import LocalVisionServer
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 import runner_fakes as rf  # noqa: E402
 from strings_bench.core.errors import OCRError  # noqa: E402

@@ -189,7 +189,7 @@ def test_ocr_masks_read_each_view_once_on_several_cores(tmp_path, monkeypatch):
     from strings_bench.eval.ocr import OCRCache, Word
     from strings_bench.eval.ocr.base import OCR_WORKERS_ENV
     from strings_bench.scene.polygons import fill_polygons
-    from test_ocr_parallel import SlowBackend
+    from tests.eval.test_ocr_parallel import SlowBackend
 
     class BoxDetector(SlowBackend):  # one word, the scene's text box, in every view; slow as a detector
         name = "boxes"

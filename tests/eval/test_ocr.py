@@ -30,7 +30,7 @@ from strings_bench.eval.ocr.rapid import RapidOCRBackend, split_line_into_words
 from strings_bench.eval.ocr.sample import random_text_image, render_lines, sample_image
 from strings_bench.eval.ocr.tesseract import TesseractBackend, parse_tesseract_tsv
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 class CountingBackend(OCRBackend):

@@ -31,7 +31,6 @@ import os
 import random
 import shutil
 import struct
-import sys
 import tarfile
 import traceback
 import zipfile
@@ -44,7 +43,6 @@ import pytest
 import torch
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 import runner_fakes as rf  # noqa: E402
 from strings_bench.eval.ocr.base import OCRBackend, BackendStatus, Word  # noqa: E402

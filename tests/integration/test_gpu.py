@@ -9,14 +9,11 @@ they skip with reason "no CUDA"). What they check is in docs/guide/gpu.md:
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA")]
 
@@ -37,7 +34,7 @@ def test_gsplat_matches_cpu_images_and_gradients():
     """2 000 random Gaussians, SH degree 3, 320x240: measured 75.9 dB and cosine >= 0.99995 on an H100
     (issue 13); the bounds leave room for the documented tile-support and alpha-clamp differences."""
     _needs_gsplat()
-    from test_raster import random_scene
+    from tests.raster.test_raster import random_scene
 
     from strings_bench.raster import rasterize
     from strings_bench.scene.camera import Camera

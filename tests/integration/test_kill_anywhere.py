@@ -16,7 +16,7 @@ OCR cache entry is cut in half (each must be detected, recomputed and rewritten)
 Afterwards: every cell is complete, valid JSON; results.csv's metric columns equal those of an
 uninterrupted run at the same seed; no temporary file is left in the run folder or the cache.
 
-tests/test_resume.py kills training alone (and checks the parameters); this file kills the whole run.
+tests/integration/test_resume.py kills training alone (and checks the parameters); this file kills the whole run.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SCENE = "books"
 SCENE_SETTINGS = {"width": 64, "height": 48, "n_views": 8}
 METHODS = ["3dgs"]
@@ -277,7 +277,6 @@ def test_a_half_written_ocr_entry_and_scene_are_detected_and_rebuilt(tmp_path, m
 def test_a_state_left_after_the_last_cell_is_removed(tmp_path, monkeypatch):
     """Regression (found by the 30-kill run): killed after writing its last cell but before removing the
     training state, a run left training_state.pt for ever - the re-run skipped the finished job."""
-    sys.path.insert(0, str(Path(__file__).parent))
     import runner_fakes as rf
     from strings_bench.bench import runner
     from strings_bench.core.io import atomic_write_json

@@ -33,8 +33,6 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-TESTS = Path(__file__).resolve().parent
-sys.path.insert(0, str(TESTS))
 
 import runner_fakes as rf  # noqa: E402
 from _ray_helpers import PausingRunner  # noqa: E402
@@ -42,7 +40,6 @@ from strings_bench.bench import runner  # noqa: E402
 from strings_bench.bench.ray_executor import WORKER_FILE, RayExecutor, run_job_on_worker  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 
-SCENES = ("books", "globe")
 METHODS = ["strings", "3dgs"]
 SCHEDULE = dict(schedule="tiny", steps_scale=0.002, checkpoints=[3000, 7000])  # trained as 6 and 14 steps
 CHECKPOINTS = [6, 14]
@@ -52,10 +49,9 @@ NOT_METRICS = {"train_seconds", "preprocess_seconds", "total_seconds", "eval_sec
 
 
 @pytest.fixture(scope="module")
-def ray_session():
-    """A local Ray with 2 CPUs whose workers can import this folder's helpers (FakeOCR, PausingRunner)."""
+def ray_session(worker_pythonpath):
+    """A local Ray with 2 CPUs whose workers can import the tests' helpers (FakeOCR, PausingRunner)."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("PYTHONPATH", os.pathsep.join([str(TESTS.parent), str(TESTS), os.environ.get("PYTHONPATH", "")]))
         mp.setenv("RAY_USAGE_STATS_ENABLED", "0")
         # Ray's own memory monitor kills workers when the machine as a whole passes 95 % of its memory: other
         # work on the machine (training runs beside the tests) then failed these tests with a message about Ray,
@@ -67,15 +63,6 @@ def ray_session():
             yield ray
         finally:
             ray.shutdown()
-
-
-@pytest.fixture(scope="module")
-def scenes() -> list[Path]:
-    """Two small synthetic scenes, built here on the driver before any job runs."""
-    from strings_bench.datasets.synthetic import build_scene, settings_with
-
-    settings = settings_with(width=96, height=72, n_views=12)
-    return [build_scene(name, settings, progress=False) for name in SCENES]
 
 
 def _plan(out: Path, scenes, methods=METHODS):
@@ -109,7 +96,7 @@ def _wait_for(pattern: str, folder: Path, count: int = 1, timeout: float = 240) 
     raise AssertionError(f"no {pattern} in {folder} after {timeout} s")
 
 
-# The heaviest test of the suite (about 3 minutes loaded): opt-in, `pytest -m slow tests/test_ray.py`.
+# The heaviest test of the suite (about 3 minutes loaded): opt-in, `pytest -m slow tests/integration/test_ray.py`.
 @pytest.mark.slow
 def test_killed_worker_is_retried_and_the_grid_equals_the_local_run(ray_session, scenes, tmp_path):
     local_out, ray_out, pause = tmp_path / "local", tmp_path / "ray", tmp_path / "pause"
@@ -151,7 +138,7 @@ def test_killed_worker_is_retried_and_the_grid_equals_the_local_run(ray_session,
     assert not (state_dir / "training_state.pt").exists()  # the job finished
     # Same grid, same metrics as the local executor (timings and memory aside).
     want, got = _rows(local_out), _rows(ray_out)
-    assert sorted(got) == sorted(want) and len(got) == len(METHODS) * len(SCENES) * len(CHECKPOINTS)
+    assert sorted(got) == sorted(want) and len(got) == len(METHODS) * len(scenes) * len(CHECKPOINTS)
     for key, row in want.items():
         metric_columns = set(row) - NOT_METRICS
         assert {c: got[key][c] for c in metric_columns} == {c: row[c] for c in metric_columns}, key
@@ -175,18 +162,6 @@ def test_a_job_that_fails_by_itself_is_not_retried_and_is_reported_per_cell(ray_
     assert record["attempt"] == 1  # a job's own error is not retried (3 retries were allowed)
     assert set(_rows(out)) == {("3dgs", scenes[0].name, str(it)) for it in CHECKPOINTS}  # the other job finished
     assert ray.is_initialized()  # the executor used this session and left it running
-
-
-@pytest.fixture
-def sigint_raises():
-    """SIGINT raises KeyboardInterrupt during the test, as in a terminal, even where the suite was started
-    with SIGINT ignored (a background job of a non-interactive shell): Python keeps an inherited
-    SIG_IGN, and the Ctrl-C test would then wait forever."""
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, before)
 
 
 def test_ctrl_c_cancels_the_tasks_and_leaves_only_complete_cells(ray_session, scenes, tmp_path, sigint_raises):

@@ -1,6 +1,6 @@
 """Whole pipeline on real photographs (slow; opt-in):
 
-    pytest -m slow tests/test_realdata_slow.py -s
+    pytest -m slow tests/integration/test_realdata_slow.py -s
 
 1. `prepare` on the 44 wall-clock phone photos (copied to a temp folder first): SfM, undistortion,
    downscaled copies, OCR text masks. Per-stage seconds and the registered-image count are printed
@@ -27,7 +27,7 @@ import pytest
 
 # The photos sit in ../shared/data beside the repository; STRINGS_BENCH_WATCH_CLOCK=DIR points elsewhere.
 WATCH = Path(os.environ.get("STRINGS_BENCH_WATCH_CLOCK",
-                            Path(__file__).resolve().parents[2] / "shared" / "data" / "watch_clock")) / "images"
+                            Path(__file__).resolve().parents[3] / "shared" / "data" / "watch_clock")) / "images"
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not WATCH.is_dir(), reason="shared watch_clock photos not present")]
 

@@ -24,11 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 from strings_bench.core.cpus import PORTABLE_ISA, host_has_avx2  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 BUILD_AND_TRAIN = textwrap.dedent("""
     import hashlib, json, sys

@@ -19,7 +19,6 @@ import pytest
 import torch
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 from _engine_helpers import make_tiny_scene, train  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
@@ -27,7 +26,7 @@ from strings_bench.engine.trainer import SaveEvery, Trainer  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
 from strings_bench.scene.scene import Scene  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CHECKPOINTS = [12, 30]
 # strings: T1 = 6 steps at this scale, so a kill after step 6 resumes inside phase 2
 SETTINGS = {"3dgs": dict(steps_scale=0.002, sh_degree=1),
@@ -89,7 +88,7 @@ def test_kill_9_at_a_random_step_resumes_to_the_same_parameters(name, text_scene
     uninterrupted = train(whole, scene, CHECKPOINTS)
     kill_at = random.Random(f"{name}-kill").randint(8, CHECKPOINTS[-1] - 1)
     state = tmp_path / "state.pt"
-    script = KILLED_RUN.format(tests=str(Path(__file__).parent), kill_at=kill_at, name=name, settings=settings,
+    script = KILLED_RUN.format(tests=str(Path(__file__).parents[1]), kill_at=kill_at, name=name, settings=settings,
                                scene=str(text_scene), checkpoints=CHECKPOINTS, state=str(state))
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300)
@@ -152,7 +151,7 @@ def test_run_killed_mid_training_resumes_and_records_it(text_scene, tmp_path):
     def run_cli(out: Path, kill_at: int | None, keep_models: bool = False) -> subprocess.CompletedProcess:
         code = textwrap.dedent(f"""
             import os, signal, sys
-            sys.path.insert(0, {str(Path(__file__).parent)!r})
+            sys.path.insert(0, {str(Path(__file__).parents[1])!r})
             import runner_fakes as rf
             import strings_bench.bench as bench
             from strings_bench.engine.splatting import GaussianSplatting

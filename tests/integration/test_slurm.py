@@ -9,7 +9,7 @@
 
 The Slurm tests need `sinfo`, `sbatch`, ... and a node that goes idle: the fixture runs scripts/slurm_local.sh
 (apt-get install and start, as root) and skips with its reason where that fails. They are slow (each Slurm task
-imports torch on a 2-core machine): `pytest -m slow tests/test_slurm.py`, run by .ci/run in a step of its own.
+imports torch on a 2-core machine): `pytest -m slow tests/integration/test_slurm.py`, run by .ci/run in a step of its own.
 The grid is test_ray.py's: the tiny schedule shortened to 6 and 14 steps on 96x72 scenes of 12 views, with the
 test suite's deterministic OCR.
 """
@@ -31,8 +31,7 @@ import pytest
 
 submitit = pytest.importorskip("submitit")
 
-TESTS = Path(__file__).resolve().parent
-sys.path.insert(0, str(TESTS))
+REPO = Path(__file__).resolve().parents[2]
 
 import runner_fakes as rf  # noqa: E402
 from _ray_helpers import PausingRunner  # noqa: E402  (not Ray-specific: a Runner that pauses mid-job)
@@ -42,7 +41,6 @@ from strings_bench.bench.slurm_executor import JOBS_FILE, WORKER_FILE, SlurmExec
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.core.results import RESULT_FILE, CellKey  # noqa: E402
 
-SCENES = ("books", "globe")
 METHODS = ["strings", "3dgs"]
 SCHEDULE = dict(schedule="tiny", steps_scale=0.002, checkpoints=[3000, 7000])  # trained as 6 and 14 steps
 CHECKPOINTS = [6, 14]
@@ -52,7 +50,7 @@ PAUSE_STEP = 10  # between the state saved at step 8 (--save-every 4steps) and c
 def _is_time(column: str) -> bool:
     """results.csv's timings (wall and CPU seconds) and memory, which differ between any two runs."""
     return column.endswith("_seconds") or column == "peak_memory_mb"
-SETUP = TESTS.parent / "scripts" / "slurm_local.sh"
+SETUP = REPO / "scripts" / "slurm_local.sh"
 
 
 def _slurm_ready() -> str | None:
@@ -68,7 +66,7 @@ def _slurm_ready() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def slurm():
+def slurm(worker_pythonpath):
     """A Slurm with an idle node: the one here, or the single-node one scripts/slurm_local.sh installs and starts."""
     why = _slurm_ready()
     if why is not None:
@@ -80,18 +78,7 @@ def slurm():
             lines = (proc.stderr or proc.stdout).strip().splitlines()
             pytest.skip(f"could not install or start a local Slurm (scripts/slurm_local.sh: "
                         f"{lines[-1] if lines else why})")
-    with pytest.MonkeyPatch.context() as mp:
-        # sbatch exports this environment to the tasks: they import the tests' helpers (FakeOCR, PausingRunner)
-        mp.setenv("PYTHONPATH", os.pathsep.join([str(TESTS.parent), str(TESTS), os.environ.get("PYTHONPATH", "")]))
-        yield
-
-
-@pytest.fixture(scope="module")
-def scenes() -> list[Path]:
-    from strings_bench.datasets.synthetic import build_scene, settings_with
-
-    settings = settings_with(width=96, height=72, n_views=12)
-    return [build_scene(name, settings, progress=False) for name in SCENES]
+    yield  # sbatch exports the environment, worker_pythonpath's PYTHONPATH included, to the tasks
 
 
 def _plan(out: Path, scenes, methods=METHODS):
@@ -144,7 +131,7 @@ def test_a_detached_array_followed_by_a_second_run_equals_the_local_run(slurm, s
     assert _records(slurm_out) == first
 
     want, got = _rows(local_out), _rows(slurm_out)
-    assert sorted(got) == sorted(want) and len(got) == len(METHODS) * len(SCENES) * len(CHECKPOINTS)
+    assert sorted(got) == sorted(want) and len(got) == len(METHODS) * len(scenes) * len(CHECKPOINTS)
     for key, row in want.items():
         columns = {c for c in row if not _is_time(c)}
         assert {c: got[key][c] for c in columns} == {c: row[c] for c in columns}, key
@@ -223,17 +210,6 @@ def test_a_job_that_fails_on_its_node_is_reported_with_its_cell_and_log(slurm, s
     assert "3dgs broken/broken @6 (3K), @14 (7K): " in message and "images.bin" in message
     assert f"Slurm job {rec['job_id']} on " in message and rec["log_err"] in message
     assert "images.bin" in Path(rec["log_err"]).read_text()  # the traceback is in the log the message names
-
-
-@pytest.fixture
-def sigint_raises():
-    """SIGINT raises KeyboardInterrupt during the test, as in a terminal, even where the suite was started with
-    SIGINT ignored (a background job of a non-interactive shell)."""
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, before)
 
 
 @pytest.mark.slow

@@ -5,7 +5,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PKG = Path(__file__).resolve().parents[1] / "strings_bench"
+PKG = Path(__file__).resolve().parents[2] / "strings_bench"
 
 
 def _modules() -> dict[str, Path]:
@@ -414,8 +414,8 @@ def positional_constructions(paths, names=("Job", "CellConfig", "CellRecord", "R
 
 def test_no_positional_construction_of_a_job_or_a_cell():
     root = PKG.parent
-    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "tests").glob("*.py")])
-    assert positional_constructions([p for p in paths if p.name != "test_layout.py"]) == []
+    paths = sorted([*PKG.rglob("*.py"), *(root / "benchmarks").glob("*.py"), *(root / "tests").rglob("*.py")])
+    assert positional_constructions([p for p in paths if p.name != "test_rules.py"]) == []
 
 
 def test_positional_rule_can_fail(tmp_path):

@@ -13,7 +13,7 @@ import pytest
 from strings_bench.bench.check import check_method
 from strings_bench.methods.registry import registered
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "opacity-splat"
 TUTORIAL = ROOT / "docs" / "guide" / "adding-a-method.md"
 

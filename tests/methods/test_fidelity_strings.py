@@ -25,7 +25,7 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.methods.registry import get_method
 from strings_bench.engine.optim import exponential_lr
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TEXT_BOX = (8, 6, 20, 14)  # x0, y0, x1, y1 on the 32 x 24 views
 
 

@@ -2,7 +2,7 @@
 own criterion left as it was (3DGS' mean screen-space gradient).
 
 References: the statistics are accumulated by hand here from each step's rasterizer output (the absolute gradient
-itself is checked against a per-pixel brute force in tests/test_raster.py), and the selection is worked out by
+itself is checked against a per-pixel brute force in tests/raster/test_raster.py), and the selection is worked out by
 hand on constructed statistics.
 """
 

@@ -8,7 +8,7 @@ import pytest
 from strings_bench.scene.camera import Camera
 from strings_bench.methods.strings.segmentation import (count_mask_hits, segment_text_points, segment_text_points_arrays,
                                              segment_text_points_loop)
-from test_masks import look_at, make_scene
+from tests.eval.test_masks import look_at, make_scene
 
 
 def random_case(seed, n_views=7, n_points=400):

@@ -2,7 +2,7 @@
 pure-PyTorch reference stages (tests/_gsplat_cpu.py), against the CPU rasterizer.
 
 What agrees and what differs, with the measurements, is in docs/raster.md ("The CUDA path on the CPU").
-Tolerance TOL = 1e-5 (relative L2 norm, as tests/test_raster.py): gsplat's reference path in float32
+Tolerance TOL = 1e-5 (relative L2 norm, as tests/raster/test_raster.py): gsplat's reference path in float32
 differs from itself in float64 by at most 5e-6 on these scenes, so the bound is the level of gsplat's
 own float32 rounding, and each comparison also checks that.
 """
@@ -13,18 +13,16 @@ import contextlib
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 pytest.importorskip("gsplat")
 
 from _gsplat_cpu import assert_no_cuda_backend, gsplat_on_cpu  # noqa: E402
-from test_raster import (NAMES, clamp_scene, make_camera, output_weights, random_scene, rel,  # noqa: E402
+from tests.raster.test_raster import (NAMES, clamp_scene, make_camera, output_weights, random_scene, rel,  # noqa: E402
                          weighted_loss)
 
 from strings_bench.raster import rasterize  # noqa: E402
@@ -42,7 +40,7 @@ def render(params, cam, backend, dtype=torch.float32, **kw):
             weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
     else:
         # the float64 CPU kernels: the reference the tolerance was measured against (issue 37 made the
-        # float32 kernels the default "cpu"; they agree with these to ~5e-5, tests/test_raster_f32.py)
+        # float32 kernels the default "cpu"; they agree with these to ~5e-5, tests/raster/test_raster_f32.py)
         out = rasterize(*leaves[:5], cam, leaves[5], backend="cpu-f64", compute_absgrad=True, **kw)
         out.means2d.retain_grad()
         weighted_loss(out.color, out.alpha, out.depth, output_weights(cam.height, cam.width)).backward()
@@ -328,7 +326,7 @@ def test_importing_gsplat_compiles_nothing():
 @pytest.fixture(scope="module")
 def text_scene(tmp_path_factory):
     from _engine_helpers import make_tiny_scene
-    from test_strings import TEXT_BOX, _write_masks
+    from tests.methods.test_strings import TEXT_BOX, _write_masks
 
     from strings_bench.scene.scene import Scene
 

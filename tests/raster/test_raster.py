@@ -17,7 +17,7 @@ from strings_bench.raster.sh import sh_basis
 
 TOL = 1e-5
 # The accuracy tests below hold the float64 blend kernels to the brute-force reference; the float32
-# kernels (backend "cpu", the default) are held to these in tests/test_raster_f32.py.
+# kernels (backend "cpu", the default) are held to these in tests/raster/test_raster_f32.py.
 CPU_REF = "cpu-f64"
 NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh", "background")
 

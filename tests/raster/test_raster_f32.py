@@ -1,9 +1,9 @@
 """The float32 blend kernels (backend "cpu", the default) against the float64 kernels ("cpu-f64", the
-reference that tests/test_raster.py holds to the brute-force reference at 1e-5).
+reference that tests/raster/test_raster.py holds to the brute-force reference at 1e-5).
 
 Issue 37's tolerances: renders (colour, alpha: values on [0, 1]) max absolute difference <= 1e-4;
 every gradient relative error (norm-wise, ||a - b|| / ||b||) <= 1e-3. Checked on the random scenes and
-the numerical extremes of tests/test_raster.py, and on blend inputs captured from real training steps
+the numerical extremes of tests/raster/test_raster.py, and on blend inputs captured from real training steps
 of a small scene (the deterministic, small stand-in for issue 28's nine captured steps, which are
 not in the repository; docs/engine.md gives the same check on those). Plus: the vector `exp` against
 float64, bit-identical results at any thread count, and the tight boxes still changing no bit."""
@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from strings_bench.raster import rasterize
-from test_raster import (NAMES, make_camera, output_weights, random_scene, weighted_loss, SCENES,
+from tests.raster.test_raster import (NAMES, make_camera, output_weights, random_scene, weighted_loss, SCENES,
                          _blend_with_boxes)
 
 RENDER_ATOL = 1e-4
@@ -101,7 +101,7 @@ def test_float32_blend_agrees_with_mip_filter_and_rotated_camera():
 
 
 def _extreme(case):
-    """The numerical extremes of tests/test_raster.py (same seeds and values)."""
+    """The numerical extremes of tests/raster/test_raster.py (same seeds and values)."""
     if case == "tiny_scales":
         params = random_scene(n=10, seed=10)
         params[2] = torch.full((10, 3), math.log(1e-6))
@@ -257,8 +257,8 @@ _COMPILED_VS_CACHED = r"""
 import hashlib, json, sys
 import numba
 from strings_bench.raster import cpu_kernels_f32
-from test_raster_f32 import run
-from test_raster import make_camera, random_scene
+from tests.raster.test_raster_f32 import run
+from tests.raster.test_raster import make_camera, random_scene
 out, leaves = run(random_scene(n=1500, seed=3), make_camera(W=128, H=96), "cpu")
 digest = hashlib.sha256()
 for t in [out.color, out.alpha, out.depth, out.absgrad, out.means2d.grad] + [x.grad for x in leaves]:
@@ -278,7 +278,7 @@ def test_float32_kernels_compiled_here_and_loaded_from_the_cache_give_the_same_b
     import sys
 
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
-           "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])}
+           "PYTHONPATH": os.pathsep.join([str(Path(__file__).parents[2]), os.environ.get("PYTHONPATH", "")])}
     runs = [json.loads(subprocess.run([sys.executable, "-c", _COMPILED_VS_CACHED], env=env, check=True,
                                       capture_output=True, text=True, timeout=600).stdout.splitlines()[-1])
             for _ in range(2)]

@@ -13,7 +13,7 @@ import pytest
 from strings_bench.eval.floors import MIN_GT_CHARS, MIN_READ_CHARS
 from strings_bench.reports import verdicts as V
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CER_CLAIM = next(c for c in V.CLAIMS if c.key == "cer-7k")
 TIME_CLAIM = next(c for c in V.CLAIMS if c.key == "time-30k")
 

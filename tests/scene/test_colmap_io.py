@@ -10,10 +10,10 @@ import pytest
 
 from strings_bench.scene.colmap import read_model, write_model
 
-# The capture sits in ../shared/data beside the repository (as for tests/test_realdata_slow.py);
+# The capture sits in ../shared/data beside the repository (as for tests/integration/test_realdata_slow.py);
 # STRINGS_BENCH_MOUSE_COLMAP=DIR points elsewhere.
 MOUSE = Path(os.environ.get("STRINGS_BENCH_MOUSE_COLMAP",
-                            Path(__file__).resolve().parents[2] / "shared" / "data" / "mouse_colmap"))
+                            Path(__file__).resolve().parents[3] / "shared" / "data" / "mouse_colmap"))
 pytestmark = pytest.mark.skipif(not (MOUSE / "sparse" / "0").is_dir(),
                                 reason=f"shared mouse_colmap data not present at {MOUSE}")
 

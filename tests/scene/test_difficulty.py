@@ -142,7 +142,6 @@ def test_sfm_depth_is_the_median_depth_of_the_points_seen_inside(tmp_path):
     """On a tiny SfM scene (tests/_engine_helpers.py): against the points' depths computed directly."""
     import sys
 
-    sys.path.insert(0, str(Path(__file__).parent))
     from _engine_helpers import make_tiny_scene
     import strings_bench.scene.difficulty as D
 

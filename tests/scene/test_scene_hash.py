@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 from _engine_helpers import make_tiny_scene  # noqa: E402
 from strings_bench.core import vec3  # noqa: E402
 from strings_bench.scene.colmap import ColmapModel, in_canonical_order, read_model, write_model  # noqa: E402
 from strings_bench.scene.content_hash import scene_content_hash  # noqa: E402
 
-PACKAGE = Path(__file__).resolve().parents[1] / "strings_bench"
+PACKAGE = Path(__file__).resolve().parents[2] / "strings_bench"
 
 
 @pytest.fixture()

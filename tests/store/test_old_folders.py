@@ -20,7 +20,7 @@ from strings_bench.core.errors import StringsBenchError
 from strings_bench.store import cell_row, iter_cells, read_manifest, upgrade_names, write_results_csv
 from strings_bench.reports.aggregate import load_results
 
-OLD = Path(__file__).resolve().parent / "data" / "run_99adc95"
+OLD = Path(__file__).resolve().parents[1] / "data" / "run_99adc95"
 
 
 @pytest.fixture

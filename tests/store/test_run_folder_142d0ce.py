@@ -19,7 +19,7 @@ import runner_fakes as rf
 import strings_bench.bench.runner as runner
 from strings_bench.store import cell_row, iter_cells, read_manifest, write_results_csv
 
-OLD = Path(__file__).resolve().parent / "data" / "run_142d0ce"
+OLD = Path(__file__).resolve().parents[1] / "data" / "run_142d0ce"
 TIMING = {"train_seconds", "preprocess_seconds", "total_seconds", "train_cpu_seconds", "eval_seconds"}
 # Recorded since 142d0ce, checked apart: the scene's rho (a results.csv column and the cell's config.scene entry),
 # the scope of the peak memory (a results.csv column and the cell's extra entry; every earlier cell measured the

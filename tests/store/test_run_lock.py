@@ -17,7 +17,7 @@ import strings_bench.bench as bench
 from strings_bench.core.errors import StringsBenchError
 from strings_bench.store import run_folder_busy, run_folder_lock
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="runs are not locked where flock is missing")
 
 
@@ -81,7 +81,6 @@ def test_cpu_seconds_count_work_not_waiting(tmp_path):
     saved before the count was kept reports it unknown (None), not a part."""
     import torch
 
-    sys.path.insert(0, str(Path(__file__).parent))
     from _engine_helpers import make_tiny_scene
     from strings_bench.engine.splatting import GaussianSplatting
     from strings_bench.engine.trainer import SaveEvery, Trainer
