@@ -1,4 +1,5 @@
-"""The public API's docstrings: their examples run, and every parameter is documented.
+"""The docstring rules of the lint step (the table of every rule is tests/lint/test_rules.py's docstring): the public
+API's docstrings are contracts, their examples run and every parameter is documented.
 
 Covers `rasterize` and `RasterOutput` (strings_bench.raster), the strategy interface (`Strategy`,
 `DefaultStrategy`) and `GaussianModel`: the objects docs/raster.md and docs/engine.md point users
@@ -117,13 +118,3 @@ def test_every_strategy_setting_has_a_meaning():
     assert {s.name for s in settings} == {f.name for f in dataclasses.fields(DefaultStrategy)
                                           if f.metadata.get("setting", True)}  # its context is no setting
     assert [s.name for s in settings if not s.help] == []
-
-
-def test_the_parameter_check_can_fail():
-    """The checker above is not vacuous: an undocumented parameter is reported, a documented one not."""
-
-    def f(alpha, beta_gamma, *args, **raster_kwargs):
-        """Args: alpha: one. beta: not the same name. **raster_kwargs: passed on."""
-
-    assert missing_params(f, inspect.getdoc(f)) == ["beta_gamma", "args"]
-    assert missing_params(lambda x: x, None) == ["x"]

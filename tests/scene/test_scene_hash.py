@@ -1,10 +1,9 @@
-"""A scene's content hash (scene/content_hash.py), the canonical order of SfM points (scene/colmap.py), the
-written-order arithmetic the scene build uses instead of BLAS (core/vec3.py), and the rule that keeps BLAS out of
-the scene build."""
+"""A scene's content hash (scene/content_hash.py), the canonical order of SfM points (scene/colmap.py) and the
+written-order arithmetic the scene build uses instead of BLAS (core/vec3.py); the rule that keeps BLAS out of the
+scene build is tests/lint/test_rules.py's."""
 
 from __future__ import annotations
 
-import ast
 import shutil
 import sys
 from pathlib import Path
@@ -19,7 +18,6 @@ from strings_bench.core import vec3  # noqa: E402
 from strings_bench.scene.colmap import ColmapModel, in_canonical_order, read_model, write_model  # noqa: E402
 from strings_bench.scene.content_hash import scene_content_hash  # noqa: E402
 
-PACKAGE = Path(__file__).resolve().parents[2] / "strings_bench"
 
 
 @pytest.fixture()
@@ -125,44 +123,6 @@ def test_written_order_arithmetic_agrees_with_numpy_to_rounding():
     assert (vec3.matmul(ints, ints) == ints @ ints).all() and (vec3.matvec(ints, ints[0]) == ints @ ints[0]).all()
     x = np.array([1.0, 2.0, 3.0], np.float32)
     assert vec3.dot(x, x).dtype == np.float32  # keeps the operands' dtype
-
-
-# The modules whose results reach a scene's files (pixels, masks, cameras, points, split, annotations): the
-# dataset builders, the scene model, the OCR that makes a prepared scene's masks. BLAS (numpy's @, dot, einsum,
-# matmul, linalg) rounds by the CPU model's kernels there; core/vec3.py does the same sums in a written order.
-SCENE_BUILD = ("datasets", "scene", "eval/ocr", "eval/text_masks.py")
-BLAS_CALLS = {"dot", "einsum", "matmul", "tensordot", "inner", "vdot"}
-
-
-def blas_calls(path: Path) -> list[str]:
-    found = []
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult):
-            found.append(f"{path}:{node.lineno}: @")
-        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
-            f = node.func
-            if f.attr in BLAS_CALLS and not (isinstance(f.value, ast.Name) and f.value.id == "vec3"):
-                found.append(f"{path}:{node.lineno}: .{f.attr}()")
-            elif isinstance(f.value, ast.Attribute) and f.value.attr == "linalg":
-                found.append(f"{path}:{node.lineno}: linalg.{f.attr}()")
-    return found
-
-
-def test_nothing_the_scene_build_computes_goes_through_blas():
-    files = [p for part in SCENE_BUILD for p in ((PACKAGE / part).rglob("*.py") if (PACKAGE / part).is_dir()
-                                                  else [PACKAGE / part])]
-    assert len(files) > 20
-    found = [hit for p in files for hit in blas_calls(p)]
-    assert not found, "use strings_bench.core.vec3 (written-order sums) instead: " + "; ".join(found)
-
-
-def test_the_blas_rule_sees_each_kind_of_call(tmp_path):
-    planted = tmp_path / "planted.py"
-    planted.write_text("import numpy as np\nfrom strings_bench.core import vec3\n"
-                       "a = b @ c\nd = np.dot(b, c)\ne = x.dot(y)\nf = np.einsum('i,i', b, c)\n"
-                       "g = np.linalg.norm(b)\nh = np.matmul(b, c)\nok = vec3.dot(b, c)\n")
-    assert [h.split(": ", 1)[1] for h in blas_calls(planted)] == ["@", ".dot()", ".dot()", ".einsum()", "linalg.norm()",
-                                                                  ".matmul()"]
 
 
 def test_datasets_show_prints_the_content_hash(scene_dir, capsys):
