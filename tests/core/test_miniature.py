@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import pytest
 
 from _engine_helpers import make_tiny_scene  # noqa: E402

@@ -11,7 +11,6 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-
 import _engine_helpers as eh  # noqa: E402
 from strings_bench.scene.camera import Camera
 from strings_bench.engine.gaussians import GaussianModel

@@ -22,7 +22,6 @@ import pytest
 import torch
 from PIL import Image
 
-
 import runner_fakes as rf  # noqa: E402
 from _engine_helpers import make_tiny_scene  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402

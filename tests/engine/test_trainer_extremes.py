@@ -21,7 +21,6 @@ import pytest
 import torch
 from PIL import Image
 
-
 from _engine_helpers import look_at, make_tiny_scene  # noqa: E402
 from strings_bench.core.errors import TrainingError  # noqa: E402
 from strings_bench.engine.trainer import Trainer  # noqa: E402

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from _local_http import LocalVisionServer
 
-
 import runner_fakes as rf  # noqa: E402
 from strings_bench.core.errors import OCRError  # noqa: E402
 from strings_bench.eval.ocr.gcv import GoogleVisionBackend  # noqa: E402

@@ -43,7 +43,6 @@ import pytest
 import torch
 from PIL import Image
 
-
 import runner_fakes as rf  # noqa: E402
 from strings_bench.eval.ocr.base import OCRBackend, BackendStatus, Word  # noqa: E402
 

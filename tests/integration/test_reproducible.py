@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-
 from strings_bench.core.cpus import PORTABLE_ISA, host_has_avx2  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]

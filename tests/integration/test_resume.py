@@ -19,7 +19,6 @@ import pytest
 import torch
 from PIL import Image
 
-
 from _engine_helpers import make_tiny_scene, train  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.engine.trainer import SaveEvery, Trainer  # noqa: E402

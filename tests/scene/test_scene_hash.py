@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-
 from _engine_helpers import make_tiny_scene  # noqa: E402
 from strings_bench.core import vec3  # noqa: E402
 from strings_bench.scene.colmap import ColmapModel, in_canonical_order, read_model, write_model  # noqa: E402
 from strings_bench.scene.content_hash import scene_content_hash  # noqa: E402
-
 
 
 @pytest.fixture()
