@@ -12,6 +12,9 @@ own top-level names).
 - `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
   session (a few seconds) and shared by every test that needs a real scene folder (images,
   sparse/0 from pycolmap, masks, text_annotations.json). Treat it as read-only.
+- `private_cache`: STRINGS_BENCH_CACHE in the test's own tmp_path (for the modules whose tests must build their
+  scenes afresh: `pytestmark = pytest.mark.usefixtures("private_cache")`).
+- `scene_dir`: the 9-view toy scene of runner_fakes (the fake methods registered), built once per module.
 - `fake_run`: a finished `tiny` run folder (fake methods fake-a/b/c on the 9-view toy scene of
   runner_fakes with "hello" written in its text block, the fake OCR; no LPIPS), with its report.
   Shared by the report tests (tables, figures, HTML, the browser test); a test may rewrite its
@@ -66,6 +69,22 @@ def synthetic_books_small(synthetic_small_settings) -> Path:
     from strings_bench.datasets.synthetic import build_scene
 
     return build_scene("books", synthetic_small_settings, progress=False)
+
+
+@pytest.fixture
+def private_cache(tmp_path, monkeypatch) -> Path:
+    """STRINGS_BENCH_CACHE set to the test's own folder: nothing cached by another test is read, nothing left."""
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory) -> Path:
+    """The toy scene of runner_fakes (9 views), with the fake methods registered; one per module."""
+    import runner_fakes as rf
+
+    rf.register_fakes()
+    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
 
 
 @pytest.fixture(scope="session")

@@ -50,12 +50,6 @@ def test_cli_every_reaches_the_run_config():
     assert (c.checkpoints, c.dense_every, c.dense_eval) == (None, 500, "words")
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    rf.register_fakes()
-    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
-
-
 def _rows(out):
     with open(out / "results.csv", newline="") as f:
         return list(csv.DictReader(f))

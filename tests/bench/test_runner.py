@@ -27,12 +27,6 @@ from strings_bench.methods.registry import MethodSpec, register_method
 from strings_bench.eval.ocr import Word
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    rf.register_fakes()
-    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
-
-
 @pytest.fixture(autouse=True)
 def _reset_calls():
     rf.CALLS["train"].clear()

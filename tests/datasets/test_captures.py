@@ -21,9 +21,7 @@ DATA = Path(os.environ.get(captures.CAPTURES_ENV, captures.DEFAULT_DATA_ROOT))
 needs_data = pytest.mark.skipif(not (DATA / "bundler_et").is_dir(), reason=f"the captures' photos are not at {DATA}")
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py
 
 
 # ---- where the data is --------------------------------------------------------------------------

@@ -24,13 +24,9 @@ from strings_bench.scene.scene import Scene, default_split
 MOUSE = Path(os.environ.get("STRINGS_BENCH_MOUSE_COLMAP",
                             Path(__file__).resolve().parents[3] / "shared" / "data" / "mouse_colmap"))
 DOWN = 8  # 1440x1920 -> 180x240
-pytestmark = pytest.mark.skipif(not (MOUSE / "sparse" / "0").is_dir(),
-                                reason=f"shared mouse_colmap data not present at {MOUSE}")
-
-
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = [pytest.mark.skipif(not (MOUSE / "sparse" / "0").is_dir(),
+                                 reason=f"shared mouse_colmap data not present at {MOUSE}"),
+              pytest.mark.usefixtures("private_cache")]  # tests/conftest.py
 
 
 def _mask_rect(w, h):

@@ -99,9 +99,7 @@ CASES = ["no text", "all text masks empty", "one SfM point", "duplicate SfM poin
          "learning rates x100"]
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py
 
 
 @pytest.mark.parametrize("method", ["3dgs", "strings"])

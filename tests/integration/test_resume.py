@@ -45,9 +45,7 @@ def text_scene(tmp_path_factory) -> Path:
     return root
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py
 
 
 def _params(method) -> dict[str, np.ndarray]:

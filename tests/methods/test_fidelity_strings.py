@@ -29,9 +29,7 @@ REPO = Path(__file__).resolve().parents[2]
 TEXT_BOX = (8, 6, 20, 14)  # x0, y0, x1, y1 on the 32 x 24 views
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

@@ -167,9 +167,7 @@ def tiny_text_scene(tmp_path_factory):
     return Scene.load(root)
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py
 
 
 FAST = dict(steps_scale=0.002, mask_dilation_fraction=0.0, n_max=3, sh_degree=1)  # T1 = 6 steps

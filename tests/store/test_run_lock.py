@@ -21,12 +21,6 @@ REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="runs are not locked where flock is missing")
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    rf.register_fakes()
-    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
-
-
 def test_the_lock_is_held_once_and_names_its_holder(tmp_path):
     assert not run_folder_busy(tmp_path)  # no lock file yet
     with run_folder_lock(tmp_path):

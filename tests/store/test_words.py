@@ -69,12 +69,6 @@ def test_word_rows_and_summary_against_hand_computed_values(tmp_path):
     assert write_words_csv(tmp_path / "none", {"readability": None}) is None
 
 
-@pytest.fixture(scope="module")
-def scene_dir(tmp_path_factory):
-    rf.register_fakes()
-    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
-
-
 def test_runner_cells_write_words_csv_whose_aggregates_equal_results_csv(tmp_path, scene_dir):
     rf.register_fakes()
     out = tmp_path / "run"
