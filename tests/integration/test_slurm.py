@@ -34,7 +34,7 @@ submitit = pytest.importorskip("submitit")
 REPO = Path(__file__).resolve().parents[2]
 
 import runner_fakes as rf  # noqa: E402
-from _ray_helpers import PausingRunner  # noqa: E402  (not Ray-specific: a Runner that pauses mid-job)
+from _ray_helpers import PausingRunner, is_time_column  # noqa: E402  (not Ray-specific: a Runner that pauses mid-job)
 from strings_bench.bench import runner  # noqa: E402
 from strings_bench.bench.plan import plan_run  # noqa: E402
 from strings_bench.bench.slurm_executor import JOBS_FILE, WORKER_FILE, SlurmExecutor  # noqa: E402
@@ -47,9 +47,6 @@ CHECKPOINTS = [6, 14]
 PAUSE_STEP = 10  # between the state saved at step 8 (--save-every 4steps) and checkpoint 14
 
 
-def _is_time(column: str) -> bool:
-    """results.csv's timings (wall and CPU seconds) and memory, which differ between any two runs."""
-    return column.endswith("_seconds") or column == "peak_memory_mb"
 SETUP = REPO / "scripts" / "slurm_local.sh"
 
 
@@ -133,7 +130,7 @@ def test_a_detached_array_followed_by_a_second_run_equals_the_local_run(slurm, s
     want, got = _rows(local_out), _rows(slurm_out)
     assert sorted(got) == sorted(want) and len(got) == len(METHODS) * len(scenes) * len(CHECKPOINTS)
     for key, row in want.items():
-        columns = {c for c in row if not _is_time(c)}
+        columns = {c for c in row if not is_time_column(c)}
         assert {c: got[key][c] for c in columns} == {c: row[c] for c in columns}, key
     # Each task ran as a Slurm task (its worker.json names its array task) and its log is where jobs.json says.
     for key, rec in first.items():
