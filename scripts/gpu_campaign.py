@@ -43,7 +43,7 @@ result folder (their rows go to RUNS/logs, not OUT_DIR): on a machine that takes
 loads, run it in the background after the first load while the second travels.
 
 --dry-run: the same steps on the CPU at a tiny size (64x48, the tiny schedule, a few benchmark steps),
-the GPU column "cpu (dry run)"; tests/test_gpu_campaign.py runs it in CI.
+the GPU column "cpu (dry run)"; tests/integration/test_gpu_campaign.py runs it in CI.
 """
 
 from __future__ import annotations
@@ -328,7 +328,7 @@ def stage_verify(s: Round) -> None:
     # run whose OCR takes the CPU, so they overlap on one GPU; CUDA memory figures are per process).
     import importlib.util
 
-    files = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "tests").glob("test_*.py") if "mark.gpu" in f.read_text())
+    files = sorted(str(f.relative_to(ROOT)) for f in (ROOT / "tests").rglob("test_*.py") if "mark.gpu" in f.read_text())
     workers = ["-n", "4"] if not s.dry_run and importlib.util.find_spec("xdist") else []
     s.step("pytest_gpu", [s.py, "-m", "pytest", "-m", "gpu", "-q", "-p", "no:cacheprovider", *workers, *files], 300)
     s.benchmark("320x240", 120, with_cpu=True)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A single-node Slurm on this machine, for `strings-bench run --executor slurm` and its tests
-# (tests/test_slurm.py). Idempotent: a Slurm already answering with its node idle is left as it is.
+# (tests/integration/test_slurm.py). Idempotent: a Slurm already answering with its node idle is left as it is.
 #
 #   sudo bash scripts/slurm_local.sh          # install (Debian/Ubuntu apt), configure, start, wait for the node
 #   sudo bash scripts/slurm_local.sh --stop   # stop the daemons it started

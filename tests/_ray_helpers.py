@@ -60,3 +60,8 @@ class PausingRunner(Runner):
         finally:
             GaussianSplatting.train_step = real_step
             cell_writer.atomic_write_json = real_json
+
+
+def is_time_column(column: str) -> bool:
+    """results.csv's timings (wall and CPU seconds) and memory, which differ between any two runs of a grid."""
+    return column.endswith("_seconds") or column == "peak_memory_mb"

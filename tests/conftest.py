@@ -1,10 +1,20 @@
 """Shared pytest setup.
 
+Layout: one folder per layer of strings_bench/ (tests/core/ ... tests/cli/), plus tests/docs/, tests/tools/
+(tools/, studies/ and scripts/), tests/integration/ (end to end) and tests/lint/ (the layout and docs rules). Every
+folder is a package (`tests.engine.test_engine`), so a module's basename may repeat across folders and a test
+imports another folder's test module by its full name (`from tests.raster.test_raster import random_scene`).
+The helper modules of this folder (runner_fakes, _engine_helpers, ...) are imported by their plain names from
+any folder: this file appends tests/ to sys.path (appended, so that tests/tools/ never shadows the repository's
+own top-level names).
 - STRINGS_BENCH_CACHE points at a per-session temporary folder unless the caller already set it,
   so tests never write into (or read stale scenes from) the user's cache.
 - `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
   session (a few seconds) and shared by every test that needs a real scene folder (images,
   sparse/0 from pycolmap, masks, text_annotations.json). Treat it as read-only.
+- `private_cache`: STRINGS_BENCH_CACHE in the test's own tmp_path (for the modules whose tests must build their
+  scenes afresh: `pytestmark = pytest.mark.usefixtures("private_cache")`).
+- `scene_dir`: the 9-view toy scene of runner_fakes (the fake methods registered), built once per module.
 - `fake_run`: a finished `tiny` run folder (fake methods fake-a/b/c on the 9-view toy scene of
   runner_fakes with "hello" written in its text block, the fake OCR; no LPIPS), with its report.
   Shared by the report tests (tables, figures, HTML, the browser test); a test may rewrite its
@@ -17,10 +27,15 @@ import strings_bench.bench as bench
 
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
 import pytest
+
+TESTS = Path(__file__).resolve().parent
+if str(TESTS) not in sys.path:
+    sys.path.append(str(TESTS))
 
 # Compiled numba kernels are safe to share and slow to build (tens of seconds): keep them in the
 # user's persistent cache even though everything else goes to the per-session folder.
@@ -54,6 +69,22 @@ def synthetic_books_small(synthetic_small_settings) -> Path:
     from strings_bench.datasets.synthetic import build_scene
 
     return build_scene("books", synthetic_small_settings, progress=False)
+
+
+@pytest.fixture
+def private_cache(tmp_path, monkeypatch) -> Path:
+    """STRINGS_BENCH_CACHE set to the test's own folder: nothing cached by another test is read, nothing left."""
+    monkeypatch.setenv("STRINGS_BENCH_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory) -> Path:
+    """The toy scene of runner_fakes (9 views), with the fake methods registered; one per module."""
+    import runner_fakes as rf
+
+    rf.register_fakes()
+    return rf.make_scene(tmp_path_factory.mktemp("scenes") / "toyset")
 
 
 @pytest.fixture(scope="session")

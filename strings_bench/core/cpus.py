@@ -25,7 +25,7 @@ def usable_cores() -> int:
 # library reads its variable at its first kernel call, so setting them at the package's import is early enough even
 # after `import torch`. The numba kernels need no pin: none of them leaves an operation's order to the
 # compiler (no fastmath reassociation or contraction; vector sums kept in fixed lanes), so they give the
-# same bits at any vector width (tests/test_reproducible.py runs a training under lower targets).
+# same bits at any vector width (tests/integration/test_reproducible.py runs a training under lower targets).
 PORTABLE_ISA = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "ONEDNN_MAX_CPU_ISA": "AVX2"}
 # Set to 1 to let torch, MKL and oneDNN use the host's widest kernels (e.g. AVX-512): faster there, but a
 # run's figures then differ in the last digits from those of other machines.

@@ -17,7 +17,7 @@ release's utils/loss_utils.py), computed without torch's temporaries and convolu
   W * the same zero-padded window (it is symmetric, so the filter is its own adjoint), w = -lambda / n.
 
 Every sum is in an order the code writes (no fastmath flags), so the result is the same at any thread
-count and vector width. tests/test_losses.py holds it to the float64 torch reference.
+count and vector width. tests/engine/test_losses.py holds it to the float64 torch reference.
 """
 
 from __future__ import annotations

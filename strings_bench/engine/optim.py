@@ -5,7 +5,7 @@ Why a custom Adam rather than torch.optim.Adam: densification changes the number
 parameter and its moments together, and STRinGS needs a different position step per Gaussian.
 Scaling a gradient does not scale an Adam step (Adam normalises the gradient away), so the per-row
 factor multiplies the update itself. The update is the same as torch.optim.Adam (bias-corrected,
-eps added to sqrt(v_hat)), which tests/test_engine.py checks.
+eps added to sqrt(v_hat)), which tests/engine/test_engine.py checks.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 instead of the nine element-wise torch passes (and three temporaries) of `GaussianAdam`'s reference path.
 
 The arithmetic is the reference path's, operation for operation and in float32, so the result is the
-same bit for bit (tests/test_engine.py checks it against that path and against torch.optim.Adam):
+same bit for bit (tests/engine/test_engine.py checks it against that path and against torch.optim.Adam):
 
     m <- fma(g, 1 - b1, m * b1)              m.mul_(b1).add_(g, alpha=1 - b1)
     v <- fma((1 - b2) * g, g, v * b2)       v.mul_(b2).addcmul_(g, g, value=1 - b2)

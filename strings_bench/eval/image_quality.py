@@ -12,7 +12,7 @@ Images are (H, W, C) or (B, C, H, W) tensors in [0, 1]. SSIM borders:
   mean is the loss term and the reported metric.
 - padding="valid": only positions where the whole window fits; the mean over those positions equals
   skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-  data_range=1), which crops the same 5-pixel border (tests/test_losses.py checks this).
+  data_range=1), which crops the same 5-pixel border (tests/engine/test_losses.py checks this).
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ def one_torch_thread():
     threads wait for each other at every operation). Only operations whose every output is computed
     by one thread (the map's convolutions and element-wise arithmetic) run inside it; a sum or a mean
     splits its terms between threads above torch's grain size, and the thread count then changes its
-    last bits, so the sums stay outside, on the caller's threads (tests/test_eval_speed.py)."""
+    last bits, so the sums stay outside, on the caller's threads (tests/eval/test_eval_speed.py)."""
     n = torch.get_num_threads()
     if n == 1:
         yield
@@ -198,7 +198,7 @@ def ssim_and_masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | Non
                          strip_rows: int = SSIM_STRIP_ROWS) -> tuple[float, float]:
     """(`ssim`, `masked_ssim`) from one SSIM map: each strip of the map is computed once and summed twice,
     over all its pixels and over the mask's; the strips, and the order of the sums, are those of the two
-    functions, so both values are theirs to the bit (tests/test_eval_speed.py). masked_ssim is NaN for no
+    functions, so both values are theirs to the bit (tests/eval/test_eval_speed.py). masked_ssim is NaN for no
     mask or an empty one."""
     a, b = _check_pair(img, gt)
     m = None if mask is None else _check_mask(mask, a.shape)

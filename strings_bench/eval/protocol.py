@@ -319,7 +319,7 @@ class Evaluator:
             view, gt = self.views[name], self.gt(name)
             r = scored.get(name)
             if r is not None:
-                # image_metrics + text_region_metrics in one pass (the same values: tests/test_eval_speed.py)
+                # image_metrics + text_region_metrics in one pass (the same values: tests/eval/test_eval_speed.py)
                 per_view[name] = metrics.view_metrics(r, gt, view.mask, with_lpips=with_lpips,
                                                       gt_reference=self.lpips_ref(name) if with_lpips else None,
                                                       device=self.device)

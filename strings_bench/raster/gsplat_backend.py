@@ -1,7 +1,7 @@
 """gsplat backend (CUDA): the same interface on top of gsplat.rasterization (gsplat >= 1.4).
 
 Not run on a GPU by this version yet. CI runs this code on the CPU with gsplat's CUDA stages routed to
-gsplat's PyTorch reference functions (tests/test_gsplat_reference.py, docs/raster.md "The CUDA path on
+gsplat's PyTorch reference functions (tests/raster/test_gsplat_reference.py, docs/raster.md "The CUDA path on
 the CPU"); tests marked `gpu` compare it with the CPU backend when CUDA and gsplat are present.
 
 Mapping: scales = exp(log_scales); opacities = sigmoid(logits); colours are evaluated by our own SH
@@ -52,11 +52,11 @@ def expose_means2d(m2d_gs: torch.Tensor, compute_absgrad: bool) -> tuple[torch.T
     - The hook reaches `m2d_gs`, the leaf and the buffer through weak references: a closure holding
       `m2d_gs` itself, stored in `m2d_gs`'s own hooks, is a reference cycle through autograd that
       Python's collector cannot see, and it kept every step's graph (and its GPU memory) alive.
-      tests/test_raster.py checks that a step's tensors are freed when the step ends.
+      tests/raster/test_raster.py checks that a step's tensors are freed when the step ends.
     - The leaf and the buffer hold `m2d_gs` (attribute `_gsplat_means2d`): gsplat's backward sets
       `.absgrad` on the Python object that its `ctx.saved_tensors` returns, which is `m2d_gs` only
       while `m2d_gs` is alive. Without this, `m2d_gs` died with gsplat's `meta` when the backend
-      returned, and absgrad stayed zero (found by tests/test_gsplat_reference.py; no cycle: the
+      returned, and absgrad stayed zero (found by tests/raster/test_gsplat_reference.py; no cycle: the
       hook holds neither strongly).
     """
     n, dt, dev = m2d_gs.shape[1], m2d_gs.dtype, m2d_gs.device

@@ -11,7 +11,7 @@ A generated block in a page is an HTML comment naming its data, the table, and a
 
 The path is relative to the page. `refresh_page` rewrites every block from its data; `strings-bench docs
 refresh` does it for every page under `docs/` and the README, and `--check` fails where a page differs from
-what its data gives (tests/test_docs.py runs the check).
+what its data gives (tests/docs/test_docs.py runs the check).
 
 Kinds (`kind=`, default `csv`):
 

@@ -25,7 +25,7 @@ observed inside the polygon. rho uses the median over words.
 **Strokes under about 3 pixels read wide.** No pixel of a thinner stroke is all ink, so the ink class's
 median is a partial grey and the coverage normalised to it overstates the width: text drawn at 8x and
 box-filtered down reads 1.6x wide at 0.9-pixel strokes, 1.2x at 1.5, 1.07x at 2.2 and within 3 % from 3 pixels
-up (the measured width settles near 1.7 pixels however thin the stroke; tests/test_difficulty.py).
+up (the measured width settles near 1.7 pixels however thin the stroke; tests/scene/test_difficulty.py).
 Where the words can be rendered again at a finer resolution (the suite's synthetic scenes,
 `datasets/synthetic/rho.py`) they are measured there (`measured_on` in the record); elsewhere
 `reliable` says whether the median stroke is at least MIN_RELIABLE_STROKE_PX pixels.

@@ -18,7 +18,7 @@ What sets difficulty (the `RoomParams`, from the generator settings; docs/synthe
   textures; `clutter` is the number of clutter objects around the room.
 
 World frame as in scenes.py: z up, the floor at z = 0, 1 unit ~ 1 m. The word lists here share no
-word with the five `synthetic` scenes (tests/test_synthetic360.py checks it).
+word with the five `synthetic` scenes (tests/datasets/test_synthetic360.py checks it).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Each operation is torch's, in float32, in torch's order:
     max_radii = maximum(max_radii, float(radius) if radius > 0 else 0)   torch.maximum (NaN propagates)
 
 torch's float32 norm over a last dimension of 2 is `sqrt(fma(y, y, x * x))` on its AVX2 kernels (the set
-strings_bench pins, core/cpus.py); tests/test_engine.py holds this kernel to torch's ops bit for bit on
+strings_bench pins, core/cpus.py); tests/engine/test_engine.py holds this kernel to torch's ops bit for bit on
 gradients from 1e-20 to 1e18 (squares that underflow and overflow included). `fma32` is LLVM's fma (one rounding)
 and `np.sqrt` the correctly rounded square root, as torch's vector code uses.
 """

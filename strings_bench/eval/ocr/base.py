@@ -325,7 +325,7 @@ def read_many(engine: Any, images: Sequence[Any], masks: Sequence[Any] | None = 
 
     The results are in the order of `images`; a read that fails gives its OCRError in its place (the
     other reads are kept). The words do not depend on the number of workers
-    (tests/test_ocr_parallel.py checks this against one-at-a-time reads).
+    (tests/eval/test_ocr_parallel.py checks this against one-at-a-time reads).
     """
     images = list(images)
     masks = [None] * len(images) if masks is None else list(masks)

@@ -232,7 +232,7 @@ def _engine_class():
     lands where DICK is). We record which crops the classifier turned and, for those lines, map
     word boxes through the line box with its corners turned by 180 degrees (np.roll by 2), which is
     the frame the recogniser read. Uses RapidOCR's pipeline methods run_ocr_steps, cls_and_rotate
-    and calc_word_boxes (rapidocr is pinned to 3.10.0); tests/test_ocr_rotation.py checks it.
+    and calc_word_boxes (rapidocr is pinned to 3.10.0); tests/eval/test_ocr_rotation.py checks it.
     """
     global _ENGINE_CLASS
     if _ENGINE_CLASS is not None:

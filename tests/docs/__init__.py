@@ -1,0 +1,1 @@
+"""Tests of the documentation: its pages, tables, API reference, cookbook and site."""

@@ -1,0 +1,1 @@
+"""End-to-end and cross-cutting tests: kills anywhere, resume, bit-reproducibility, Ray, Slurm, GPU, fuzzed inputs."""

@@ -1,0 +1,1 @@
+"""The layout and docs rules, one lint step (test_rules.py)."""

@@ -1,0 +1,1 @@
+"""Tests of strings_bench/methods/."""

@@ -1,0 +1,1 @@
+"""Tests of the scripts users and maintainers rerun (tools/, studies/, scripts/)."""
