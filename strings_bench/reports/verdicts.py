@@ -124,6 +124,7 @@ class Scale:
     reader: str  # "compare" (strings-bench compare's CSV), "records" (banked cell records), "results" (results.csv)
     data_kind: str
     scene: str | None = None  # records: the one scene of this scale
+    scenes: tuple[str, ...] = ()  # records of several scenes: every one a replicate must hold (() = those seen)
     interleaved: str = ""  # where its cells ran interleaved on one machine (A, B, A, B), with its record; "" if not
 
     def file(self, label: str) -> str | None:
@@ -138,7 +139,7 @@ BANKS = ((CAPTURES_BANK, CAPTURES_RECORDS), (ROOMS_BANK, ROOMS_RECORDS))  # bank
 
 SCALES: tuple[Scale, ...] = (
     Scale("x0.05", "x0.05 (`cpu`, synthetic360-cpu)", "synthetic rooms, 3 scenes, draw 0",
-          {"*": ROOMS_RECORDS}, "records", "banked cell records",
+          {"*": ROOMS_RECORDS}, "records", "banked cell records", scenes=("storeroom", "pantry", "office"),
           # cell by cell, a seed's methods in turn, one thread each (docs/results/data/synthetic360-cpu/README.md)
           interleaved="cell by cell on one 2-core AMD EPYC, one thread a cell, the methods of each seed in turn "
                       "(docs/results/data/synthetic360-cpu/README.md)"),
@@ -201,7 +202,8 @@ def _replicate_figure(values: dict[tuple[int, int], list[float]], chars=None, re
     return Figure(sum(means) / len(means), min(means), max(means), seeds, draws, scenes, chars, reads)
 
 
-def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, label_key: str) -> dict[str, Figure]:
+def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, label_key: str,
+                 required: tuple[str, ...] = ()) -> dict[str, Figure]:
     """Figures from per-cell rows (banked records or results.csv): per method, the replicate values over seeds and
     draws, each the mean over the scenes; with the GT characters and what each method reads, per scene."""
     by_method: dict[str, list[dict]] = {}
@@ -210,7 +212,7 @@ def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, l
             by_method.setdefault(r["method"], []).append(r)
     # a replicate (seed, draw) counts only once it holds every scene of the scale: a mean over fewer scenes is
     # not the same quantity (cells still running, banked as they finish)
-    all_scenes = {r["scene"] for cells in by_method.values() for r in cells}
+    all_scenes = set(required) or {r["scene"] for cells in by_method.values() for r in cells}
     for method, cells in by_method.items():
         have: dict = {}
         for r in cells:
@@ -253,7 +255,8 @@ def scale_figures(root: Path, scale: Scale, metric: str, label: str, cache: dict
     rows = cache[rel]
     if scale.reader == "compare":
         return figures_compare(rows, metric, label)
-    return figures_rows(rows, metric, label, scale.scene, "checkpoint" if scale.reader == "records" else "label")
+    return figures_rows(rows, metric, label, scale.scene, "checkpoint" if scale.reader == "records" else "label",
+                        scale.scenes)
 
 
 # ---- the rule --------------------------------------------------------------------------------------------------
