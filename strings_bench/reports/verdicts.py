@@ -356,6 +356,16 @@ FIGURE_FIELDS = ("claim", "scale", "method", "checkpoint", "metric", "mean", "mi
                  "side", "data")
 
 
+def _has_cells(root: Path, scale: Scale, label: str, cache: dict) -> bool:
+    """Whether the scale's records hold any cell of STRinGS at `label` (some banked, none complete yet)."""
+    rel = scale.file(label)
+    if rel is None:
+        return False
+    if rel not in cache:
+        cache[rel] = _read_csv(root, rel)
+    return any(r["method"] == REFERENCE and r["checkpoint"] == label for r in cache[rel])
+
+
 def evaluate(root: Path, cache: dict | None = None) -> tuple[list[dict], list[dict]]:
     """Every claim at every scale: (verdict rows, figure rows). `cache`: {file: its rows} read instead of the file."""
     verdicts, figures, cache = [], [], dict(cache or {})
@@ -365,6 +375,9 @@ def evaluate(root: Path, cache: dict | None = None) -> tuple[list[dict], list[di
             ref = figs.get(REFERENCE)
             others = {m: figs[m] for m in claim.against if m in figs}
             v = judge(claim, ref, others, interleaved=bool(scale.interleaved))
+            if v.verdict == "not measured" and scale.scenes and _has_cells(root, scale, claim.checkpoint, cache):
+                v = Verdict("not measured", f"no seed holds all {len(scale.scenes)} of the scale's scenes yet "
+                                            f"({', '.join(scale.scenes)}; cells are banked as they finish)")
             gt, best = signal(ref, others) if claim.metric in CER_METRICS else (None, None)
             sig = "" if claim.metric not in CER_METRICS else (
                 "character counts not banked" if gt is None else

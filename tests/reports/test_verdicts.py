@@ -197,3 +197,17 @@ def test_the_committed_table_holds_each_outcome_with_its_reason(verdict_name):
     rows = list(csv.DictReader((ROOT / "docs/results/data/verdicts/verdicts.csv").open()))
     hits = [r for r in rows if r["verdict"] == verdict_name]
     assert hits and all(r["reason"] and r["data"] for r in hits)
+
+
+def test_a_scale_whose_seeds_are_incomplete_says_so():
+    """x0.05's records with STRinGS and 3DGS banked on two of the three rooms: every claim there is "not measured",
+    and the reason says that no seed holds all the rooms yet, naming them."""
+    rows = []
+    for scene in ("storeroom", "office"):
+        for method in ("strings", "3dgs"):
+            for label in ("3K", "7K", "30K"):
+                rows += cells(method, {0: 0.5, 1: 0.6, 2: 0.55}, label=label, scene=scene)
+    verdicts, _ = V.evaluate(ROOT, {V.ROOMS_RECORDS: rows})
+    x005 = [v for v in verdicts if v["scale_key"] == "x0.05"]
+    assert x005 and all(v["verdict"] == "not measured" for v in x005)
+    assert all("no seed holds all 3 of the scale's scenes yet (storeroom, pantry, office" in v["reason"] for v in x005)
