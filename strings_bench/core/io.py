@@ -79,16 +79,14 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
-def atomic_write(path: str | os.PathLike, write: Callable[[Path], None], durable: bool = True) -> Path:
+def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
     """Call `write(tmp_path)` then rename the temporary file onto `path`.
 
     The rename is atomic on POSIX, so readers see either the old file or the complete new one. The
     temporary file's name carries the writer's host and pid: a process killed between the two leaves it
-    behind, and `sweep_stale_temps` removes it later. With `durable` (the default) the data is flushed to
-    disk (fsync) before the rename and the folder after it, so that a machine that crashes or loses power
-    does not keep the new name with empty contents (ext4 and XFS may otherwise; ~0.4 ms a write, measured
-    on ext4). `durable=False` is for files remade from others on demand (a run's report: `strings-bench
-    report`): still atomic against a killed process, without the two fsyncs.
+    behind, and `sweep_stale_temps` removes it later. The data is flushed to disk (fsync) before the
+    rename and the folder after it, so that a machine that crashes or loses power does not keep the
+    new name with empty contents (ext4 and XFS may otherwise; ~0.4 ms a write, measured on ext4).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -98,14 +96,12 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None], durable
     try:
         write(tmp_path)
         os.chmod(tmp_path, 0o666 & ~_UMASK)
-        if durable:
-            _fsync_path(tmp_path, os.O_RDONLY)
+        _fsync_path(tmp_path, os.O_RDONLY)
         os.replace(tmp_path, path)
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise
-    if durable:
-        _fsync_path(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    _fsync_path(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     return path
 
 
@@ -123,12 +119,12 @@ def _fsync_path(path: Path, flags: int) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, durable: bool = True) -> Path:
-    return atomic_write(path, lambda p: p.write_bytes(data), durable=durable)
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    return atomic_write(path, lambda p: p.write_bytes(data))
 
 
-def atomic_write_text(path: str | os.PathLike, text: str, durable: bool = True) -> Path:
-    return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"), durable=durable)
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:

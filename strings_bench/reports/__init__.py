@@ -114,7 +114,7 @@ def write_report(run_dir: str | Path, metrics: list[str] | None = None) -> Path:
             if "_vs_time_" in name:
                 lines += [f"Mean {name.split('_vs_time_')[0]} against mean whole-run training time: preprocessing (text masks, 3D text "
                           "segmentation, initial model, text densification) plus optimisation (`total_seconds`).", ""]
-    md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n", durable=False)  # remade on demand
+    md = atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     write_html(run_dir, out, all_cells, manifest, build_tables(df, manifest) + analysis.tables, figures, notes,
                fronts=analysis.fronts + analysis.size_fronts)
     return md

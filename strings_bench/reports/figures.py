@@ -60,7 +60,7 @@ def _save(fig, path: Path) -> Path:
     def write(tmp: Path) -> None:
         fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=150, bbox_inches="tight")
 
-    atomic_write(path, write, durable=False)  # the report is remade from the run on demand
+    atomic_write(path, write)
     _plt().close(fig)
     return path
 

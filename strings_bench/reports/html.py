@@ -456,7 +456,7 @@ def _write_crop(dst: Path, img: np.ndarray, word: GalleryWord, src: Path) -> boo
     buf = io.BytesIO()
     Image.fromarray(crop).save(buf, format="PNG", optimize=False)
     data = buf.getvalue()
-    atomic_write(dst, lambda p: p.write_bytes(data), durable=False)  # remade from the run on demand
+    atomic_write(dst, lambda p: p.write_bytes(data))
     return True
 
 
@@ -656,7 +656,7 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
         paths = write_crops(run_dir, out, g)
         log.info("word crops of %s/%s: %d in %.1f s", g.dataset, g.scene, len(paths), time.perf_counter() - t0)
         back = "/".join([".."] * len(g.folder.parts)) + "/index.html"
-        atomic_write_text(out / page, gallery_page(g, paths, back, names), durable=False)
+        atomic_write_text(out / page, gallery_page(g, paths, back, names))
         n_crops = sum(p is not None for p in paths.values())
         views = len({w.view for w in g.words.values()})
         grow.append(f'<tr><td class="name">{esc(dataset_title(g.dataset))}</td>'
@@ -676,4 +676,4 @@ def write_html(run_dir: str | Path, out: str | Path, df: pd.DataFrame, manifest:
                  "one per (method, dataset, scene, checkpoint); docs/guide/run-folder.md lists the columns and their units.</p>")
     if not df.empty:
         parts.append(f'<div class="scroll">{_cells_table(df)}</div>')
-    return atomic_write_text(out / "index.html", html_page(title, "\n".join(parts) + "</main>"), durable=False)
+    return atomic_write_text(out / "index.html", html_page(title, "\n".join(parts) + "</main>"))

@@ -240,14 +240,14 @@ def write_tables(df: pd.DataFrame, out_dir: Path, manifest: dict | None = None,
         tex, md, csv_text = t.latex(papers), t.markdown(), t.csv()
         written[t.name] = {
             "title": t.title,
-            "tex": atomic_write_text(out_dir / f"{t.name}.tex", tex, durable=False),
-            "md": atomic_write_text(out_dir / f"{t.name}.md", md, durable=False),
-            "csv": atomic_write_text(out_dir / f"{t.name}.csv", csv_text, durable=False),
+            "tex": atomic_write_text(out_dir / f"{t.name}.tex", tex),
+            "md": atomic_write_text(out_dir / f"{t.name}.md", md),
+            "csv": atomic_write_text(out_dir / f"{t.name}.csv", csv_text),
         }
-    atomic_write_text(out_dir / "preamble.tex", PREAMBLE, durable=False)
+    atomic_write_text(out_dir / "preamble.tex", PREAMBLE)
     doc = [r"\documentclass{article}", r"\usepackage[margin=1.5cm]{geometry}", r"\input{preamble}", r"\begin{document}"]
     doc += [r"\input{%s}" % name for name in written]
     doc.append(r"\end{document}")
-    atomic_write_text(out_dir / "tables.tex", "\n".join(doc) + "\n", durable=False)
+    atomic_write_text(out_dir / "tables.tex", "\n".join(doc) + "\n")
     return written
 

@@ -55,8 +55,3 @@ def test_atomic_write_syncs_the_data_before_the_rename_and_the_folder_after(tmp_
     monkeypatch.setattr(io.os, "replace", spy_replace)
     atomic_write_text(tmp_path / "d.json", "new contents")
     assert events == [("fsync", "new contents"), ("replace", "d.json"), ("fsync", "folder")]
-    # a file remade on demand (a run's report) is renamed into place the same way, without the two syncs
-    events.clear()
-    atomic_write_text(tmp_path / "report.md", "remade", durable=False)
-    assert events == [("replace", "report.md")] and (tmp_path / "report.md").read_text() == "remade"
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary file left
