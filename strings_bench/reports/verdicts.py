@@ -246,13 +246,20 @@ def figures_rows(rows: list[dict], metric: str, label: str, scene: str | None, l
     return out
 
 
-def scale_figures(root: Path, scale: Scale, metric: str, label: str, cache: dict) -> dict[str, Figure]:
+def _scale_rows(root: Path, scale: Scale, label: str, cache: dict) -> list[dict] | None:
+    """The rows of the file a scale reads at `label` (read once into `cache`); None when it reads none there."""
     rel = scale.file(label)
     if rel is None:
-        return {}
+        return None
     if rel not in cache:
         cache[rel] = _read_csv(root, rel)
-    rows = cache[rel]
+    return cache[rel]
+
+
+def scale_figures(root: Path, scale: Scale, metric: str, label: str, cache: dict) -> dict[str, Figure]:
+    rows = _scale_rows(root, scale, label, cache)
+    if rows is None:
+        return {}
     if scale.reader == "compare":
         return figures_compare(rows, metric, label)
     return figures_rows(rows, metric, label, scale.scene, "checkpoint" if scale.reader == "records" else "label",
@@ -358,12 +365,8 @@ FIGURE_FIELDS = ("claim", "scale", "method", "checkpoint", "metric", "mean", "mi
 
 def _has_cells(root: Path, scale: Scale, label: str, cache: dict) -> bool:
     """Whether the scale's records hold any cell of STRinGS at `label` (some banked, none complete yet)."""
-    rel = scale.file(label)
-    if rel is None:
-        return False
-    if rel not in cache:
-        cache[rel] = _read_csv(root, rel)
-    return any(r["method"] == REFERENCE and r["checkpoint"] == label for r in cache[rel])
+    rows = _scale_rows(root, scale, label, cache)
+    return any(r["method"] == REFERENCE and r["checkpoint"] == label for r in rows or ())
 
 
 def evaluate(root: Path, cache: dict | None = None) -> tuple[list[dict], list[dict]]:

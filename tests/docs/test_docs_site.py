@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from _browser import find_chromium
+
 ROOT = Path(__file__).resolve().parents[2]
 pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install -e '.[docs]')")
 pytest.importorskip("mkdocstrings", reason="the docs extra is not installed (pip install -e '.[docs]')")
@@ -108,19 +110,9 @@ def test_docs_build_command(tmp_path):
 
 
 # ---- the site in a real browser -----------------------------------------------------------------------------
-def _chromium() -> str | None:
-    import os
-
-    for c in (os.environ.get("STRINGS_BENCH_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
-              shutil.which("chromium-browser")):
-        if c and Path(c).is_file():
-            return c
-    return None
-
-
 def test_pages_render_in_headless_chromium(site, tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright's Python package is not installed")
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
         pytest.skip("no chromium executable (/usr/bin/chromium; scripts/system_deps.sh installs Debian's)")
     import numpy as np

@@ -20,10 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
 import runner_fakes as rf  # noqa: E402
-from _engine_helpers import make_tiny_scene  # noqa: E402
+from _engine_helpers import make_tiny_text_scene  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.engine.trainer import SaveEvery, Trainer  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
@@ -75,14 +74,7 @@ EXPECTED_OPS = {"3dgs": {"sample_children", "reset_opacity", "rebuild"}, "mcmc":
 
 @pytest.fixture(scope="module")
 def text_scene(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("device") / "scene"
-    scene = make_tiny_scene(root, n_views=9, n_points=60)
-    (root / "masks").mkdir()
-    for c in scene.model.cameras:
-        m = np.zeros((c.height, c.width), np.uint8)
-        m[6:14, 8:20] = 255
-        Image.fromarray(m).save(root / "masks" / c.name)
-    return root
+    return make_tiny_text_scene(tmp_path_factory.mktemp("device") / "scene")
 
 
 @pytest.fixture

@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
-from _engine_helpers import make_tiny_scene, train  # noqa: E402
+from _engine_helpers import make_tiny_text_scene, train  # noqa: E402
 from strings_bench.core.errors import StringsBenchError  # noqa: E402
 from strings_bench.engine.trainer import SaveEvery, Trainer  # noqa: E402
 from strings_bench.methods.registry import get_method  # noqa: E402
@@ -35,14 +34,7 @@ SETTINGS = {"3dgs": dict(steps_scale=0.002, sh_degree=1),
 
 @pytest.fixture(scope="module")
 def text_scene(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("resume") / "scene"
-    scene = make_tiny_scene(root, n_views=9, n_points=60)
-    (root / "masks").mkdir()
-    for c in scene.model.cameras:
-        m = np.zeros((c.height, c.width), np.uint8)
-        m[6:14, 8:20] = 255
-        Image.fromarray(m).save(root / "masks" / c.name)
-    return root
+    return make_tiny_text_scene(tmp_path_factory.mktemp("resume") / "scene")
 
 
 pytestmark = pytest.mark.usefixtures("private_cache")  # tests/conftest.py

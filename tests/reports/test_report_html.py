@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 from html.parser import HTMLParser
 from pathlib import Path
@@ -18,6 +17,8 @@ import numpy as np
 import pandas as pd
 import pytest
 from PIL import Image
+
+from _browser import find_chromium
 
 from strings_bench.reports import html as report_html
 from strings_bench.reports import aggregate, tables
@@ -252,17 +253,9 @@ def test_missing_renders_and_an_empty_run_still_give_a_page(fake_run, tmp_path):
 
 
 # ---- the page in a real browser ---------------------------------------------------------------------------
-def _chromium() -> str | None:
-    for c in (os.environ.get("STRINGS_BENCH_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
-              shutil.which("chromium-browser")):
-        if c and Path(c).is_file():
-            return c
-    return None
-
-
 def test_report_page_in_headless_chromium(fake_run, tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright's Python package is not installed")
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
         pytest.skip("no chromium executable (/usr/bin/chromium; scripts/system_deps.sh installs Debian's)")
     rep = fake_run / "report"
@@ -360,7 +353,7 @@ def test_readability_analysis_in_report_and_headless_chromium(fake_run, tmp_path
             assert attrs.get("class") in (None, "greyed", "first", "second", "third")
 
     sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright's Python package is not installed")
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
         pytest.skip("no chromium executable (/usr/bin/chromium; scripts/system_deps.sh installs Debian's)")
     problems: list[str] = []
