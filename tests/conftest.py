@@ -9,6 +9,7 @@ any folder: this file appends tests/ to sys.path (appended, so that tests/tools/
 own top-level names).
 - STRINGS_BENCH_CACHE points at a per-session temporary folder unless the caller already set it,
   so tests never write into (or read stale scenes from) the user's cache.
+- STRINGS_BENCH_KERNEL_WARMUP=0: no run of a test starts the kernel warm-up's second process.
 - `synthetic_books_small`: the `books` synthetic scene at 160x120 with 24 views, built once per
   session (a few seconds) and shared by every test that needs a real scene folder (images,
   sparse/0 from pycolmap, masks, text_annotations.json). Treat it as read-only.
@@ -40,6 +41,9 @@ if str(TESTS) not in sys.path:
 # Compiled numba kernels are safe to share and slow to build (tens of seconds): keep them in the
 # user's persistent cache even though everything else goes to the per-session folder.
 os.environ.setdefault("NUMBA_CACHE_DIR", str(Path.home() / ".cache" / "strings-bench" / "numba"))
+
+# The runs of tests compile no kernels in a second process (bench/warmup.py): tests/bench/test_warmup.py turns it on.
+os.environ.setdefault("STRINGS_BENCH_KERNEL_WARMUP", "0")
 
 _OWN_CACHE: str | None = None
 if not os.environ.get("STRINGS_BENCH_CACHE"):

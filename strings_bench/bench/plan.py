@@ -175,6 +175,10 @@ def plan_run(config: RunConfig | list[str] | None = None, datasets=None, **given
         rule = rule.check(list(c.methods), specs, Path(c.run_dir), asdict(p), ds)
     given_settings = _given_settings(c, specs)
     planned = [_method_plan(specs[m], c, p, given_settings[m]) for m in c.methods]
+    if in_process and device == "cpu":  # the CPU kernels compile in a second process while the scenes are built
+        from strings_bench.bench.warmup import start as start_kernel_warmup
+
+        start_kernel_warmup(c.methods)
     with progress_bars(c.progress):  # a scene built on first use shows its bars only if the run shows its own
         refs = resolve_scenes(datasets)  # may generate the synthetic scenes: after every check above
     if not refs:

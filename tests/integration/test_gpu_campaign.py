@@ -183,6 +183,7 @@ def test_the_next_real_round_skips_what_the_first_one_banked():
     assert mod.banked(out, "verify", False) is None
 
 
+@pytest.mark.heavy
 def test_x1_rooms_builds_a_room_only_for_the_cells_it_runs(tmp_path):
     """Storeroom's four 7K cells banked by an earlier round: this round skips them without building
     storeroom, builds pantry (synthetic360-cpu's rooms with the text heights scaled with the width) and

@@ -105,6 +105,7 @@ def _build_and_train(env: dict, tmp_path: Path, label: str, cores: set[int] | No
     return json.loads(line[len("RESULT "):])
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not host_has_avx2(), reason="the portable kernels are those of x86-64 CPUs with AVX2")
 def test_scene_and_training_are_bit_identical_on_another_cpu(tmp_path):
     """Two fresh processes, each with a fresh cache, build the same small room and train 3DGS and STRinGS on it

@@ -268,6 +268,7 @@ print(json.dumps({"digest": digest.hexdigest(), "cache_hits": hits}))
 """
 
 
+@pytest.mark.heavy
 def test_float32_kernels_compiled_here_and_loaded_from_the_cache_give_the_same_bits(tmp_path):
     """A clean clone's first process compiles the kernels (numba's JIT); every later one loads the object
     code numba cached. Both must give the same bits, or a run depends on whether it came first (the

@@ -82,7 +82,9 @@ def test_cpu_seconds_count_work_not_waiting(tmp_path):
 
     scene = make_tiny_scene(tmp_path / "scene", n_views=9, n_points=60)
     real = GaussianSplatting.train_step
-    nap = 0.02
+    # Long enough that a sleep is most of a step: the CPU count holds the kernels' two threads, up to twice the wall
+    # time of the work itself (0.02 s failed once: 0.143 s of CPU against 0.232 s of wall clock, 0.2 of it asleep).
+    nap = 0.05
 
     def slow_step(self, step):
         time.sleep(nap)

@@ -1,0 +1,111 @@
+"""The kernel warm-up (bench/warmup.py): which modules it covers, when it starts, and (slow) that a run after it
+compiles no kernel of its own."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import strings_bench
+import strings_bench.bench.warmup as warmup
+
+PACKAGE = Path(strings_bench.__file__).resolve().parent
+
+
+def test_kernel_modules_are_the_modules_with_cached_kernels():
+    cached = set()
+    for path in PACKAGE.rglob("*.py"):
+        if re.search(r"^@njit\([^)]*cache=True", path.read_text(), re.MULTILINE):
+            cached.add(".".join(("strings_bench",) + path.relative_to(PACKAGE).with_suffix("").parts))
+    assert cached == set(warmup.KERNEL_MODULES)
+
+
+def test_a_changed_kernel_file_changes_the_key(tmp_path, monkeypatch):
+    kernel = tmp_path / "kernels.py"
+    kernel.write_text("x = 1\n")
+    monkeypatch.setattr(warmup, "_module_file", lambda name: kernel)
+    before = warmup.cache_key("3dgs")
+    assert warmup.cache_key("3dgs") == before
+    assert warmup.cache_key("strings") != before
+    os.utime(kernel, ns=(kernel.stat().st_atime_ns, kernel.stat().st_mtime_ns + 1_000_000_000))
+    assert warmup.cache_key("3dgs") != before
+
+
+def test_no_child_when_off_or_every_method_is_marked(tmp_path, monkeypatch):
+    started = []
+
+    class Child:
+        pid = 0
+
+        def __init__(self, args, **kwargs):
+            started.append(args)
+
+        def poll(self):
+            return 0
+
+    monkeypatch.setattr(warmup.subprocess, "Popen", Child)
+    monkeypatch.setattr(warmup, "marker", lambda method: tmp_path / f"{method}.done")
+    monkeypatch.setenv(warmup.ENV, "0")
+    assert warmup.start(["3dgs"]) is None and not started
+    monkeypatch.setenv(warmup.ENV, "1")
+    (tmp_path / "3dgs.done").write_text("{}")
+    assert warmup.start(["3dgs"]) is None and not started
+    warmup.start(["3dgs", "strings", "3dgs"])
+    assert len(started) == 1 and started[0][-1:] == ["strings"]  # only the unmarked method, once
+    warmup._children.clear()
+
+
+def test_plan_run_starts_it_only_for_runs_on_this_cpu(monkeypatch, scene_dir, tmp_path):
+    from strings_bench.bench.plan import plan_run
+
+    asked = []
+    monkeypatch.setattr(warmup, "start", lambda methods: asked.append(list(methods)))
+    plan_run(["fake-a"], [str(scene_dir)], run_dir=tmp_path / "run", schedule="tiny", device="cpu")
+    assert asked == [["fake-a"]]
+
+
+@pytest.mark.heavy
+def test_a_run_after_the_warm_up_compiles_no_kernel(tmp_path, synthetic_books_small):
+    """A fresh numba cache: the warm-up compiles, then a training of both methods on another scene (the shared small
+    books scene, 150 steps of the tiny schedule) finds every kernel it calls in the cache (numba's own counters)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), warmup.ENV: "1"}
+    done = subprocess.run([sys.executable, "-m", "strings_bench.bench.warmup", "strings", "3dgs"], env=env,
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout + done.stderr
+    script = textwrap.dedent(f"""
+        import importlib
+        from strings_bench.bench.plan import with_steps_scale
+        from strings_bench.bench.warmup import KERNEL_MODULES, marker
+        from strings_bench.core.schedules import get_schedule
+        from strings_bench.engine.trainer import SaveEvery, Trainer
+        from strings_bench.methods.registry import get_method
+        from strings_bench.scene.scene import Scene
+
+        assert all(marker(m).exists() for m in ("strings", "3dgs"))
+        for name in ("strings", "3dgs"):
+            spec = get_method(name)
+            method = spec.build(**with_steps_scale(spec, get_schedule("tiny").steps_scale, {{}}))
+            method.progress = False
+            trainer = Trainer(method, Scene.load({str(synthetic_books_small)!r}), [150], device="cpu", progress=False,
+                              state_path=None, save_every=SaveEvery.parse("off"))
+            for _ in trainer.train():
+                pass
+        hits = misses = 0
+        for module in KERNEL_MODULES:
+            for obj in vars(importlib.import_module(module)).values():
+                stats = getattr(obj, "stats", None)
+                if stats is not None and hasattr(stats, "cache_misses"):
+                    hits += sum(stats.cache_hits.values())
+                    misses += sum(stats.cache_misses.values())
+        print(hits, misses)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stdout + out.stderr
+    hits, misses = map(int, out.stdout.split()[-2:])
+    assert misses == 0 and hits >= 10, out.stdout
