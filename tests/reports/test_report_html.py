@@ -296,7 +296,9 @@ def test_report_page_in_headless_chromium(fake_run, tmp_path):
             page.locator("#table-galleries a").first.click()
             page.wait_for_load_state("load")
             visible = "document.querySelectorAll('section.checkpoint:not([hidden]) table.gallery img')"
-            page.wait_for_function(f"() => Array.from({visible}).some(i => i.complete && i.naturalWidth > 0)", timeout=15000)
+            # wait for the four the assertion asks for: waiting for one and then counting failed on a loaded machine (2)
+            page.wait_for_function(f"() => Array.from({visible}).filter(i => i.complete && i.naturalWidth > 0).length >= 4",
+                                   timeout=15000)
             loaded = page.evaluate(f"Array.from({visible}).filter(i => i.complete && i.naturalWidth > 0).length")
             assert loaded >= 4  # GT and three methods, at least one word
             assert page.locator("section.checkpoint:not([hidden])").get_attribute("data-label") == "30K"
