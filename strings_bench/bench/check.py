@@ -52,10 +52,6 @@ from strings_bench.core.method import Method, MethodAdapter
 
 log = logging.getLogger(__name__)
 
-# The tiny scene: big enough for a real (if blurry) render and a real OCR pass, small enough that a
-# method's whole check takes seconds.
-CHECK_SCENE = "books"
-CHECK_SCENE_SETTINGS = {"width": 96, "height": 72, "n_views": 8}
 CHECK_SCHEDULE = "tiny"
 CHECK_PAPER_ITERATION = 1000  # the runner's checkpoint, a paper iteration: x0.005 (tiny) = 5 steps
 CHECK_STEPS = 5  # steps of the check's own training (= the runner's checkpoint at the tiny scale)
@@ -89,18 +85,10 @@ class CheckFailed(Exception):
 
 
 def tiny_scene() -> Path:
-    """The check's scene folder (built into the cache on first use, about a second)."""
-    from strings_bench.datasets.synthetic import build_scene, settings_with
+    """The check's scene folder: the synthetic books room at 96x72, 8 views (`datasets.synthetic.tiny_scene`)."""
+    from strings_bench.datasets.synthetic import tiny_scene as build_tiny_scene
 
-    # At this size SfM finds too few points and the generator falls back to depth samples, which is
-    # what the check wants (a valid point cloud); its warning about that is not the user's concern here.
-    gen_log = logging.getLogger("strings_bench.datasets.synthetic.generate")
-    level = gen_log.level
-    gen_log.setLevel(logging.ERROR)
-    try:
-        return build_scene(CHECK_SCENE, settings_with(**CHECK_SCENE_SETTINGS), progress=False)
-    finally:
-        gen_log.setLevel(level)
+    return build_tiny_scene()
 
 
 def resolve_spec(name: str):

@@ -1,12 +1,14 @@
 """The CPU kernels compiled in a second process while a run's scenes are built.
 
-numba compiles a kernel on its first call and keeps it in its cache (NUMBA_CACHE_DIR, strings_bench/raster/__init__.py).
-On a machine where nothing ran before, that compilation (about 30 s for the 18 kernels STRinGS and 3DGS call, on a
-2-core AMD EPYC) fell in the first training step, after the scene build, whose SfM runs on one thread and leaves the
-other core idle. `start(methods)` trains each method a few steps on a tiny synthetic scene in a child process, which writes every kernel it calls to numba's cache. The run's own first call of
-a kernel loads it from there: numba looks in its cache before it compiles, so the run compiles only a kernel it
-reaches before the child does. Compiled code is the same from either process (one compiler, the same flags), and no
-figure changes. Once a method's kernels are in the cache, a marker beside them says so and no child starts.
+numba compiles a kernel on its first call and keeps it in its cache (NUMBA_CACHE_DIR, strings_bench/raster/
+__init__.py). On a machine where nothing ran before, that compilation (41 s on one core for the 18 kernels STRinGS
+and 3DGS call, on an idle 2-core AMD EPYC) fell in the first training step, after the scene build, whose SfM runs on
+one thread and leaves the other core idle. `start(methods)` trains each method a few steps on the tiny synthetic
+scene (the one `methods check` uses) in a child process, which writes every kernel it calls to numba's cache. The
+run's own first call of a kernel loads it from there: numba looks in its cache before it compiles, so the run
+compiles only a kernel it reaches before the child does. Compiled code is the same from either process (one
+compiler, the same flags), and no figure changes. Once a method's kernels are in the cache, a marker beside them
+says so and no child starts.
 
 Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for runs on a GPU or on other machines (Ray, Slurm: each worker
 compiles for itself).
@@ -26,12 +28,10 @@ from typing import Iterable
 log = logging.getLogger(__name__)
 
 ENV = "STRINGS_BENCH_KERNEL_WARMUP"
-# Steps of the tiny schedule the child trains each method: its densification, pruning and phase changes come
-# within them, so every kernel of a run is called (tests/bench/test_warmup.py checks it against a run).
+# Steps of the tiny schedule the child trains each method (measured: the first 3DGS step alone compiled all 18
+# kernels; tests/bench/test_warmup.py checks that a 150-step training of both methods afterwards compiles none).
 WARM_STEPS = 30
-# The scene it trains on: the synthetic books room at 96x72, 8 views (built into the cache in about a second; at this
-# size SfM finds too few points and the generator falls back to depth samples, which is all a warm-up needs).
-WARM_SCENE, WARM_SCENE_SETTINGS, WARM_SCHEDULE = "books", {"width": 96, "height": 72, "n_views": 8}, "tiny"
+WARM_SCHEDULE = "tiny"
 # The modules whose kernels are compiled into numba's cache (`@njit(cache=True)`): numba reuses a kernel while its
 # file keeps its size and modification time, so the marker's key holds them too.
 KERNEL_MODULES = (
@@ -74,12 +74,17 @@ def cache_key(method: str) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
 
 
-def marker(method: str) -> Path:
-    """The file that says `method`'s kernels are in numba's cache."""
+def marker_dir() -> Path:
+    """The folder of the markers, beside numba's cached kernels."""
     import strings_bench.raster  # noqa: F401  (sets NUMBA_CACHE_DIR)
     from numba.core import config
 
-    return Path(config.CACHE_DIR) / "strings-bench-warm" / f"{method}-{cache_key(method)}.done"
+    return Path(config.CACHE_DIR) / "strings-bench-warm"
+
+
+def marker(method: str) -> Path:
+    """The file that says `method`'s kernels are in numba's cache."""
+    return marker_dir() / f"{method}-{cache_key(method)}.done"
 
 
 def start(methods: Iterable[str]) -> subprocess.Popen | None:
@@ -95,7 +100,7 @@ def start(methods: Iterable[str]) -> subprocess.Popen | None:
     if not todo:
         return None
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # one core: the scene build has the other
-    log_path = marker(todo[0]).parent / "warmup.log"
+    log_path = marker_dir() / "warmup.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w") as err:
         child = subprocess.Popen([sys.executable, "-m", "strings_bench.bench.warmup", *todo], env=env,
@@ -119,20 +124,13 @@ def stop() -> None:
                 child.kill()
 
 
-def warm_scene() -> Path:
-    from strings_bench.datasets.synthetic import build_scene, settings_with
-
-    gen_log = logging.getLogger("strings_bench.datasets.synthetic.generate")
-    gen_log.setLevel(logging.ERROR)  # its warning about the depth-sample fallback is not the user's concern
-    return build_scene(WARM_SCENE, settings_with(**WARM_SCENE_SETTINGS), progress=False)
-
-
 def warm(method: str, steps: int = WARM_STEPS) -> None:
-    """Train `method` `steps` steps of the tiny schedule on `warm_scene()`, on the CPU, then write its marker. A
+    """Train `method` `steps` steps of the tiny schedule on the tiny scene, on the CPU, then write its marker. A
     method that is not trained by the framework's loop (an adapter) has no kernels of ours to compile."""
     from strings_bench.core.io import atomic_write_json
     from strings_bench.core.method import Method
     from strings_bench.core.schedules import get_schedule
+    from strings_bench.datasets.synthetic import tiny_scene
     from strings_bench.engine.trainer import SaveEvery, Trainer
     from strings_bench.methods.registry import get_method
     from strings_bench.scene.scene import Scene
@@ -141,7 +139,7 @@ def warm(method: str, steps: int = WARM_STEPS) -> None:
     obj = spec.build(steps_scale=get_schedule(WARM_SCHEDULE).steps_scale)
     if isinstance(obj, Method):
         obj.progress = False
-        trainer = Trainer(obj, Scene.load(warm_scene()), [steps], device="cpu", progress=False, state_path=None,
+        trainer = Trainer(obj, Scene.load(tiny_scene()), [steps], device="cpu", progress=False, state_path=None,
                           save_every=SaveEvery.parse("off"))
         for _ in trainer.train():
             pass

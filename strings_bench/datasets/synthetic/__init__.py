@@ -29,7 +29,28 @@ from strings_bench.datasets.synthetic.generate import (GENERATOR_VERSION, SCENE_
 __all__ = ["GENERATOR_VERSION", "SCENE_NAMES", "SCENE_NAMES_360", "SYNTHETIC360_DEFAULTS", "SyntheticSettings",
            "build_scene", "default_settings", "SYNTHETIC360_CPU", "CONFIGURATIONS", "CARD_360_CPU", "is_built",
            "read_meta", "scene_dir", "settings_with", "CARD", "CARD_360", "CARD_MULTI", "SCENE_NAMES_MULTI",
-           "synthetic360_card", "with_draw", "REGISTERED_DRAWS"]
+           "synthetic360_card", "with_draw", "REGISTERED_DRAWS", "TINY_SCENE", "TINY_SCENE_SETTINGS", "tiny_scene"]
+
+# The tiny scene of `methods check` (bench/check.py), the kernel warm-up (bench/warmup.py) and the cookbook: big
+# enough for a real (if blurry) render and a real OCR pass, small enough that a method's whole check takes seconds.
+TINY_SCENE = "books"
+TINY_SCENE_SETTINGS = {"width": 96, "height": 72, "n_views": 8}
+
+
+def tiny_scene() -> Path:
+    """The tiny scene's folder (`TINY_SCENE` at `TINY_SCENE_SETTINGS`, built into the cache on first use, about a
+    second)."""
+    import logging
+
+    # At this size SfM finds too few points and the generator falls back to depth samples, which is what its users
+    # want (a valid point cloud); its warning about that is not the user's concern here.
+    gen_log = logging.getLogger("strings_bench.datasets.synthetic.generate")
+    level = gen_log.level
+    gen_log.setLevel(logging.ERROR)
+    try:
+        return build_scene(TINY_SCENE, settings_with(**TINY_SCENE_SETTINGS), progress=False)
+    finally:
+        gen_log.setLevel(level)
 
 DESCRIPTIONS = {
     "books": "packed book spines: vertical titles and authors, lying books with horizontal text, printed covers",
