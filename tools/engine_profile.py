@@ -189,6 +189,16 @@ def profile_steps(method, first_step: int, steps: int) -> dict:
     return {"stages": st, "step_ms": total / steps * 1e3}
 
 
+def refine_interval(method) -> int:
+    """The strategy's densification interval in steps (this version: `every(nominal)`; older commits'
+    arms, engine_ab.py: `every(state, nominal)`)."""
+    strat = method.strategy
+    try:
+        return strat.every(strat.refine_every)
+    except TypeError:
+        return strat.every(method.strategy_state, strat.refine_every)
+
+
 def densify_round_ms(method) -> float:
     """One densification round of the strategy on the current statistics (changes the model)."""
     strat, state = method.strategy, method.strategy_state
@@ -345,7 +355,7 @@ def profile_case(name: str, method, first_step: int, steps: int, bw: float, flop
     view = method.views_for_step(first_step + steps + 1)
     cam = method.camera(view)
     v, m, pf, pb = count_pairs(method, view)
-    every = method.strategy.every(method.strategy_state, method.strategy.refine_every)
+    every = refine_interval(method)
     dens = densify_round_ms(method)
     prof["stages"]["densification"] += dens / every
     prof["step_ms"] += dens / every

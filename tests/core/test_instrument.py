@@ -94,3 +94,9 @@ def test_engine_profile_splits_a_step_into_its_stages_from_the_marks(tiny_scene)
     assert sum(st.values()) == pytest.approx(prof["step_ms"])
     v, m, pairs_f, pairs_b = profile.count_pairs(method, method.views_for_step(6))
     assert 0 < v <= method.num_gaussians() and m >= v and pairs_f > 0 and pairs_b > 0
+
+
+def test_engine_profile_reads_the_strategy_interval_it_divides_a_densification_round_by(tiny_scene):
+    profile = load_tool("engine_profile")
+    method = trained(tiny_scene, 2)
+    assert profile.refine_interval(method) == method.strategy.every(method.strategy.refine_every) >= 1
