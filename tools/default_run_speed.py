@@ -2,7 +2,7 @@
 side by side in one run, as ratios new / reference, and the check that the figures did not change.
 
     python tools/default_run_speed.py --ref f2de671 [--ref-dir DIR] [--out DIR] [--sequential]
-                                           [--demo] [--tests] [--bank CSV]
+                                           [--demo] [--tests] [--engine] [--all] [--bank CSV] [--record JSON]
 
 1. The default run (`strings-bench run --methods strings,3dgs`, the `cpu` schedule) of both versions, each
    with its own empty cache folder (STRINGS_BENCH_CACHE), so each builds the scene, compiles its kernels and
@@ -15,7 +15,14 @@ side by side in one run, as ratios new / reference, and the check that the figur
    the script exits with status 1.
 3. --demo: `bash scripts/demo.sh` in a fresh `git clone` of each version (set-up included: the venv and
    pip's downloads), its last line ("demo: set-up S s, run R s") parsed (goal: set-up + run <= 5 min).
-4. --tests: `bash scripts/test.sh` of each version (goal: <= 8 min). Never on a machine shared with others.
+4. --tests: `bash scripts/test.sh` of each version in a fresh clone with empty caches, as CI runs it; the
+   seconds pytest reports for the tests (goal: <= 8 min), the set-up apart. Never on a machine shared with others.
+5. --engine: `tools/engine_ab.py --old ENGINE_REF` (default 142d0ce, the engine before its speed work): 3DGS
+   training steps of both engines alternating, at the default run's two model sizes (about 63 000 and 335 000
+   Gaussians); printed as old / new (goal: >= 2x at both sizes).
+--all is --demo --tests --engine. --record FILE.json writes every measure, its goal and whether it was met, with the
+machine, the date and the commits; `--summarize-record FILE.json --table T.csv --readme R.csv` turns a banked record
+into the docs' table and the README's paragraph on times (tables of `strings-bench docs refresh`).
 
 The demo and the tests run the committed code of each version (a clone of its commit); the runs of 1. run
 the checkouts' files as they are (--new-dir: another checkout, e.g. a worktree of the commit to time).
@@ -132,17 +139,174 @@ def compare_cells(ref_run: Path, new_run: Path) -> tuple[int, list[str]]:
     return n, out
 
 
+def fresh_clone(src_repo: Path, commit: str, where: Path) -> Path:
+    """A new clone of `commit` at `where` (replaced if it exists), with the folder of shared data that lies beside
+    this checkout (the real photographs some tests read) beside it too, as CI has it."""
+    shutil.rmtree(where, ignore_errors=True)
+    where.parent.mkdir(parents=True, exist_ok=True)
+    subprocess.run(["git", "clone", "-q", str(src_repo), str(where)], check=True)
+    subprocess.run(["git", "-C", str(where), "checkout", "-q", commit], check=True)
+    shared = (src_repo.parent / "shared").resolve()
+    if shared.is_dir() and not (where.parent / "shared").exists():
+        (where.parent / "shared").symlink_to(shared)
+    return where
+
+
+def clean_env(cache: Path) -> dict:
+    """This process's environment with empty caches under `cache`: the suite's cache and numba's compiled
+    kernels, as on a new machine (the tests' numba cache is otherwise ~/.cache/strings-bench/numba)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
+    env.update(STRINGS_BENCH_CACHE=str(cache), NUMBA_CACHE_DIR=str(cache / "numba"))
+    return env
+
+
+PYTEST_SUMMARY = re.compile(r"^=*\s*(?P<counts>(?:\d+ \w+(?:, )?)+) in (?P<seconds>[\d.]+)s", re.M)
+
+
+def pytest_summary(output: str) -> dict | None:
+    """pytest's last summary line ('1571 passed, 1 skipped in 498.20s (0:08:18)'): the counts and the seconds."""
+    found = list(PYTEST_SUMMARY.finditer(output))
+    if not found:
+        return None
+    m = found[-1]
+    counts = {w: int(n) for n, w in re.findall(r"(\d+) (\w+)", m.group("counts"))}
+    return {"seconds": float(m.group("seconds")), **counts}
+
+
+def tests(src_repo: Path, commit: str, work: Path) -> dict:
+    """scripts/test.sh in a fresh clone of `commit` with empty caches (CI's conditions): wall seconds, the seconds
+    pytest reports for the tests, the set-up (the rest), the counts and the exit status."""
+    clone = fresh_clone(src_repo, commit, work / f"tests-{commit[:10]}" / "main")
+    t = time.perf_counter()
+    p = subprocess.run(["bash", "scripts/test.sh"], cwd=clone, env=clean_env(work / f"cache-tests-{commit[:10]}"),
+                       capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    (work / f"tests-{commit[:10]}.log").write_text(p.stdout + p.stderr, encoding="utf-8")
+    summary = pytest_summary(p.stdout) or {"seconds": float("nan")}
+    return {"wall": wall, "setup": wall - summary["seconds"], "rc": p.returncode, **summary}
+
+
+def engine(ref: str) -> dict:
+    """tools/engine_ab.py --old `ref` at the default run's two model sizes: its JSON (rows and estimate)."""
+    import json
+
+    p = subprocess.run([sys.executable, str(REPO / "tools" / "engine_ab.py"), "--old", ref, "--at", "450,1050",
+                        "--steps", "8,5", "--reps", "3", "--json"], cwd=REPO, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"engine_ab.py failed:\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout[p.stdout.index("{"):])
+
+
 def demo(src_repo: Path, commit: str, work: Path) -> tuple[float, float | None, float | None]:
     """(wall seconds, set-up s, run s) of scripts/demo.sh in a fresh clone of `commit`."""
-    clone = work / f"clone-{commit[:10]}"
-    subprocess.run(["git", "clone", "-q", str(src_repo), str(clone)], check=True)
-    subprocess.run(["git", "-C", str(clone), "checkout", "-q", commit], check=True)
-    env = {**os.environ, "STRINGS_BENCH_CACHE": str(work / f"cache-demo-{commit[:10]}")}
+    clone = fresh_clone(src_repo, commit, work / f"demo-{commit[:10]}" / "main")
+    env = clean_env(work / f"cache-demo-{commit[:10]}")
     t = time.perf_counter()
     p = subprocess.run(["bash", "scripts/demo.sh", "--no-progress"], cwd=clone, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t
     m = re.search(r"demo: set-up (\d+) s, run (\d+) s", p.stdout)
     return wall, (float(m.group(1)) if m else None), (float(m.group(2)) if m else None)
+
+
+# ---- measures, their goals and the banked record -------------------------------------------------------------
+GOALS = {"new/ref": "<= {:g}x", "ref/new": ">= {:g}x", "new<=": "<= {:g} s"}
+
+
+def measure(name: str, reference, new, unit: str, goal: tuple[str, float] | None = None, speedup: bool = False,
+            **extra) -> dict:
+    """One row: both arms' values, the ratio (new / reference, or reference / new where the goal is a speed-up),
+    the goal and whether the new arm meets it."""
+    ok = reference not in (None, 0) and new not in (None, 0) and reference == reference and new == new
+    kind = goal[0] if goal else "ref/new" if speedup else "new/ref"
+    ratio = (reference / new if kind == "ref/new" else new / reference) if ok else None
+    met = None
+    if goal and new is not None and new == new:
+        met = {"new/ref": ratio is not None and ratio <= goal[1], "ref/new": ratio is not None and ratio >= goal[1],
+               "new<=": new <= goal[1]}[kind]
+    return {"measure": name, "reference": reference, "new": new, "unit": unit,
+            "ratio_kind": "reference / new" if kind == "ref/new" else "new / reference", "ratio": ratio,
+            "goal": GOALS[goal[0]].format(goal[1]) if goal else "", "met": met, **extra}
+
+
+def fmt_value(x, unit: str) -> str:
+    return "" if x is None or x != x else f"{x:.1f} {unit}" if unit == "ms" or x < 100 else f"{x:.0f} {unit}"
+
+
+def measure_row(m: dict) -> tuple[str, ...]:
+    ratio = "" if m["ratio"] is None else f"{m['ratio']:.2f}x ({m['ratio_kind']})"
+    met = {None: "", True: "met", False: "not met"}[m["met"]]
+    return (m["measure"], fmt_value(m["reference"], m["unit"]), fmt_value(m["new"], m["unit"]), ratio, m["goal"], met)
+
+
+def print_measures(measures: list[dict], header: bool = False) -> None:
+    if header:
+        print("| measure | reference | new | ratio | goal | |\n|---|---|---|---|---|---|")
+    for m in measures:
+        print("| " + " | ".join(measure_row(m)) + " |", flush=True)
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or platform.machine()
+
+
+def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list[float], same: bool) -> None:
+    import json
+    from datetime import datetime, timezone
+
+    rec = {"command": "python tools/default_run_speed.py " + " ".join(sys.argv[1:]),
+           "finished_utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M"),
+           "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "load_after": load(),
+                       "load_during_runs_max": max(loads, default=None)},
+           "reference": {"commit": commit_of(arms["reference"]), "engine": args.engine_ref if args.engine else None},
+           "new": {"commit": commit_of(arms["new"])},
+           "figures_same": same, "measures": measures}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(rec, indent=1) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    print(f"record: {path}")
+
+
+def find(measures: list[dict], prefix: str) -> dict | None:
+    return next((m for m in measures if m["measure"].startswith(prefix)), None)
+
+
+def summarize_record(path: Path, table: Path | None, readme: Path | None) -> int:
+    """The record's measures as the docs' table (CSV) and the README's paragraph on how long the two commands
+    take (a CSV of one `text` row), both for `strings-bench docs refresh`."""
+    import json
+
+    rec = json.loads(path.read_text(encoding="utf-8"))
+    rows = [("measure", "reference", "new", "ratio", "goal", "")] + [measure_row(m) for m in rec["measures"]]
+    for r in rows:
+        print(" | ".join(r))
+    if table:
+        with open(table, "w", newline="", encoding="utf-8") as fh:
+            csv.writer(fh).writerows(rows)
+    if readme:
+        ms = rec["measures"]
+        setup, run = find(ms, "demo from a fresh clone, set-up ("), find(ms, "demo from a fresh clone, run")
+        tests_m, tests_setup = find(ms, "default test suite, fresh clone: the tests"), find(ms, "default test suite, fresh clone: set-up")
+        if not (setup and run and tests_m and tests_setup):
+            raise SystemExit(f"{path}: the record has no demo or test-suite measure (run with --all)")
+        day = rec["finished_utc"].split()[0]
+        text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {rec['machine']['cpu']} on {day}: "
+                f"`bash scripts/demo.sh` took {setup['new']:.0f} s of set-up and {run['new']:.0f} s of run "
+                f"({setup['new'] + run['new']:.0f} s in all; it prints both in its last line), and `bash scripts/test.sh` "
+                f"{tests_setup['new']:.0f} s of set-up and {tests_m['new']:.0f} s of tests. How: "
+                f"[docs/results/engine-speed.md](docs/results/engine-speed.md), \"The default run, the demo and the tests, "
+                f"measured together\".")
+        with open(readme, "w", newline="", encoding="utf-8") as fh:
+            csv.writer(fh).writerows([("text",), (text,)])
+    return 0
 
 
 def summarize(banked: Path, table: Path | None) -> int:
@@ -177,13 +341,25 @@ def main() -> int:
                          "and compiled kernels built once; every OCR read still cold): the run without the build")
     ap.add_argument("--sequential", action="store_true", help="the reference's run first, then this checkout's")
     ap.add_argument("--demo", action="store_true", help="also time scripts/demo.sh from a fresh clone of each")
-    ap.add_argument("--tests", action="store_true", help="also time scripts/test.sh of each (an idle machine only)")
+    ap.add_argument("--tests", action="store_true",
+                    help="also time scripts/test.sh of each in a fresh clone with empty caches (an idle machine only)")
+    ap.add_argument("--engine", action="store_true", help="also run tools/engine_ab.py --old ENGINE_REF")
+    ap.add_argument("--engine-ref", default="142d0ce", help="the engine reference of --engine (default 142d0ce)")
+    ap.add_argument("--all", action="store_true", help="--demo --tests --engine")
+    ap.add_argument("--record", type=Path, help="write every measure, its goal and the machine here (JSON)")
+    ap.add_argument("--summarize-record", type=Path, metavar="RECORD",
+                    help="only turn a banked record into tables (--table, --readme)")
+    ap.add_argument("--readme", type=Path, help="with --summarize-record: write the README's paragraph (CSV, text)")
     ap.add_argument("--compare-runs", type=Path, nargs=2, metavar=("REF_RUN", "NEW_RUN"),
                     help="only compare two run folders: results.csv's common cells and every cell's result.json")
     ap.add_argument("--summarize", type=Path, help="only read a banked pair (BANKED.csv and BANKED.ref.csv) again")
-    ap.add_argument("--table", type=Path, help="with --summarize: write the table as CSV here")
+    ap.add_argument("--table", type=Path, help="with --summarize or --summarize-record: write the table as CSV here")
     ap.add_argument("--bank", type=Path, help="copy this checkout's results.csv here (the reference's beside it)")
     args = ap.parse_args()
+    if args.all:
+        args.demo = args.tests = args.engine = True
+    if args.summarize_record:
+        return summarize_record(args.summarize_record, args.table, args.readme)
     if args.summarize:
         return summarize(args.summarize, args.table)
     if args.compare_runs:
@@ -241,29 +417,53 @@ def main() -> int:
     print(f"\nboth arms {'one after the other' if args.sequential else 'at the same time'}; "
           f"1-min load average while they ran: mean {sum(loads) / max(1, len(loads)):.1f}, "
           f"max {max(loads, default=float('nan')):.1f}\n")
-    print("| measure | reference | new | new / reference | goal |\n|---|---|---|---|---|")
-    print(f"| default run, evaluation (sum of eval_seconds, {len(rows['new'])} checkpoints) | {ev['reference']:.1f} s | "
-          f"{ev['new']:.1f} s | {ev['new'] / ev['reference']:.2f}x | <= 0.5x |")
-    print(f"| default run, training (sum of train_seconds) | {tr['reference']:.1f} s | {tr['new']:.1f} s | "
-          f"{tr['new'] / tr['reference']:.2f}x | |")
     what = "cache seeded without OCR: no scene build" if args.cache_from else "empty cache: scene build, kernels, OCR masks, report"
-    print(f"| default run, wall time ({what}) | {wall['reference']:.0f} s | "
-          f"{wall['new']:.0f} s | {wall['new'] / wall['reference']:.2f}x | |")
+    measures = [
+        measure(f"default run, evaluation (sum of eval_seconds, {len(rows['new'])} checkpoints)", ev["reference"],
+                ev["new"], "s", goal=("new/ref", 0.5)),
+        measure("default run, training (sum of train_seconds)", tr["reference"], tr["new"], "s"),
+        measure(f"default run, wall time ({what})", wall["reference"], wall["new"], "s"),
+    ]
+    print_measures(measures, header=True)
     status = 0
     if args.demo:
         d = {name: demo(REPO, commit_of(src), work) for name, src in arms.items()}
-        for name, (w, s, r) in d.items():
-            print(f"| demo from a fresh clone ({name}) | set-up {s} s, run {r} s | wall {w:.0f} s | | <= 300 s |")
-        print(f"| demo from a fresh clone, wall | {d['reference'][0]:.0f} s | {d['new'][0]:.0f} s | "
-              f"{d['new'][0] / d['reference'][0]:.2f}x | <= 300 s |")
+        for name, (w, s_, r) in d.items():
+            print(f"  demo from a fresh clone ({name}): set-up {s_} s, run {r} s, wall {w:.0f} s", flush=True)
+        total = {name: (v[1] or 0) + (v[2] or 0) if v[1] is not None else float("nan") for name, v in d.items()}
+        more = [measure("demo from a fresh clone, set-up (its last line)", d["reference"][1], d["new"][1], "s"),
+                measure("demo from a fresh clone, run (its last line)", d["reference"][2], d["new"][2], "s"),
+                measure("demo from a fresh clone, set-up + run", total["reference"], total["new"], "s",
+                        goal=("new<=", 300))]
+        print_measures(more)
+        measures += more
     if args.tests:
-        secs = {}
-        for name, src in arms.items():
-            t = time.perf_counter()
-            subprocess.run(["bash", "scripts/test.sh"], cwd=src, capture_output=True)
-            secs[name] = time.perf_counter() - t
-        print(f"| test suite (scripts/test.sh) | {secs['reference']:.0f} s | {secs['new']:.0f} s | "
-              f"{secs['new'] / secs['reference']:.2f}x | <= 480 s |")
+        t = {name: tests(REPO, commit_of(src), work) for name, src in arms.items()}
+        for name, x in t.items():
+            print(f"  test suite ({name}): {x.get('passed', 0)} passed, {x.get('failed', 0)} failed, tests "
+                  f"{x['seconds']:.0f} s, set-up {x['setup']:.0f} s, exit {x['rc']}", flush=True)
+        more = [measure("default test suite, fresh clone: the tests (pytest's seconds)", t["reference"]["seconds"],
+                        t["new"]["seconds"], "s", goal=("new<=", 480)),
+                measure("default test suite, fresh clone: set-up (scripts/test.sh less the tests)",
+                        t["reference"]["setup"], t["new"]["setup"], "s")]
+        print_measures(more)
+        measures += more
+        if t["new"]["rc"] != 0:
+            print(f"the new arm's test suite failed (exit {t['new']['rc']}): {work / 'tests-*.log'}")
+            status = 1
+    if args.engine:
+        e = engine(args.engine_ref)
+        more = []
+        for row in e["rows"]:
+            more.append(measure(f"engine, 3DGS step at {row['gaussians']} Gaussians (ms; engine {args.engine_ref} "
+                                f"against this one, reference / new)", row["old_ms"], row["new_ms"], "ms",
+                                goal=("ref/new", 2.0), identical=row["identical"]))
+        if e.get("estimate"):
+            est = e["estimate"]
+            more.append(measure("engine, the default run's 3DGS training, interpolated (reference / new)",
+                                est["old_s"], est["new_s"], "s", speedup=True))
+        print_measures(more)
+        measures += more
     diffs = compare(rows["reference"], rows["new"])
     n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
     print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
@@ -279,6 +479,8 @@ def main() -> int:
     else:
         print(f"\nresults.csv: every column but *_seconds and {', '.join(VARYING)} is the same in all "
               f"{len(rows['new'])} cells")
+    if args.record:
+        write_record(args.record, args, arms, measures, loads, same=not diffs)
     if args.bank:
         args.bank.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(work / "run-new" / "results.csv", args.bank)

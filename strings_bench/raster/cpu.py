@@ -55,6 +55,7 @@ class RasterizeTiles(torch.autograd.Function):
         P, BB = KB.pack(order.numpy(), *(_np_in(x) for x in (means2d, conics, opacities, feats)),
                        bbox.contiguous().numpy())
         tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
+        P, BB, lst = K.rows_in_list_order(lst, P, BB)  # each tile's rows one after the other (same results)
         out_f = np.empty((H, W, K.NF), np.float32)
         out_T = np.empty((H, W), np.float32 if precision == "f32" else np.float64)
         out_last = np.empty((H, W), np.int32 if precision == "f32" else np.int64)

@@ -8,7 +8,9 @@ each: mean2d x, y, conic a, b, c, opacity, then NF features (RGB and camera dept
 qmin = 2 (log(255 o) + slack), NaN where o < 1/255: a pixel can pass alpha >= 1/255 only where
 a dx^2 + 2 b dx dy + c dy^2 <= qmin (`pack` builds P). `BB` holds the pixel boxes (x0, x1, y0, y1),
 inclusive, tightened to that ellipse (`tight_box`). Binning gives, per 16x16 tile, a slice of `lst`
-(indices into P, front to back). Blending runs tile by tile in parallel (prange); inside a tile the
+(indices into P, front to back); `rows_in_list_order` then copies each intersection's rows of P and BB into
+list order, so that the blends read one tile's rows one after the other (`lst` becomes 0, 1, ..., M - 1).
+Blending runs tile by tile in parallel (prange); inside a tile the
 loop is Gaussian-outer / pixel-inner over the Gaussian's box only, with the per-pixel state
 (transmittance, accumulated features, done flag) kept in small per-tile arrays.
 
@@ -237,6 +239,29 @@ def bin_tiles(BB, tiles_x, tiles_y):
                 isect_pos[j] = k
                 j += 1
     return tile_start, lst, g_start, isect_pos
+
+
+@njit(parallel=True, cache=True)
+def rows_in_list_order(lst, P, BB):
+    """(P[lst], BB[lst], 0..M-1): the rows of every intersection in list order, and the list that reads them.
+
+    The blends read row lst[k] of P and BB for the k-th intersection; a tile's Gaussians are scattered over P
+    (front to back over the whole image), so at a few hundred thousand Gaussians each read missed the caches
+    and the blends waited on memory. Read in list order they stream, and every value is the same (bit-identical
+    results: tests/raster/test_raster.py). Copied in parallel, many reads in flight: M x 80 B once per render."""
+    M = lst.shape[0]
+    n = P.shape[1]
+    PL = np.empty((M, n), P.dtype)
+    BL = np.empty((M, 4), BB.dtype)
+    order = np.empty(M, lst.dtype)
+    for k in prange(M):
+        i = lst[k]
+        for j in range(n):
+            PL[k, j] = P[i, j]
+        for j in range(4):
+            BL[k, j] = BB[i, j]
+        order[k] = k
+    return PL, BL, order
 
 
 @njit(parallel=True, cache=True)

@@ -3,12 +3,11 @@
 Forward, per Gaussian (same rules as `projection.py`, which is the torch-autograd version used as
 an independent check in the tests): camera transform, culling, means2d, EWA 2D covariance with the
 clamped Jacobian, dilation or mip filter (+ opacity compensation), conic, radius, pixel box,
-sigmoid opacity and, for a Gaussian that reaches the image (radius > 0), the SH colour seen from the camera
-centre (0 for the others). All arithmetic is float64: inputs
-may be float32 or float64 arrays and every value read is converted to float64 first (exact; with
-`np.float64(x)`: numba types `float(x)` of a float32 as float32), so a float32 parameter gives the
-same result as its float64 copy did; gradient outputs take the inputs' dtype and are rounded once,
-at the store.
+sigmoid opacity and, for a Gaussian on the image (radius > 0; 0 for the others), the SH colour seen from the
+camera centre. All arithmetic is float64: inputs may be float32 or float64 arrays and every value read is
+converted to float64 first (exact; with `np.float64(x)`: numba types `float(x)` of a float32 as float32), so a
+float32 parameter gives the same result as its float64 copy did; gradient outputs take the inputs' dtype and are
+rounded once, at the store.
 
 Backward: the chain rule through the same steps, written out (conic = inverse 2D covariance:
 dL/dSigma = -Q G Q; quaternion -> rotation derivatives; clamped-Jacobian and normalisation cases
@@ -230,16 +229,14 @@ def preprocess_forward(means, quats, log_scales, opacity_logits, sh0, shN, off, 
             ok = x0 <= x1 and y0 <= y1 and rad > 0 and math.isfinite(u) and math.isfinite(v)
             ok = ok and math.isfinite(C / det) and math.isfinite(b / det) and math.isfinite(A / det)
             if not ok:  # culled: no colour (nothing blends it; the backward gives it no gradient)
-                for ci in range(3):
-                    feats[g, ci] = 0.0
+                feats[g, 0] = feats[g, 1] = feats[g, 2] = 0.0
                 continue
             radii[g] = int(rad)
             bbox[g, 0] = int(x0)
             bbox[g, 1] = int(x1)
             bbox[g, 2] = int(y0)
             bbox[g, 3] = int(y1)
-            # colour, of the Gaussians that reach the image only (2/3 of a 360-degree room's are off it; the SH
-            # sum is a third of this kernel's time at degree 3)
+            # colour, of the Gaussians on the image only (97k of 236k in front of the camera at 335k: 21 -> 13 ms)
             dx = np.float64(means[g, 0]) - cam[20]
             dy = np.float64(means[g, 1]) - cam[21]
             dz = np.float64(means[g, 2]) - cam[22]

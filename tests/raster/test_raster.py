@@ -561,9 +561,10 @@ def test_gsplat_means2d_hook_frees_each_steps_graph():
     assert all(r() is None for r in previous)
 
 
-def _blend_with_boxes(P, BB, W, H, seed=5, kernels=None):
+def _blend_with_boxes(P, BB, W, H, seed=5, kernels=None, list_order=False):
     """Forward and backward blend of P with pixel boxes BB; per-Gaussian gradients (input order = P's).
-    kernels: the blend kernels' module (default cpu_kernels, float64; or cpu_kernels_f32)."""
+    kernels: the blend kernels' module (default cpu_kernels, float64; or cpu_kernels_f32). list_order: the rows
+    copied into list order first (`rows_in_list_order`, as the rasterizer does), else read where they are."""
     import strings_bench.raster.cpu_kernels as K
 
     KB = K if kernels is None else kernels
@@ -571,6 +572,8 @@ def _blend_with_boxes(P, BB, W, H, seed=5, kernels=None):
 
     tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
     tile_start, lst, g_start, isect_pos = K.bin_tiles(BB, tiles_x, tiles_y)
+    if list_order:
+        P, BB, lst = K.rows_in_list_order(lst, P, BB)
     out_f = np.empty((H, W, K.NF), np.float32)
     out_T = np.empty((H, W), np.float32 if f32 else np.float64)
     out_last = np.empty((H, W), np.int32 if f32 else np.int64)
@@ -580,10 +583,43 @@ def _blend_with_boxes(P, BB, W, H, seed=5, kernels=None):
     gA = rng.standard_normal((H, W)).astype(np.float32)
     buf = np.empty((lst.shape[0], K.N_GRAD), np.float32)
     KB.backward(tile_start, lst, P, BB, W, H, tiles_x, out_T, out_last, gF, gA, buf)
-    V = P.shape[0]
+    V = g_start.shape[0] - 1
     grads = [np.empty(shape, np.float32) for shape in ((V, 2), (V, 3), (V,), (V, K.NF), (V, 2))]
     K.reduce_intersections(buf, g_start, isect_pos, np.arange(V), *grads)
-    return out_f, out_T, grads, lst.shape[0]
+    return out_f, out_T, grads, lst.shape[0], out_last
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_rows_copied_into_list_order_blend_to_the_same_bits(precision):
+    """The rasterizer copies each intersection's rows of P and BB into list order before the blends (so that a
+    tile's rows are read one after the other): the image, the transmittance, the last contributor and every
+    gradient must be what the blends give reading the rows where they are, bit for bit."""
+    import strings_bench.raster.cpu_kernels as K
+    import strings_bench.raster.cpu_kernels_f32 as K32
+    from strings_bench.raster.cpu import Preprocess
+
+    KB = K32 if precision == "f32" else K
+    W, H = 96, 80
+    cam = make_camera(W=W, H=H)
+    params = random_scene(n=400, seed=13, opacity_mean=0.0, opacity_std=1.5, scale=(0.005, 0.2))
+    with torch.no_grad():
+        means2d, conics, opac, feats, radii, bbox = Preprocess.apply(*params[:5], 3, cam, False, 0.01, 1e10)
+    vis = torch.nonzero(radii > 0).flatten()
+    order = vis[torch.argsort(feats[vis, 3], stable=True)].numpy()
+    P, BB = KB.pack(order, means2d.numpy(), conics.numpy(), opac.numpy(), feats.numpy(), bbox.numpy())
+    tiles_x, tiles_y = (W + K.TILE - 1) // K.TILE, (H + K.TILE - 1) // K.TILE
+    lst = K.bin_tiles(BB, tiles_x, tiles_y)[1]
+    PL, BL, ident = K.rows_in_list_order(lst, P, BB)
+    assert np.array_equal(PL, P[lst], equal_nan=True) and np.array_equal(BL, BB[lst])
+    assert np.array_equal(ident, np.arange(lst.shape[0]))
+    assert len(np.unique(lst)) < lst.shape[0]  # Gaussians on several tiles: rows copied more than once
+    where = _blend_with_boxes(P, BB, W, H, kernels=KB)
+    listed = _blend_with_boxes(P, BB, W, H, kernels=KB, list_order=True)
+    for a, b in zip(where[:2] + (where[4],), listed[:2] + (listed[4],)):
+        assert np.array_equal(a, b)
+    for a, b in zip(where[2], listed[2]):
+        assert np.array_equal(a, b)
+    assert np.abs(where[2][0]).sum() > 0 and (where[1] < 1).mean() > 0.2  # something was drawn and differentiated
 
 
 def test_tight_boxes_skip_work_without_changing_a_bit():
@@ -603,8 +639,8 @@ def test_tight_boxes_skip_work_without_changing_a_bit():
     P, tight = K.pack(order, means2d.numpy(), conics.numpy(), opac.numpy(), feats.numpy(), bbox.numpy())
     full = bbox.numpy()[order].astype(np.int64)
     assert (opac.numpy()[order] < K.ALPHA_MIN).any()  # some are never blended: empty tight boxes
-    f_t, T_t, g_t, m_t = _blend_with_boxes(P, tight, W, H)
-    f_f, T_f, g_f, m_f = _blend_with_boxes(P, full, W, H)
+    f_t, T_t, g_t, m_t, _ = _blend_with_boxes(P, tight, W, H)
+    f_f, T_f, g_f, m_f, _ = _blend_with_boxes(P, full, W, H)
     assert m_t < 0.75 * m_f, (m_t, m_f)  # the test scene exercises the skipping
     assert np.array_equal(f_t, f_f) and np.array_equal(T_t, T_f)
     for a, b in zip(g_t, g_f):

@@ -304,8 +304,8 @@ def test_float32_tight_boxes_change_no_pixel():
     order = vis[torch.argsort(feats[vis, 3], stable=True)].numpy()
     P, tight = K32.pack(order, means2d.numpy(), conics.numpy(), opac.numpy(), feats.numpy(), bbox.numpy())
     full = bbox.numpy()[order].astype(np.int64)
-    f_t, T_t, g_t, m_t = _blend_with_boxes(P, tight, W, H, kernels=K32)
-    f_f, T_f, g_f, m_f = _blend_with_boxes(P, full, W, H, kernels=K32)
+    f_t, T_t, g_t, m_t, _ = _blend_with_boxes(P, tight, W, H, kernels=K32)
+    f_f, T_f, g_f, m_f, _ = _blend_with_boxes(P, full, W, H, kernels=K32)
     assert m_t < 0.75 * m_f, (m_t, m_f)
     assert np.array_equal(f_t, f_f) and np.array_equal(T_t, T_f)
     for a, b in zip(g_t, g_f):
