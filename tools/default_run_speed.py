@@ -11,8 +11,10 @@ side by side in one run, as ratios new / reference, and the check that the figur
    this checkout). Printed: each arm's wall time, the sum of `eval_seconds` over the six checkpoints (goal:
    new <= 0.5x the reference's), `train_seconds`, and the ratios.
 2. Every column of the two results.csv but the times (`*_seconds`) and `peak_memory_mb` (the process's
-   memory, which varies from run to run) compared cell by cell as written; any difference is printed and
-   the script exits with status 1.
+   memory, which varies from run to run) compared cell by cell as written, and every cell's result.json, when both
+   arms trained on the same scene; a reference that built another room (an older scene generator) is not
+   comparable, and the new arm's run (and the demo's, with --demo) is compared with the banked figures instead
+   (--figures, the README's). Any difference is printed and the script exits with status 1.
 3. --demo: `bash scripts/demo.sh` in a fresh `git clone` of each version (set-up included: the venv and
    pip's downloads), its last line ("demo: set-up S s, run R s") parsed (goal: set-up + run <= 5 min).
 4. --tests: `bash scripts/test.sh` of each version in a fresh clone with empty caches, as CI runs it; the
@@ -111,6 +113,16 @@ def compare(ref_rows: list[dict], new_rows: list[dict]) -> list[str]:
 
 
 CELL_VARYING = ("timings", "config", "extra", "peak_memory_mb")  # times, paths, versions; the figures are the rest
+
+
+def scene_folder(run: Path) -> str | None:
+    """The name of the scene folder (name and content key) a run folder's first cell was made on."""
+    import json
+
+    for path in sorted(run.glob("cells/*/*/*/*/result.json")):
+        scene = json.loads(path.read_text(encoding="utf-8")).get("config", {}).get("scene", {})
+        return Path(scene["path"]).name if scene.get("path") else None
+    return None
 
 
 def compare_cells(ref_run: Path, new_run: Path) -> tuple[int, list[str]]:
@@ -257,7 +269,8 @@ def cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
-def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list[float], same: bool) -> None:
+def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list[float], same: bool,
+                 against: str) -> None:
     import json
     from datetime import datetime, timezone
 
@@ -267,7 +280,7 @@ def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list
                        "load_during_runs_max": max(loads, default=None)},
            "reference": {"commit": commit_of(arms["reference"]), "engine": args.engine_ref if args.engine else None},
            "new": {"commit": commit_of(arms["new"])},
-           "figures_same": same, "measures": measures}
+           "figures_same": same, "figures_compared_with": against, "measures": measures}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(rec, indent=1) + "\n", encoding="utf-8")
@@ -277,6 +290,14 @@ def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list
 
 def find(measures: list[dict], prefix: str) -> dict | None:
     return next((m for m in measures if m["measure"].startswith(prefix)), None)
+
+
+def tests_outcome(m: dict) -> str:
+    """' (1 583 passed)', or with the failures, from a test-suite measure that counts them."""
+    passed, failed = (m.get(k, {}).get("new") for k in ("passed", "failed"))
+    if passed is None:
+        return ""
+    return f" ({passed:,} passed".replace(",", " ") + (f", {failed} failed)" if failed else ")")
 
 
 def summarize_record(path: Path, table: Path | None, readme: Path | None) -> int:
@@ -301,7 +322,7 @@ def summarize_record(path: Path, table: Path | None, readme: Path | None) -> int
         text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {rec['machine']['cpu']} on {day}: "
                 f"`bash scripts/demo.sh` took {setup['new']:.0f} s of set-up and {run['new']:.0f} s of run "
                 f"({setup['new'] + run['new']:.0f} s in all; it prints both in its last line), and `bash scripts/test.sh` "
-                f"{tests_setup['new']:.0f} s of set-up and {tests_m['new']:.0f} s of tests. How: "
+                f"{tests_setup['new']:.0f} s of set-up and {tests_m['new']:.0f} s of tests{tests_outcome(tests_m)}. How: "
                 f"[docs/results/engine-speed.md](docs/results/engine-speed.md), \"The default run, the demo and the tests, "
                 f"measured together\".")
         with open(readme, "w", newline="", encoding="utf-8") as fh:
@@ -355,6 +376,9 @@ def main() -> int:
     ap.add_argument("--summarize", type=Path, help="only read a banked pair (BANKED.csv and BANKED.ref.csv) again")
     ap.add_argument("--table", type=Path, help="with --summarize or --summarize-record: write the table as CSV here")
     ap.add_argument("--bank", type=Path, help="copy this checkout's results.csv here (the reference's beside it)")
+    ap.add_argument("--figures", default="docs/results/data/default-run/results.csv",
+                    help="the banked results.csv (the README's figures) the new arm's run must reproduce in every "
+                         "column but the times (default docs/results/data/default-run/results.csv)")
     args = ap.parse_args()
     if args.all:
         args.demo = args.tests = args.engine = True
@@ -443,7 +467,8 @@ def main() -> int:
             print(f"  test suite ({name}): {x.get('passed', 0)} passed, {x.get('failed', 0)} failed, tests "
                   f"{x['seconds']:.0f} s, set-up {x['setup']:.0f} s, exit {x['rc']}", flush=True)
         more = [measure("default test suite, fresh clone: the tests (pytest's seconds)", t["reference"]["seconds"],
-                        t["new"]["seconds"], "s", goal=("new<=", 480)),
+                        t["new"]["seconds"], "s", goal=("new<=", 480),
+                        passed={k: t[k].get("passed", 0) for k in t}, failed={k: t[k].get("failed", 0) for k in t}),
                 measure("default test suite, fresh clone: set-up (scripts/test.sh less the tests)",
                         t["reference"]["setup"], t["new"]["setup"], "s")]
         print_measures(more)
@@ -464,23 +489,38 @@ def main() -> int:
                                 est["old_s"], est["new_s"], "s", speedup=True))
         print_measures(more)
         measures += more
-    diffs = compare(rows["reference"], rows["new"])
-    n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
-    print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
-                                                   if not cell_diffs else f"{len(cell_diffs)} difference(s)"))
-    for d in cell_diffs[:20]:
-        print("  " + d)
-    diffs += cell_diffs
+    scenes = {name: scene_folder(work / f"run-{name}") for name in arms}
+    if scenes["reference"] == scenes["new"]:
+        diffs = compare(rows["reference"], rows["new"])
+        n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
+        print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
+                                                       if not cell_diffs else f"{len(cell_diffs)} difference(s)"))
+        for d in cell_diffs[:20]:
+            print("  " + d)
+        diffs += cell_diffs
+        against = f"the reference's ({args.ref})"
+    else:  # an older scene generator (or another CPU's BLAS for one before version 3) builds another room
+        print(f"the reference built another scene ({scenes['reference']}; this checkout: {scenes['new']}): "
+              f"its figures are not this room's; the new arm's are compared with the banked {args.figures}")
+        diffs, against = [], f"the banked {args.figures}"
+    banked = read_csv(REPO / args.figures) if (REPO / args.figures).is_file() else None
+    if banked is not None:
+        diffs += compare(banked, rows["new"])
+        if args.demo and (work / f"demo-{commit_of(new_src)[:10]}").is_dir():
+            demo_rows = work / f"demo-{commit_of(new_src)[:10]}" / "main" / "runs" / "default" / "results.csv"
+            if demo_rows.is_file():
+                diffs += [f"demo: {d}" for d in compare(banked, read_csv(demo_rows))]
+                against += " (and the demo's run against it)"
     if diffs:
-        print(f"\nresults.csv: {len(diffs)} difference(s) outside the time columns:")
+        print(f"\nresults.csv: {len(diffs)} difference(s) outside the time columns against {against}:")
         for d in diffs[:40]:
             print("  " + d)
         status = 1
     else:
         print(f"\nresults.csv: every column but *_seconds and {', '.join(VARYING)} is the same in all "
-              f"{len(rows['new'])} cells")
+              f"{len(rows['new'])} cells as in {against}")
     if args.record:
-        write_record(args.record, args, arms, measures, loads, same=not diffs)
+        write_record(args.record, args, arms, measures, loads, same=not diffs, against=against)
     if args.bank:
         args.bank.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(work / "run-new" / "results.csv", args.bank)

@@ -285,7 +285,8 @@ def count_pairs(method, view: int) -> tuple[int, int, int, int]:
         method.render_raster(view, sh_degree=method.sh_degree_for_step(method.step))
     b = times.notes["blend.forward"]
     pairs = _blended_pairs(b["tile_start"], b["lst"], b["P"], b["BB"], b["W"], b["H"], b["tiles_x"], b["out_last"])
-    return b["P"].shape[0], b["lst"].shape[0], pairs[0], pairs[1]
+    # P holds one row per intersection (list order) in this version, one per visible Gaussian in older ones
+    return b.get("visible", b["P"].shape[0]), b["lst"].shape[0], pairs[0], pairs[1]
 
 
 def _blended_pairs(tile_start, lst, P, BB, W, H, tiles_x, out_last):

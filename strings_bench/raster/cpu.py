@@ -63,7 +63,7 @@ class RasterizeTiles(torch.autograd.Function):
             KB.forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last)
         if active():  # the blend's inputs, for a profiling tool that counts its work
             note("blend.forward", tile_start=tile_start, lst=lst, P=P, BB=BB, W=W, H=H, tiles_x=tiles_x,
-                 out_last=out_last)
+                 out_last=out_last, visible=int(order.shape[0]))
         ctx.saved = (tile_start, lst, g_start, isect_pos, P, BB, out_T, out_last, tiles_x)
         ctx.kernels = KB
         ctx.order = order

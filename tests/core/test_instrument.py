@@ -80,7 +80,8 @@ def test_a_recorded_step_gives_the_same_bits_and_every_stage_once_per_step(tiny_
     assert 0 < inside <= times.seconds["backward"]
     assert all(times.cpu_seconds[s] >= 0 for s in STEP_STAGES)
     assert times.notes["render"]["color"].shape[-1] == 3
-    assert set(times.notes["blend.forward"]) == {"tile_start", "lst", "P", "BB", "W", "H", "tiles_x", "out_last"}
+    assert set(times.notes["blend.forward"]) == {"tile_start", "lst", "P", "BB", "W", "H", "tiles_x", "out_last",
+                                                   "visible"}
 
 
 def test_engine_profile_splits_a_step_into_its_stages_from_the_marks(tiny_scene):
