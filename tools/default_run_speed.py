@@ -318,8 +318,7 @@ def summarize_record(path: Path, table: Path | None, readme: Path | None) -> int
         tests_m, tests_setup = find(ms, "default test suite, fresh clone: the tests"), find(ms, "default test suite, fresh clone: set-up")
         if not (setup and run and tests_m and tests_setup):
             raise SystemExit(f"{path}: the record has no demo or test-suite measure (run with --all)")
-        day = rec["finished_utc"].split()[0]
-        text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {rec['machine']['cpu']} on {day}: "
+        text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {rec['machine']['cpu']}: "
                 f"`bash scripts/demo.sh` took {setup['new']:.0f} s of set-up and {run['new']:.0f} s of run "
                 f"({setup['new'] + run['new']:.0f} s in all; it prints both in its last line), and `bash scripts/test.sh` "
                 f"{tests_setup['new']:.0f} s of set-up and {tests_m['new']:.0f} s of tests{tests_outcome(tests_m)}. How: "

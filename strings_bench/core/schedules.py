@@ -46,7 +46,7 @@ DEFAULT_DATASETS = ("synthetic",)
 # `run --help`, the docs' CLI reference, the HTML report's schedule line and the README take it from here. Measured
 # from a fresh clone on 2 idle cores: docs/results/data/engine-stages/demo-fresh-clone-4.csv, "the run" row (302 s;
 # docs/results/engine-speed.md); tests/lint/test_docs_rules.py holds this figure to that row.
-DEFAULT_RUN_MINUTES = 5
+DEFAULT_RUN_MINUTES = 4
 DEFAULT_RUN_TIME = f"about {DEFAULT_RUN_MINUTES} min on 2 CPU cores"
 DEFAULT_SCHEDULE = "cpu"
 

@@ -209,12 +209,14 @@ def test_readme_links_resolve_with_their_anchors():
 
 # ---- one source per figure --------------------------------------------------------------------------------------
 def test_default_run_time_is_its_measurement():
-    import pandas as pd
+    """DEFAULT_RUN_MINUTES is the demo's run from a fresh clone in the banked record of tools/default_run_speed.py
+    (the record the README's paragraph on times is made from), in whole minutes."""
+    import json
 
     from strings_bench.core.schedules import DEFAULT_RUN_MINUTES
 
-    data = pd.read_csv(DOCS / "results" / "data" / "engine-stages" / "demo-fresh-clone-4.csv")
-    run = data[data.iloc[:, 0].str.startswith("the run")].iloc[0, 1]
+    record = json.loads((DOCS / "results" / "data" / "default-run-speed" / "record.json").read_text(encoding="utf-8"))
+    run = next(m["new"] for m in record["measures"] if m["measure"].startswith("demo from a fresh clone, run"))
     assert round(float(run) / 60) == DEFAULT_RUN_MINUTES, (run, DEFAULT_RUN_MINUTES)
 
 
