@@ -44,8 +44,8 @@ PAPER_CHECKPOINTS = (3000, 7000, 30000)
 DEFAULT_DATASETS = ("synthetic",)
 # The default run's time (`strings-bench run --methods strings,3dgs`, the run alone: no set-up), stated here once:
 # `run --help`, the docs' CLI reference, the HTML report's schedule line and the README take it from here. Measured
-# from a fresh clone on 2 idle cores: docs/results/data/engine-stages/demo-fresh-clone-4.csv, "the run" row (302 s;
-# docs/results/engine-speed.md); tests/lint/test_docs_rules.py holds this figure to that row.
+# from a fresh clone on 2 idle cores: docs/results/data/default-run-speed/record.json, the demo's run (211 s;
+# docs/results/engine-speed.md); tests/lint/test_docs_rules.py holds this figure to that record.
 DEFAULT_RUN_MINUTES = 4
 DEFAULT_RUN_TIME = f"about {DEFAULT_RUN_MINUTES} min on 2 CPU cores"
 DEFAULT_SCHEDULE = "cpu"

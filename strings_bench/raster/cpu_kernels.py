@@ -253,15 +253,15 @@ def rows_in_list_order(lst, P, BB):
     n = P.shape[1]
     PL = np.empty((M, n), P.dtype)
     BL = np.empty((M, 4), BB.dtype)
-    order = np.empty(M, lst.dtype)
+    listed = np.empty(M, lst.dtype)  # the new list: intersection k reads row k
     for k in prange(M):
         i = lst[k]
         for j in range(n):
             PL[k, j] = P[i, j]
         for j in range(4):
             BL[k, j] = BB[i, j]
-        order[k] = k
-    return PL, BL, order
+        listed[k] = k
+    return PL, BL, listed
 
 
 @njit(parallel=True, cache=True)

@@ -47,7 +47,7 @@ def test_a_record_gives_the_table_and_the_readme_paragraph_from_its_own_figures(
                         goal=("new<=", 480), passed={"reference": 1474, "new": 1583}, failed={"reference": 1, "new": 0}),
           speed.measure("default test suite, fresh clone: set-up (scripts/test.sh less the tests)", 80.0, 77.0, "s")]
     rec = tmp_path / "record.json"
-    rec.write_text(json.dumps({"finished_utc": "2026-12-02 16:00", "machine": {"cpu": "AMD EPYC", "cores": 2},
+    rec.write_text(json.dumps({"finished_utc": "2025-03-14 09:30", "machine": {"cpu": "AMD EPYC", "cores": 2},
                                "measures": ms}))
     table, readme = tmp_path / "table.csv", tmp_path / "readme.csv"
     assert speed.summarize_record(rec, table, readme) == 0
@@ -62,7 +62,7 @@ def test_a_record_gives_the_table_and_the_readme_paragraph_from_its_own_figures(
 
 def test_a_record_without_the_demo_gives_no_readme_paragraph(speed, tmp_path):
     rec = tmp_path / "record.json"
-    rec.write_text(json.dumps({"finished_utc": "2026-12-02 16:00", "machine": {"cpu": "AMD EPYC", "cores": 2},
+    rec.write_text(json.dumps({"finished_utc": "2025-03-14 09:30", "machine": {"cpu": "AMD EPYC", "cores": 2},
                                "measures": [speed.measure("default run, training", 1.0, 1.0, "s")]}))
     with pytest.raises(SystemExit, match="no demo or test-suite measure"):
         speed.summarize_record(rec, None, tmp_path / "readme.csv")
