@@ -97,6 +97,9 @@ def ssim(img: np.ndarray, gt: np.ndarray, strip_rows: int = SSIM_STRIP_ROWS) -> 
 def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None, device: str = "cpu") -> float:
     """LPIPS-VGG, or NaN when the weights are not installed (logged once).
 
+    Each image's VGG features come from a pass of their own, as the lpips package computes them (lpips 0.1.4,
+    lpips/lpips.py:119, `outs0, outs1 = self.net.forward(in0_input), self.net.forward(in1_input)`): a batch of
+    two changes the last bits of small images' features (measured at 32-64 px with torch 2.13's oneDNN).
     `gt_reference` (from `lpips_reference(gt, device)`) skips recomputing the ground truth's features;
     `device` is where the network runs (cpu, cuda, cuda:N).
     """
@@ -108,9 +111,9 @@ def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None, device: str = "cpu
     except lpips_net.LPIPSUnavailable as exc:
         _warn_lpips_once(exc)
         return math.nan
-    if gt_reference is not None:
-        return net.distance_to(np.asarray(img, dtype=np.float32), gt_reference)
-    return float(net(np.asarray(img, dtype=np.float32), np.asarray(gt, dtype=np.float32)))
+    if gt_reference is None:
+        gt_reference = net.reference(np.asarray(gt, dtype=np.float32))
+    return net.distance_to(np.asarray(img, dtype=np.float32), gt_reference)
 
 
 def lpips_reference(gt: np.ndarray, device: str = "cpu"):
@@ -229,10 +232,12 @@ def ssim_and_masked_ssim(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | Non
 
 
 def view_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_lpips: bool = True,
-                 gt_reference=None, device: str = "cpu") -> dict[str, float]:
+                 gt_reference=None, device: str = "cpu", text_reference=None) -> dict[str, float]:
     """`image_metrics` and `text_region_metrics` of one view in one pass (the same keys, in the same order,
     and the same values to the bit): the images are converted once, the SSIM map is made once for
-    both SSIMs (`ssim_and_masked_ssim`), and the SSIM map runs on one torch thread (`one_torch_thread`)."""
+    both SSIMs (`ssim_and_masked_ssim`), and the SSIM map runs on one torch thread (`one_torch_thread`).
+    `text_reference` (`text_lpips_reference`, made once per view) holds the GT text crop's LPIPS features;
+    where that crop is the whole image, text_lpips is the image's LPIPS (the same two images)."""
     a, b = _check_pair(img, gt)
     out = {"psnr": image_quality.psnr(torch.from_numpy(a), torch.from_numpy(b))}
     out["ssim"], text_ssim = ssim_and_masked_ssim(a, b, mask)
@@ -242,7 +247,12 @@ def view_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_
         return out
     out["text_psnr"] = masked_psnr(a, b, mask)
     out["text_ssim"] = text_ssim
-    out["text_lpips"] = masked_lpips(img, gt, mask, device=device) if with_lpips else math.nan
+    if not with_lpips:
+        out["text_lpips"] = math.nan
+    elif text_reference is not None and text_reference[0] == (0, a.shape[0], 0, a.shape[1]):
+        out["text_lpips"] = out["lpips"]
+    else:
+        out["text_lpips"] = masked_lpips(img, gt, mask, device=device, gt_reference=text_reference)
     return out
 
 
@@ -262,15 +272,37 @@ def mask_bbox(mask: np.ndarray, min_side: int = 0) -> tuple[int, int, int, int] 
     return box[0], box[1], box[2], box[3]
 
 
-def masked_lpips(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str = "cpu") -> float:
+def masked_lpips(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str = "cpu",
+                 gt_reference=None) -> float:
     """LPIPS-VGG of the mask's bounding crop (grown to >= 32 px a side); NaN for an empty mask or
-    without the weights. Pixels of the crop outside the mask are kept (context, as the SSIM window)."""
+    without the weights. Pixels of the crop outside the mask are kept (context, as the SSIM window).
+    `gt_reference`: `text_lpips_reference(gt, mask)`, the ground truth crop's features made once."""
     _check_pair(img, gt)
     box = mask_bbox(_check_mask(mask, np.shape(img)), LPIPS_MIN_CROP)
     if box is None:
         return math.nan
     y0, y1, x0, x1 = box
-    return lpips(np.asarray(img)[y0:y1, x0:x1], np.asarray(gt)[y0:y1, x0:x1], device=device)
+    if gt_reference is not None and tuple(gt_reference[0]) != box:
+        raise StringsBenchError(f"the text crop's LPIPS reference is of box {gt_reference[0]}, the mask's crop is {box}",
+                                hint="make it with text_lpips_reference(gt, mask) of the same view")
+    return lpips(np.asarray(img)[y0:y1, x0:x1], np.asarray(gt)[y0:y1, x0:x1],
+                 gt_reference=None if gt_reference is None else gt_reference[1], device=device)
+
+
+def text_lpips_reference(gt: np.ndarray, mask: np.ndarray | None, device: str = "cpu", whole=None):
+    """(box, features) of the ground truth's text crop (`masked_lpips`' crop), for every render of the view;
+    None without a mask, for an empty one, or without the weights. `whole`: the view's `lpips_reference`,
+    taken as it is where the crop is the whole image."""
+    if mask is None:
+        return None
+    box = mask_bbox(_check_mask(mask, np.shape(gt)), LPIPS_MIN_CROP)
+    if box is None:
+        return None
+    if box == (0, np.shape(gt)[0], 0, np.shape(gt)[1]) and whole is not None:
+        return box, whole
+    y0, y1, x0, x1 = box
+    ref = lpips_reference(np.asarray(gt)[y0:y1, x0:x1], device=device)
+    return None if ref is None else (box, ref)
 
 
 TEXT_METRICS = ("text_psnr", "text_ssim", "text_lpips")

@@ -180,7 +180,7 @@ class Evaluator:
         self._gt = {v.name: scored_image(v.gt) for v in views}
         self._gt_ocr: dict[tuple[str, str], list | None] = {}  # (engine, view) -> GT words (None: OCR failed)
         self._gt_ocr_error: dict[tuple[str, str], str] = {}
-        self._lpips_ref: dict[str, object] = {}
+        self._lpips_ref: dict[str, tuple] = {}  # view -> (GT features, (text crop box, its features) or None)
         self._readability = None if with_readability else False  # eval.readability.SceneReadability, made once
         self.known_scripts, self.known_languages = known_text_scripts(views)
         # An engine set to read "the scene's languages" (tesseract lang=auto) is resolved to them here.
@@ -247,11 +247,13 @@ class Evaluator:
                 self._gt_ocr_error[key] = str(exc)
         return self._gt_ocr[key]
 
-    def lpips_ref(self, name: str):
+    def lpips_refs(self, name: str) -> tuple:
+        """View `name`'s GT LPIPS features and its text crop's (metrics.text_lpips_reference), made once."""
         import strings_bench.eval.metrics as metrics
 
         if name not in self._lpips_ref:
-            self._lpips_ref[name] = metrics.lpips_reference(self.gt(name), device=self.device)
+            whole = metrics.lpips_reference(self.gt(name), device=self.device)
+            self._lpips_ref[name] = (whole, metrics.text_lpips_reference(self.gt(name), self.mask(name), self.device, whole))
         return self._lpips_ref[name]
 
     # ---- renders -------------------------------------------------------------------------------
@@ -320,9 +322,9 @@ class Evaluator:
             r = scored.get(name)
             if r is not None:
                 # image_metrics + text_region_metrics in one pass (the same values: tests/eval/test_eval_speed.py)
-                per_view[name] = metrics.view_metrics(r, gt, view.mask, with_lpips=with_lpips,
-                                                      gt_reference=self.lpips_ref(name) if with_lpips else None,
-                                                      device=self.device)
+                whole, text = self.lpips_refs(name) if with_lpips else (None, None)
+                per_view[name] = metrics.view_metrics(r, gt, view.mask, with_lpips=with_lpips, gt_reference=whole,
+                                                      device=self.device, text_reference=text)
             gt_words = self.gt_words(name)
             render_words, render_err = render_reads.get(name, ([], None))  # a missing render reads nothing
             pairs[name] = (gt_words, render_words)

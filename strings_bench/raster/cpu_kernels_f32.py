@@ -334,6 +334,9 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
         S = np.zeros(B_ROWS, np.float32)
         A = np.zeros(N_GRAD * LANES, np.float32)  # the per-Gaussian partial sums (row j: lanes of sum j)
         lastk = np.zeros(NPIX, np.int32)
+        # the last contributor of each half-row (8 pixels), highest over them: a 16-pixel block whose two half-rows
+        # end before splat k has no pixel where k is active, so it adds only zeros and is skipped
+        row_last = np.zeros(2 * TILE, np.int32)
         kmax = tile_start[t]
         for py in range(ph):
             for px in range(pw):
@@ -342,6 +345,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                 S[B_TGA + p] = T_final[py0 + py, px0 + px] * grad_alpha[py0 + py, px0 + px]
                 lastk[p] = last_k[py0 + py, px0 + px]
                 kmax = max(kmax, np.int64(lastk[p]))
+                row_last[(px // HW) * TILE + py] = max(row_last[(px // HW) * TILE + py], lastk[p])
                 S[B_G0 + p] = grad_f[py0 + py, px0 + px, 0]
                 S[B_G1 + p] = grad_f[py0 + py, px0 + px, 1]
                 S[B_G2 + p] = grad_f[py0 + py, px0 + px, 2]
@@ -379,6 +383,9 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     lo_col = float(max(xs, px0 + h * HW))
                     hi_col = float(min(xe, px0 + h * HW + HW - 1))
                     for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
+                        rr = h * TILE + r0 + q0 // HW
+                        if k32 >= max(row_last[rr], row_last[rr + 1]):
+                            continue
                         if not block_meets(E, py0, r0 + q0 // HW, ys, ye, lo_col, hi_col):
                             continue
                         for ln in range(LANES):

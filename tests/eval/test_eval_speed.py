@@ -19,6 +19,7 @@ import pytest
 import torch
 
 import strings_bench.eval.metrics as metrics
+from strings_bench.core.errors import StringsBenchError
 import strings_bench.eval.readability as rd
 
 
@@ -105,3 +106,41 @@ def test_crop_scores_from_float32_probabilities_equal_float64():
             a, b = rd.score(p32, chars, alphabet, text), rd.score(p64, chars, alphabet, text)
             assert (a.read, a.errors, a.chars, a.nll_chars, a.oov_chars) == (b.read, b.errors, b.chars, b.nll_chars, b.oov_chars)
             assert (a.nll == b.nll) or (math.isnan(a.nll) and math.isnan(b.nll)), (a.nll, b.nll)
+
+
+def _lpips_or_skip():
+    import strings_bench.eval.lpips_net as lpips_net
+
+    if not lpips_net.available():
+        pytest.skip("LPIPS weights not installed: " + lpips_net.INSTALL_HINT)
+
+
+@pytest.mark.parametrize("h,w", [(72, 96), (40, 48)])
+def test_text_lpips_from_the_gt_crop_features_made_once_equals_the_separate_metrics(h, w):
+    """text_lpips with the GT crop's features made once (`text_lpips_reference`, kept per view by the Evaluator)
+    equals `text_region_metrics`' text_lpips, which makes them anew for each render, bit for bit: for a crop inside
+    the image, a crop that is the whole image (text_lpips is then the image's LPIPS, not computed twice) and an
+    empty mask (NaN); and LPIPS with the GT's features made once equals LPIPS made from both images."""
+    _lpips_or_skip()
+    img, gt = _pair(h, w, 11)
+    inside = np.zeros((h, w), bool)
+    inside[20:30, 10:40] = True  # grown to a 32 px crop
+    whole = np.zeros((h, w), bool)
+    whole[0, 3] = whole[h - 1, 0] = whole[5, w - 1] = True  # its bounding box spans the image
+    whole_ref = metrics.lpips_reference(gt)
+    for mask in (inside, whole, np.zeros((h, w), bool)):
+        old = metrics.image_metrics(img, gt, with_lpips=True)
+        old.update(metrics.text_region_metrics(img, gt, mask, with_lpips=True))
+        text_ref = metrics.text_lpips_reference(gt, mask, whole=whole_ref)
+        new = metrics.view_metrics(img, gt, mask, with_lpips=True, gt_reference=whole_ref, text_reference=text_ref)
+        assert _bits(new) == _bits(old)
+        if mask is inside:
+            assert text_ref[0] == metrics.mask_bbox(inside, metrics.LPIPS_MIN_CROP) and text_ref[1] is not whole_ref
+            assert 0 < new["text_lpips"] != new["lpips"] > 0
+        elif mask is whole:
+            assert text_ref[1] is whole_ref and new["text_lpips"] == new["lpips"]
+        else:
+            assert text_ref is None and math.isnan(new["text_lpips"])
+    other = metrics.text_lpips_reference(gt, whole, whole=whole_ref)
+    with pytest.raises(StringsBenchError, match="text crop's LPIPS reference"):
+        metrics.masked_lpips(img, gt, inside, gt_reference=other)  # a reference made for another crop

@@ -143,3 +143,23 @@ def test_rapidocr_threads_read_exactly_what_one_at_a_time_reads():
     assert sum(len(w) for w in sequential) > 20  # the images do have text to read
     threaded = read_many(RapidOCRBackend(cache=None, threads=1), imgs, workers=4)
     assert threaded == sequential
+
+
+def test_rapidocr_memory_arena_reads_what_fresh_buffers_read():
+    """ONNX Runtime's memory arena (on by default; RapidOCR's own config turns it off) changes where a call's
+    buffers live, not what it computes: every word, box and confidence the same as with the arena off, on
+    images read one after another (so the arena's buffers are reused) and from two threads at once."""
+    imgs = []
+    for seed in range(2):
+        img, _ = random_text_image(np.random.default_rng(701 + seed), n_lines=2, size=(240, 240))
+        imgs.append(np.ascontiguousarray(img[::-1, ::-1]) if seed == 1 else img)
+    off = RapidOCRBackend(cache=None, threads=1, memory_arena=False)
+    on = RapidOCRBackend(cache=None, threads=1)
+    assert on.memory_arena and on._get_engine() is not off._get_engine()  # two engines: the setting is not shared
+    fresh = [off.read(im) for im in imgs]
+    assert sum(len(w) for w in fresh) >= 6
+    assert read_many(on, imgs + imgs, workers=2) == fresh + fresh  # the second pass reuses the arena's buffers
+    for backend, arena in ((on, True), (off, False)):  # the setting reached ONNX Runtime (RapidOCR 3.10's sessions)
+        engine = backend._get_engine()
+        for model in (engine.text_det, engine.text_cls, engine.text_rec):
+            assert model.session.session.get_session_options().enable_cpu_mem_arena is arena
