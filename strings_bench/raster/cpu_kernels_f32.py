@@ -20,8 +20,9 @@ loop on the vector units:
   pixel already done or, in the backward, behind its last contributor) is a per-pixel mask that
   selects between the updated and the old value. Pixels outside the alpha >= 1/255 ellipse fail the
   alpha test; a block of two rows x 8 columns that the ellipse misses altogether (`block_meets`, from the
-  region row by row that `ellipse_rows` solves once per Gaussian and tile) is skipped, as it would only add zeros. A tile stops when all of its
-  pixels are done, as before;
+  region row by row that `ellipse_rows` solves once per Gaussian and tile) is skipped, as it would only add zeros,
+  and so, in the backward, is a block whose pixels all ended before the splat (each pixel's last contributor, highest
+  over its two half-rows). A tile stops when all of its pixels are done, as before;
 - `exp` is `exp_neg32`: Cephes' expf polynomial with range reduction and 2^k from an exponent bitcast
   (`pow2_f32`), inlined, branch-free;
 - the backward updates the colour behind each splat eagerly (alpha f + (1 - alpha) S, the expression
@@ -322,12 +323,13 @@ def forward(tile_start, lst, P, BB, W, H, tiles_x, out_f, out_T, out_last):
 
 
 @njit(parallel=True, cache=True, fastmath=FASTMATH)
-def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, grad_alpha, buf):
+def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, grad_alpha, buf, skip_ended=True):
     """grad_f (H, W, NF), grad_alpha (H, W): dL/d(outputs). T_final float32 and last_k int32 from
     `forward`. buf (M, N_GRAD) float32: per-intersection gradient w.r.t. the Gaussian's row of P
     (summed over the tile's pixels) and the sums of |dL/dmean2d|. Each pixel's recursion is
     `cpu_kernels.backward`'s (3DGS, back to front, transmittance recovered by division, the 0.99
-    clamp passed through), in float32 with masks."""
+    clamp passed through), in float32 with masks. `skip_ended` False visits the blocks whose pixels all ended before
+    the splat, too (the same bits: tests/raster/test_raster_f32.py)."""
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
         px0, py0, pw, ph = tile_rect(t, tiles_x, W, H)
@@ -384,7 +386,7 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                     hi_col = float(min(xe, px0 + h * HW + HW - 1))
                     for q0 in range(0, (r1 - r0 + 1) * HW, LANES):
                         rr = h * TILE + r0 + q0 // HW
-                        if k32 >= max(row_last[rr], row_last[rr + 1]):
+                        if skip_ended and k32 >= max(row_last[rr], row_last[rr + 1]):
                             continue
                         if not block_meets(E, py0, r0 + q0 // HW, ys, ye, lo_col, hi_col):
                             continue

@@ -253,6 +253,48 @@ def test_float32_blend_is_bit_identical_at_any_thread_count():
             assert torch.equal(a, b)
 
 
+def test_float32_backward_skipping_the_ended_blocks_gives_the_bits_of_visiting_them(monkeypatch):
+    """The float32 backward skips a 16-pixel block whose pixels all ended before the splat (their last contributor
+    is in front of it); visiting those blocks (`skip_ended=False`) must give every gradient bit for bit. Opaque,
+    overlapping splats, so that most pixels end well before their tile's list does."""
+    import strings_bench.raster.cpu as cpu
+    from strings_bench.raster import cpu_kernels_f32 as K32
+
+    params = random_scene(n=600, seed=5, opacity_mean=3.0, opacity_std=0.5, scale=(0.03, 0.15))
+    cam = make_camera(W=96, H=80)
+    seen = {}
+
+    class Kernels:  # cpu_kernels_f32 with the backward's skip switched as asked
+        def __init__(self, skip):
+            self.skip = skip
+
+        def __getattr__(self, name):
+            return getattr(K32, name)
+
+        def backward(self, tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, *rest):
+            seen["ended"] = seen.get("ended") or _ended_share(tile_start, last_k, W, H, tiles_x)
+            return K32.backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, *rest, self.skip)
+
+    runs = []
+    for skip in (True, False):
+        monkeypatch.setitem(cpu.BLEND_KERNELS, "f32", Kernels(skip))
+        out, leaves = run(params, cam, "cpu")
+        runs.append([out.absgrad, out.means2d.grad] + [x.grad for x in leaves])
+    assert seen["ended"] > 0.5, seen  # the skip has blocks to skip
+    for a, b in zip(*runs):
+        assert torch.equal(a, b)
+
+
+def _ended_share(tile_start, last_k, W, H, tiles_x):
+    """The share of pixels whose last contributor comes before the end of their tile's list."""
+    ended = 0
+    for py in range(H):
+        for px in range(W):
+            t = (py // 16) * tiles_x + px // 16
+            ended += int(last_k[py, px]) < int(tile_start[t + 1])
+    return ended / (W * H)
+
+
 _COMPILED_VS_CACHED = r"""
 import hashlib, json, sys
 import numba
