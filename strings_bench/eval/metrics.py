@@ -99,7 +99,8 @@ def lpips(img: np.ndarray, gt: np.ndarray, gt_reference=None, device: str = "cpu
 
     Each image's VGG features come from a pass of their own, as the lpips package computes them (lpips 0.1.4,
     lpips/lpips.py:119, `outs0, outs1 = self.net.forward(in0_input), self.net.forward(in1_input)`): a batch of
-    two changes the last bits of small images' features (measured at 32-64 px with torch 2.13's oneDNN).
+    two changed the last bits of small images' LPIPS (32-64 px, torch 2.13's oneDNN:
+    docs/results/data/evaluation-speed/arena-lpips/batch-bits.txt).
     `gt_reference` (from `lpips_reference(gt, device)`) skips recomputing the ground truth's features;
     `device` is where the network runs (cpu, cuda, cuda:N).
     """

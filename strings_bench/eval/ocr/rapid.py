@@ -314,8 +314,8 @@ class RapidOCRBackend(OCRBackend):
         self.threads = DEFAULT_THREADS if threads is None else threads
         # Runtime only too: ONNX Runtime's memory arena (RapidOCR's config.yaml turns it off). With it each call
         # reuses its buffers rather than allocating them anew; memory only, the same words
-        # (tests/eval/test_ocr_parallel.py); the OCR of the default run's views took 0.84x the time
-        # (tools/evaluation_split.py).
+        # (tests/eval/test_ocr_parallel.py); with it the OCR of the default run's views took 0.88x the time
+        # (tools/evaluation_split.py, docs/results/data/evaluation-speed/arena-lpips/split.txt).
         self.memory_arena = bool(memory_arena)
         self._engine = None
         self._version: str | None = None
