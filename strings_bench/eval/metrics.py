@@ -250,7 +250,7 @@ def view_metrics(img: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, with_
     out["text_ssim"] = text_ssim
     if not with_lpips:
         out["text_lpips"] = math.nan
-    elif text_reference is not None and text_reference[0] == (0, a.shape[0], 0, a.shape[1]):
+    elif text_reference is not None and _whole_image(text_reference[0], a.shape):
         out["text_lpips"] = out["lpips"]
     else:
         out["text_lpips"] = masked_lpips(img, gt, mask, device=device, gt_reference=text_reference)
@@ -290,6 +290,11 @@ def masked_lpips(img: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str 
                  gt_reference=None if gt_reference is None else gt_reference[1], device=device)
 
 
+def _whole_image(box, shape) -> bool:
+    """Whether a crop box (y0, y1, x0, x1) is the whole image of `shape`."""
+    return tuple(box) == (0, shape[0], 0, shape[1])
+
+
 def text_lpips_reference(gt: np.ndarray, mask: np.ndarray | None, device: str = "cpu", whole=None):
     """(box, features) of the ground truth's text crop (`masked_lpips`' crop), for every render of the view;
     None without a mask, for an empty one, or without the weights. `whole`: the view's `lpips_reference`,
@@ -299,7 +304,7 @@ def text_lpips_reference(gt: np.ndarray, mask: np.ndarray | None, device: str = 
     box = mask_bbox(_check_mask(mask, np.shape(gt)), LPIPS_MIN_CROP)
     if box is None:
         return None
-    if box == (0, np.shape(gt)[0], 0, np.shape(gt)[1]) and whole is not None:
+    if whole is not None and _whole_image(box, np.shape(gt)):
         return box, whole
     y0, y1, x0, x1 = box
     ref = lpips_reference(np.asarray(gt)[y0:y1, x0:x1], device=device)
