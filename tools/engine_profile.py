@@ -61,6 +61,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+DEFAULT_SCENE = "synthetic/extinguisher"  # the former default run's room (320x240)
+DEFAULT_SCHEDULE = "early"
 STAGES = ("projection+SH", "binning+sort", "forward blend", "backward blend", "backward projection",
           "loss+SSIM", "Adam", "densification", "other")
 FWD_FLOPS_PER_PAIR = 20
@@ -435,8 +437,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--table", nargs=2, metavar=("BEFORE", "AFTER"),
                     help="print the stage table of two comma-separated lists of --json outputs and stop")
-    ap.add_argument("--scene", default="synthetic/extinguisher")
-    ap.add_argument("--schedule", default="early")
+    ap.add_argument("--scene", default=DEFAULT_SCENE)
+    ap.add_argument("--schedule", default=DEFAULT_SCHEDULE)
     ap.add_argument("--at", default="450,1050", help="steps of the trained models profiled (3K, 7K of early)")
     ap.add_argument("--big-at", type=int, default=450, help="the model profiled at 640x480 (0: skip)")
     ap.add_argument("--steps", type=int, default=8, help="profiled steps per case")

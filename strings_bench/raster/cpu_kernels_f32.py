@@ -160,6 +160,12 @@ B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(
 # addition is thus the code's, not the compiler's choice for the host's vector width.
 LANES = 16
 L1, L2, L3, L4, L5, L6, L7, L8, L9, L10, L11 = (np.uint64(j * LANES) for j in range(1, 12))
+# Lane ln of a block (q = q0 + ln, q0 a multiple of LANES) is the pixel at column ln & 7 and row q0 / 8 + ln / 8 of
+# its half: the two as float32 constants, so the pixel loop converts no integer per lane. The values are the same
+# small whole numbers as float32(q & 7) and float32(q >> 3), so the same bits; but AVX2 has no vector conversion
+# from 64-bit integers, and LLVM converted each lane's q in scalar code (16 conversions a block).
+LANE_COL = np.array([ln & (HW - 1) for ln in range(LANES)], np.float32)
+LANE_ROW = np.array([ln >> 3 for ln in range(LANES)], np.float32)
 
 
 @njit(cache=True, inline="always")
@@ -390,12 +396,13 @@ def backward(tile_start, lst, P, BB, W, H, tiles_x, T_final, last_k, grad_f, gra
                             continue
                         if not block_meets(E, py0, r0 + q0 // HW, ys, ye, lo_col, hi_col):
                             continue
+                        fr0 = F32(q0 >> 3)  # the block's first row (q0 is a multiple of LANES)
                         for ln in range(LANES):
                             q = q0 + ln
                             p = base + np.uint64(q)
                             a = np.uint64(ln)
-                            fc = F32(q & (HW - 1))
-                            fr = F32(q >> 3)
+                            fc = LANE_COL[ln]
+                            fr = fr0 + LANE_ROW[ln]
                             fj = fjh + fc
                             dx = mx - (cxh + fc)
                             dy = my - (cy0 + fr)
