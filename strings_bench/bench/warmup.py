@@ -5,10 +5,13 @@ __init__.py). On a machine where nothing ran before, that compilation (41 s on o
 and 3DGS call, on an idle 2-core AMD EPYC) fell in the first training step, after the scene build, whose SfM runs on
 one thread and leaves the other core idle. `start(methods)` trains each method a few steps on the tiny synthetic
 scene (the one `methods check` uses) in a child process, which writes every kernel it calls to numba's cache. The
-run's own first call of a kernel loads it from there: numba looks in its cache before it compiles, so the run
-compiles only a kernel it reaches before the child does. Compiled code is the same from either process (one
-compiler, the same flags), and no figure changes. Once a method's kernels are in the cache, a marker beside them
-says so and no child starts.
+run's own first call of a kernel loads it from there: numba looks in its cache before it compiles. Before a job
+trains on the CPU, the run waits for the child to have written that method's kernels (`wait_for`), rather than
+compiling them itself: both give the same bits, but a kernel compiled in the process that calls it can run slower
+than the same kernel loaded from the cache (the float32 forward blend 1.35-1.43x slower on a 2-core AMD EPYC Zen 3,
+in three runs of one process holding both; the backward blend the same), and compiling in both processes at once
+does the work twice on a 2-core machine. Once a method's kernels are in the cache, a marker beside them says so and
+no child starts.
 
 Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for runs on a GPU or on other machines (Ray, Slurm: each worker
 compiles for itself).
@@ -22,6 +25,7 @@ import logging
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Iterable
 
@@ -32,6 +36,10 @@ ENV = "STRINGS_BENCH_KERNEL_WARMUP"
 # kernels; tests/bench/test_warmup.py checks that a 150-step training of both methods afterwards compiles none).
 WARM_STEPS = 30
 WARM_SCHEDULE = "tiny"
+# How long a job waits for the child before it compiles the kernels itself (a child that hangs must not stop the
+# run; the child takes 40-100 s on an idle 2-core machine).
+WAIT_LIMIT_S = 600.0
+POLL_S = 0.2
 # The modules whose kernels are compiled into numba's cache (`@njit(cache=True)`): numba reuses a kernel while its
 # file keeps its size and modification time, so the marker's key holds them too.
 KERNEL_MODULES = (
@@ -110,6 +118,29 @@ def start(methods: Iterable[str]) -> subprocess.Popen | None:
         atexit.register(stop)
     _children.append(child)
     return child
+
+
+def wait_for(method: str, limit_s: float = WAIT_LIMIT_S) -> float:
+    """Wait until `method`'s kernels are in the cache (its marker), a child compiling them has ended, or `limit_s`
+    has passed; the seconds waited (0 at once when no child of this process is running)."""
+    running = [c for c in _children if c.poll() is None]
+    if not running:
+        return 0.0
+    try:
+        done = marker(method)
+    except (ImportError, OSError):
+        return 0.0
+    if done.exists():
+        return 0.0
+    log.info("waiting for the CPU kernels of %s, compiling in process %s", method,
+             ", ".join(str(c.pid) for c in running))
+    start = time.monotonic()
+    while not done.exists() and any(c.poll() is None for c in running):
+        if time.monotonic() - start >= limit_s:
+            log.warning("the kernel warm-up did not finish in %.0f s: the run compiles the kernels itself", limit_s)
+            break
+        time.sleep(POLL_S)
+    return time.monotonic() - start
 
 
 def stop() -> None:

@@ -109,3 +109,66 @@ def test_a_run_after_the_warm_up_compiles_no_kernel(tmp_path, synthetic_books_sm
     assert out.returncode == 0, out.stdout + out.stderr
     hits, misses = map(int, out.stdout.split()[-2:])
     assert misses == 0 and hits >= 10, out.stdout
+
+
+class _Child:
+    """A stand-in for the warm-up's child process: running until `ended` is set."""
+
+    pid = 4242
+
+    def __init__(self):
+        self.ended = False
+
+    def poll(self):
+        return 0 if self.ended else None
+
+
+def test_a_job_waits_for_its_methods_marker(tmp_path, monkeypatch):
+    import threading
+
+    monkeypatch.setattr(warmup, "marker", lambda method: tmp_path / f"{method}.done")
+    monkeypatch.setattr(warmup, "POLL_S", 0.01)
+    assert warmup.wait_for("3dgs") == 0.0  # no child of this process: nothing to wait for
+    child = _Child()
+    monkeypatch.setattr(warmup, "_children", [child])
+    timer = threading.Timer(0.3, lambda: (tmp_path / "3dgs.done").write_text("{}"))
+    timer.start()
+    waited = warmup.wait_for("3dgs", limit_s=30)
+    timer.join()
+    assert 0.25 <= waited < 10  # until the marker was written, with the child still running
+    assert warmup.wait_for("3dgs") == 0.0  # marked: no wait
+    # a child that ends without writing the marker (its warm-up failed) ends the wait too
+    threading.Timer(0.2, lambda: setattr(child, "ended", True)).start()
+    assert 0.15 <= warmup.wait_for("strings", limit_s=30) < 10
+    # a child that never ends: the job compiles for itself after the limit
+    monkeypatch.setattr(warmup, "_children", [_Child()])
+    assert 0.2 <= warmup.wait_for("strings", limit_s=0.2) < 5
+
+
+def test_the_runner_waits_before_a_cpu_training_only(monkeypatch, tmp_path):
+    """Runner._checkpoints asks for the method's kernels before it makes a Trainer on the CPU, not on a GPU."""
+    from types import SimpleNamespace
+
+    import strings_bench.engine.trainer as trainer_module
+    from strings_bench.bench.runner import Runner
+    from strings_bench.core.method import Method
+
+    events = []
+    monkeypatch.setattr(warmup, "wait_for", lambda method, *a, **k: events.append(("wait", method)) or 0.0)
+
+    class StubTrainer:
+        def __init__(self, method, scene, checkpoints, **kwargs):
+            events.append(("trainer", kwargs["device"]))
+
+        def train(self):
+            return iter(())
+
+    monkeypatch.setattr(trainer_module, "Trainer", StubTrainer)
+    stub = type("StubMethod", (Method,), {name: None for name in Method.__abstractmethods__})
+    method = stub.__new__(stub)  # only its type is read before the Trainer is made
+    for device in ("cpu", "cuda:0"):
+        job = SimpleNamespace(method="3dgs", device=device, checkpoints=[2], downscale=1.0, save_every=None,
+                              keep_models=False, scene_path="scene", dataset="d", scene="s", run_dir=str(tmp_path),
+                              state_path=lambda: tmp_path / "state.pt")
+        list(Runner(tmp_path)._checkpoints(job, method, None, {"settings": {}}))
+    assert events == [("wait", "3dgs"), ("trainer", "cpu"), ("trainer", "cuda:0")]
