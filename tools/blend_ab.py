@@ -1,6 +1,7 @@
 """The float32 blend kernels of an older commit against this checkout's, alternating in one process on one captured render.
 
-    python tools/blend_ab.py --old COMMIT [--at 1050] [--view 0] [--reps 30] [--capture FILE] [--json FILE]
+    python tools/blend_ab.py --old COMMIT [--at 1050] [--view 0] [--reps 30] [--new-first] [--compile-new-here]
+                             [--capture FILE] [--json FILE]
 
 A whole training step (tools/engine_ab.py) moves by 10 % from run to run on a shared 2-core machine, more than a
 change to one kernel gains, so this times the two blends alone. It restores tools/engine_profile.py's trained 3DGS
@@ -9,7 +10,10 @@ state after step --at (cached; 1 050: about 335 000 Gaussians), renders view --v
 on those inputs in turn, --reps times, the order of the two arms swapped every repetition. The older commit's
 `strings_bench/raster/cpu_kernels_f32.py` is read from a `git worktree` of it and imported as a module of its own
 (its imports resolve to this checkout, so the commit must share this checkout's `cpu_kernels` helpers). The backward
-gets fixed random output gradients (seed 0).
+gets fixed random output gradients (seed 0). Each arm's kernels are loaded from numba's cache where they are there
+(the first run compiles them); `--compile-new-here` copies this checkout's kernel file to a new temporary folder, so
+that its kernels are compiled in this process instead: with --old HEAD, that compares a kernel compiled in the process
+that calls it with the same kernel loaded from the cache (how each arm got its code is printed).
 
 Printed per blend: each arm's median milliseconds and the median over repetitions of new / old (with its quartiles);
 and whether both arms gave the same bits (a SHA-256 of every output: colour, transmittance, last contributor and
@@ -51,6 +55,13 @@ def load_kernels(path: Path, name: str):
     sys.modules[name] = module  # numba's cache locates a module's functions by its name
     spec.loader.exec_module(module)
     return module
+
+
+def how_compiled(module) -> str:
+    """'loaded from the cache' or 'compiled in this process', from numba's counters of the two blends."""
+    hits = sum(sum(getattr(module, f).stats.cache_hits.values()) for f in ("forward", "backward"))
+    misses = sum(sum(getattr(module, f).stats.cache_misses.values()) for f in ("forward", "backward"))
+    return "compiled in this process" if misses else "loaded from the cache" if hits else "unknown"
 
 
 def capture(at: int, view: int, path: Path) -> dict:
@@ -150,6 +161,8 @@ def main(argv=None) -> int:
     ap.add_argument("--view", type=int, default=0)
     ap.add_argument("--reps", type=int, default=30)
     ap.add_argument("--new-first", action="store_true", help="import this checkout's kernels first")
+    ap.add_argument("--compile-new-here", action="store_true",
+                    help="compile this checkout's kernels in this process (a copy of the file in a new folder)")
     ap.add_argument("--capture", default=None, help="the captured blend inputs (default: under the system's "
                     "temporary folder, per --at and --view)")
     ap.add_argument("--json", default=None, help="write the figures here")
@@ -162,7 +175,11 @@ def main(argv=None) -> int:
     if not old_file.is_file():
         print(f"blend_ab: {args.old} has no {KERNELS}", file=sys.stderr)
         return 2
-    loads = [("old", old_file), ("new", REPO / KERNELS)]
+    new_file = REPO / KERNELS
+    if args.compile_new_here:  # a file numba has never cached
+        new_file = Path(tempfile.mkdtemp(prefix="blend-ab-")) / "cpu_kernels_f32_here.py"
+        new_file.write_bytes((REPO / KERNELS).read_bytes())
+    loads = [("old", old_file), ("new", new_file)]
     modules = dict((name, load_kernels(path, f"blend_ab_{name}_kernels"))
                    for name, path in (reversed(loads) if args.new_first else loads))
     rng = np.random.default_rng(0)
@@ -179,9 +196,12 @@ def main(argv=None) -> int:
         print(f"| {blend} | {f['old_ms']:.1f} | {f['new_ms']:.1f} | {f['new_over_old']:.3f} | "
               f"{f['q25']:.3f}-{f['q75']:.3f} |")
     print(f"same bits: {same} (old {old.digest()}, new {new.digest()})")
+    compiled = {name: how_compiled(modules[name]) for name in ("old", "new")}
+    print(f"old arm: {compiled['old']}; new arm: {compiled['new']}")
     if args.json:
         Path(args.json).write_text(json.dumps({"old": args.old, "at": args.at, "view": args.view, "reps": args.reps,
-                                               "new_first": args.new_first, "blends": figures, "same_bits": same,
+                                               "new_first": args.new_first, "compiled": compiled,
+                                               "blends": figures, "same_bits": same,
                                                "intersections": int(b["lst"].shape[0])}, indent=1))
     return 0 if same else 1
 

@@ -269,6 +269,82 @@ def cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
+def check_figures(work: Path, rows: dict, ref: str, banked_csv: Path, banked_name: str,
+                  demo_rows: Path | None = None) -> tuple[list[str], str]:
+    """Every non-time column of the new arm's run against the reference arm's (cell by cell, results.csv and every
+    result.json) when both built the same room; else against the banked figures (`banked_csv`, the README's), which
+    come from one machine and are otherwise printed apart, not counted: on a CPU of another kind the word-crop
+    recogniser's figures can differ (docs/reproducibility.md). The demo's run (`demo_rows`) is held against this
+    machine's run where there is one. Returns (the differences that count, what they were compared with)."""
+    same_room = scene_folder(work / "run-reference") == scene_folder(work / "run-new")
+    banked = read_csv(banked_csv) if banked_csv.is_file() else None
+    banked_diffs = compare(banked, rows["new"]) if banked is not None else []
+    if same_room:
+        diffs = compare(rows["reference"], rows["new"])
+        n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
+        print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
+                                                       if not cell_diffs else f"{len(cell_diffs)} difference(s)"))
+        for d in cell_diffs[:20]:
+            print("  " + d)
+        diffs += cell_diffs
+        against = f"the reference's ({ref})"
+    else:  # an older scene generator (or another CPU's BLAS for one before version 3) builds another room
+        print(f"the reference built another scene ({scene_folder(work / 'run-reference')}; this checkout: "
+              f"{scene_folder(work / 'run-new')}): its figures are not this room's; the new arm's are compared with "
+              f"the banked {banked_name}")
+        diffs, against = list(banked_diffs), f"the banked {banked_name}"
+    if demo_rows is not None and demo_rows.is_file():
+        base = rows["new"] if same_room else banked
+        if base is not None:
+            diffs += [f"demo: {d}" for d in compare(base, read_csv(demo_rows))]
+            against += " (and the demo's run against " + ("this checkout's run)" if same_room else "them)")
+    if diffs:
+        print(f"\nresults.csv: {len(diffs)} difference(s) outside the time columns against {against}:")
+        for d in diffs[:40]:
+            print("  " + d)
+    else:
+        print(f"\nresults.csv: every column but *_seconds and {', '.join(VARYING)} is the same in all "
+              f"{len(rows['new'])} cells as in {against}")
+    if banked is not None and same_room:
+        cols = sorted({d.split()[1].rstrip(":") for d in banked_diffs if len(d.split()) > 1})
+        print(f"against the banked {banked_name} (made on another machine, perhaps another kind of CPU): "
+              + ("the same" if not banked_diffs else
+                 f"{len(banked_diffs)} difference(s), in {', '.join(cols)} (not counted above)"))
+        for d in banked_diffs[:40]:
+            print("  " + d.replace(": reference '", ": banked '"))
+    return diffs, against
+
+
+def cpu_kind(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
+    """The CPU's vendor family and model numbers and its widest vector instruction set (from /proc/cpuinfo): two
+    machines that both say "AMD EPYC" can be a Zen 3 with AVX2 and a Zen 5 with AVX-512, 1.5-1.9x apart in speed and
+    apart in some ONNX Runtime figures (docs/reproducibility.md). Empty where /proc/cpuinfo is not there."""
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return {}
+    fields = {}
+    for line in text.splitlines():
+        if ":" not in line:
+            if fields:
+                break  # the first processor's block is enough
+            continue
+        key, value = (part.strip() for part in line.split(":", 1))
+        fields.setdefault(key, value)
+    flags = set(fields.get("flags", "").split())
+    isa = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "SSE"
+    return {"vendor": fields.get("vendor_id"), "family": fields.get("cpu family"), "model": fields.get("model"),
+            "vector_isa": isa}
+
+
+def describe_cpu(machine: dict) -> str:
+    """'AMD EPYC (family 25, model 1, AVX2)', or the bare name from a record made before the kind was recorded."""
+    kind = machine.get("cpu_kind") or {}
+    if not kind.get("family"):
+        return machine["cpu"]
+    return f"{machine['cpu']} (family {kind['family']}, model {kind['model']}, {kind['vector_isa']})"
+
+
 def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list[float], same: bool,
                  against: str) -> None:
     import json
@@ -276,7 +352,7 @@ def write_record(path: Path, args, arms: dict, measures: list[dict], loads: list
 
     rec = {"command": "python tools/default_run_speed.py " + " ".join(sys.argv[1:]),
            "finished_utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M"),
-           "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "load_after": load(),
+           "machine": {"cpu": cpu_name(), "cpu_kind": cpu_kind(), "cores": os.cpu_count(), "load_after": load(),
                        "load_during_runs_max": max(loads, default=None)},
            "reference": {"commit": commit_of(arms["reference"]), "engine": args.engine_ref if args.engine else None},
            "new": {"commit": commit_of(arms["new"])},
@@ -318,7 +394,7 @@ def summarize_record(path: Path, table: Path | None, readme: Path | None) -> int
         tests_m, tests_setup = find(ms, "default test suite, fresh clone: the tests"), find(ms, "default test suite, fresh clone: set-up")
         if not (setup and run and tests_m and tests_setup):
             raise SystemExit(f"{path}: the record has no demo or test-suite measure (run with --all)")
-        text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {rec['machine']['cpu']}: "
+        text = (f"Measured from fresh clones on a {rec['machine']['cores']}-core {describe_cpu(rec['machine'])}: "
                 f"`bash scripts/demo.sh` took {setup['new']:.0f} s of set-up and {run['new']:.0f} s of run "
                 f"({setup['new'] + run['new']:.0f} s in all; it prints both in its last line), and `bash scripts/test.sh` "
                 f"{tests_setup['new']:.0f} s of set-up and {tests_m['new']:.0f} s of tests{tests_outcome(tests_m)}. How: "
@@ -488,36 +564,11 @@ def main() -> int:
                                 est["old_s"], est["new_s"], "s", speedup=True))
         print_measures(more)
         measures += more
-    scenes = {name: scene_folder(work / f"run-{name}") for name in arms}
-    if scenes["reference"] == scenes["new"]:
-        diffs = compare(rows["reference"], rows["new"])
-        n_cells, cell_diffs = compare_cells(work / "run-reference", work / "run-new")
-        print(f"result.json of {n_cells} cell(s): " + ("every figure the same (all but times, paths and versions)"
-                                                       if not cell_diffs else f"{len(cell_diffs)} difference(s)"))
-        for d in cell_diffs[:20]:
-            print("  " + d)
-        diffs += cell_diffs
-        against = f"the reference's ({args.ref})"
-    else:  # an older scene generator (or another CPU's BLAS for one before version 3) builds another room
-        print(f"the reference built another scene ({scenes['reference']}; this checkout: {scenes['new']}): "
-              f"its figures are not this room's; the new arm's are compared with the banked {args.figures}")
-        diffs, against = [], f"the banked {args.figures}"
-    banked = read_csv(REPO / args.figures) if (REPO / args.figures).is_file() else None
-    if banked is not None:
-        diffs += compare(banked, rows["new"])
-        if args.demo and (work / f"demo-{commit_of(new_src)[:10]}").is_dir():
-            demo_rows = work / f"demo-{commit_of(new_src)[:10]}" / "main" / "runs" / "default" / "results.csv"
-            if demo_rows.is_file():
-                diffs += [f"demo: {d}" for d in compare(banked, read_csv(demo_rows))]
-                against += " (and the demo's run against it)"
+    diffs, against = check_figures(work, rows, args.ref, REPO / args.figures, args.figures,
+                                   demo_rows=work / f"demo-{commit_of(new_src)[:10]}" / "main" / "runs" / "default"
+                                   / "results.csv" if args.demo else None)
     if diffs:
-        print(f"\nresults.csv: {len(diffs)} difference(s) outside the time columns against {against}:")
-        for d in diffs[:40]:
-            print("  " + d)
         status = 1
-    else:
-        print(f"\nresults.csv: every column but *_seconds and {', '.join(VARYING)} is the same in all "
-              f"{len(rows['new'])} cells as in {against}")
     if args.record:
         write_record(args.record, args, arms, measures, loads, same=not diffs, against=against)
     if args.bank:
