@@ -8,9 +8,9 @@ scene (the one `methods check` uses) in a child process, which writes every kern
 run's own first call of a kernel loads it from there: numba looks in its cache before it compiles. Before a job
 trains on the CPU, the run waits for the child to have written that method's kernels (`wait_for`), rather than
 compiling them itself: both give the same bits, but a kernel compiled in the process that calls it can run slower
-than the same kernel loaded from the cache (the float32 forward blend 1.35-1.43x slower on a 2-core AMD EPYC Zen 3,
-in three runs of one process holding both; the backward blend the same), and compiling in both processes at once
-does the work twice on a 2-core machine. Once a method's kernels are in the cache, a marker beside them says so and
+than the same kernel loaded from the cache (the float32 forward blend 1.17-1.39x slower on a 2-core AMD EPYC Zen 3,
+the backward blend the same: `tools/blend_ab.py --compile-new-here`, docs/results/data/engine-stages/lane-constants/),
+and compiling in both processes at once does the work twice on a 2-core machine. Once a method's kernels are in the cache, a marker beside them says so and
 no child starts.
 
 Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for runs on a GPU or on other machines (Ray, Slurm: each worker
