@@ -158,10 +158,11 @@ class Runner:
         yielded by a `MethodAdapter` for models trained elsewhere."""
         if not isinstance(method, Method):
             return method.train(scene, list(job.checkpoints), job.downscale)
-        from strings_bench.bench.warmup import wait_for
+        from strings_bench.bench.warmup import ensure, wait_for
         from strings_bench.engine.trainer import Trainer
 
         if str(job.device).startswith("cpu"):  # its kernels from the warm-up's cache, not compiled here
+            ensure(job.method)  # on a worker: no plan started the warm-up there
             wait_for(job.method)
 
         def model_path(step: int) -> Path:

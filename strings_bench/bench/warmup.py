@@ -13,8 +13,8 @@ the backward blend the same: `tools/blend_ab.py --compile-new-here`, docs/result
 and compiling in both processes at once does the work twice on a 2-core machine. Once a method's kernels are in the cache, a marker beside them says so and
 no child starts.
 
-Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for runs on a GPU or on other machines (Ray, Slurm: each worker
-compiles for itself).
+Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for jobs on a GPU. A job run elsewhere (a Ray or Slurm worker) starts
+the second process on its own machine when it finds the kernels not cached there (`ensure`), and waits for it too.
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ KERNEL_MODULES = (
 )
 
 _children: list[subprocess.Popen] = []
+_started: set[str] = set()  # the methods a child of this process was started for (once each)
 
 
 def enabled() -> bool:
@@ -107,6 +108,7 @@ def start(methods: Iterable[str]) -> subprocess.Popen | None:
         return None
     if not todo:
         return None
+    _started.update(todo)
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # one core: the scene build has the other
     log_path = marker_dir() / "warmup.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -118,6 +120,14 @@ def start(methods: Iterable[str]) -> subprocess.Popen | None:
         atexit.register(stop)
     _children.append(child)
     return child
+
+
+def ensure(method: str) -> None:
+    """Start the child for `method` (as `start`) unless a child of this process is running or was started for it:
+    a job run on a worker, where no plan started one."""
+    if method in _started or any(c.poll() is None for c in _children):
+        return
+    start([method])
 
 
 def wait_for(method: str, limit_s: float = WAIT_LIMIT_S) -> float:

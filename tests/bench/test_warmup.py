@@ -146,7 +146,8 @@ def test_a_job_waits_for_its_methods_marker(tmp_path, monkeypatch):
 
 
 def test_the_runner_waits_before_a_cpu_training_only(monkeypatch, tmp_path):
-    """Runner._checkpoints asks for the method's kernels before it makes a Trainer on the CPU, not on a GPU."""
+    """Runner._checkpoints starts the warm-up where none ran (a worker) and waits for the method's kernels before it
+    makes a Trainer on the CPU; not on a GPU."""
     from types import SimpleNamespace
 
     import strings_bench.engine.trainer as trainer_module
@@ -154,6 +155,7 @@ def test_the_runner_waits_before_a_cpu_training_only(monkeypatch, tmp_path):
     from strings_bench.core.method import Method
 
     events = []
+    monkeypatch.setattr(warmup, "ensure", lambda method: events.append(("ensure", method)))
     monkeypatch.setattr(warmup, "wait_for", lambda method, *a, **k: events.append(("wait", method)) or 0.0)
 
     class StubTrainer:
@@ -171,4 +173,33 @@ def test_the_runner_waits_before_a_cpu_training_only(monkeypatch, tmp_path):
                               keep_models=False, scene_path="scene", dataset="d", scene="s", run_dir=str(tmp_path),
                               state_path=lambda: tmp_path / "state.pt")
         list(Runner(tmp_path)._checkpoints(job, method, None, {"settings": {}}))
-    assert events == [("wait", "3dgs"), ("trainer", "cpu"), ("trainer", "cuda:0")]
+    assert events == [("ensure", "3dgs"), ("wait", "3dgs"), ("trainer", "cpu"), ("trainer", "cuda:0")]
+
+
+def test_a_worker_starts_the_warm_up_once_per_method_and_not_beside_a_running_one(tmp_path, monkeypatch):
+    started = []
+
+    class Child(_Child):
+        def __init__(self, args, **kwargs):
+            super().__init__()
+            started.append(args[-1])
+
+    monkeypatch.setattr(warmup.subprocess, "Popen", Child)
+    monkeypatch.setattr(warmup, "marker", lambda method: tmp_path / f"{method}.done")
+    monkeypatch.setattr(warmup, "_children", [])
+    monkeypatch.setattr(warmup, "_started", set())
+    monkeypatch.setattr(warmup.atexit, "register", lambda fn: None)
+    monkeypatch.setenv(warmup.ENV, "1")
+    warmup.ensure("3dgs")
+    assert started == ["3dgs"]
+    warmup.ensure("strings")  # the first child still runs: no second one beside it
+    assert started == ["3dgs"]
+    warmup._children[0].ended = True  # it ended without a marker (its warm-up failed): not started again
+    warmup.ensure("3dgs")
+    assert started == ["3dgs"]
+    warmup.ensure("strings")
+    assert started == ["3dgs", "strings"]
+    warmup._children[-1].ended = True
+    (tmp_path / "mcmc.done").write_text("{}")
+    warmup.ensure("mcmc")  # cached already
+    assert started == ["3dgs", "strings"]
