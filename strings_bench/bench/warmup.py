@@ -10,8 +10,8 @@ trains on the CPU, the run waits for the child to have written that method's ker
 compiling them itself: both give the same bits, but a kernel compiled in the process that calls it can run slower
 than the same kernel loaded from the cache (the float32 forward blend 1.17-1.39x slower on a 2-core AMD EPYC Zen 3,
 the backward blend the same: `tools/blend_ab.py --compile-new-here`, docs/results/data/engine-stages/lane-constants/),
-and compiling in both processes at once does the work twice on a 2-core machine. Once a method's kernels are in the cache, a marker beside them says so and
-no child starts.
+and compiling in both processes at once does the work twice on a 2-core machine. Once a method's kernels are in the
+cache, a marker beside them says so and no child starts.
 
 Off with STRINGS_BENCH_KERNEL_WARMUP=0; never for jobs on a GPU. A job run elsewhere (a Ray or Slurm worker) starts
 the second process on its own machine when it finds the kernels not cached there (`ensure`), and waits for it too.
@@ -144,13 +144,13 @@ def wait_for(method: str, limit_s: float = WAIT_LIMIT_S) -> float:
         return 0.0
     log.info("waiting for the CPU kernels of %s, compiling in process %s", method,
              ", ".join(str(c.pid) for c in running))
-    start = time.monotonic()
+    began = time.monotonic()
     while not done.exists() and any(c.poll() is None for c in running):
-        if time.monotonic() - start >= limit_s:
+        if time.monotonic() - began >= limit_s:
             log.warning("the kernel warm-up did not finish in %.0f s: the run compiles the kernels itself", limit_s)
             break
         time.sleep(POLL_S)
-    return time.monotonic() - start
+    return time.monotonic() - began
 
 
 def stop() -> None:

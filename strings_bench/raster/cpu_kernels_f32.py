@@ -1,6 +1,6 @@
 """Float32 blend kernels of the CPU rasterizer (the default; `cpu_kernels` keeps the float64 reference).
 
-Size (~460 lines): the forward and backward blends with the inlined helpers they share (the tile's
+Size (~480 lines): the forward and backward blends with the inlined helpers they share (the tile's
 layout, the block skip, exp, the lane trees); each helper's cost is read in the compiled kernels, so they stay in
 one module.
 
@@ -161,9 +161,11 @@ B_T, B_TGA, B_G0, B_G1, B_G2, B_G3, B_S0, B_S1, B_S2, B_S3, B_ROWS = (np.uint64(
 LANES = 16
 L1, L2, L3, L4, L5, L6, L7, L8, L9, L10, L11 = (np.uint64(j * LANES) for j in range(1, 12))
 # Lane ln of a block (q = q0 + ln, q0 a multiple of LANES) is the pixel at column ln & 7 and row q0 / 8 + ln / 8 of
-# its half: the two as float32 constants, so the pixel loop converts no integer per lane. The values are the same
-# small whole numbers as float32(q & 7) and float32(q >> 3), so the same bits; but AVX2 has no vector conversion
-# from 64-bit integers, and LLVM converted each lane's q in scalar code (16 conversions a block).
+# its half: the two as float32 constants, so the backward's pixel loop converts no integer per lane. The values are
+# the same small whole numbers as float32(q & 7) and float32(q >> 3), so the same bits; but AVX2 has no vector
+# conversion from 64-bit integers, and LLVM converted each lane's q in scalar code (16 conversions a block). The
+# forward keeps the conversions: with the constants LLVM unrolled its loop and spilled more, and it ran slower
+# (docs/results/engine-speed.md, "Kernels compiled in the process; the backward's lane constants").
 LANE_COL = np.array([ln & (HW - 1) for ln in range(LANES)], np.float32)
 LANE_ROW = np.array([ln >> 3 for ln in range(LANES)], np.float32)
 
