@@ -41,14 +41,6 @@ REPO = Path(__file__).resolve().parents[1]
 KERNELS = "strings_bench/raster/cpu_kernels_f32.py"
 
 
-def ref_checkout(ref: str) -> Path:
-    path = Path(tempfile.gettempdir()) / f"strings-bench-ref-{ref}"
-    if not path.exists():
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), ref], check=True,
-                       capture_output=True)
-    return path
-
-
 def load_kernels(path: Path, name: str):
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
@@ -171,6 +163,11 @@ def main(argv=None) -> int:
         ap.error("--reps must be at least 1")
     cap = Path(args.capture) if args.capture else Path(tempfile.gettempdir()) / f"blend-ab-{args.at}-{args.view}.pkl"
     b = capture(args.at, args.view, cap)
+    try:
+        from tools.checkouts import ref_checkout
+    except ImportError:  # run as a file (python tools/blend_ab.py): its own folder is on the path
+        from checkouts import ref_checkout
+
     old_file = ref_checkout(args.old) / KERNELS
     if not old_file.is_file():
         print(f"blend_ab: {args.old} has no {KERNELS}", file=sys.stderr)

@@ -63,14 +63,6 @@ def load() -> str:
         return "n/a"
 
 
-def ref_checkout(ref: str, where: Path | None) -> Path:
-    path = where or Path(tempfile.gettempdir()) / f"strings-bench-ref-{ref}"
-    if not path.exists():
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), ref], check=True,
-                       capture_output=True)
-    return path
-
-
 def commit_of(src: Path) -> str:
     return subprocess.run(["git", "-C", str(src), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
 
@@ -476,6 +468,11 @@ def main() -> int:
         for d in (diffs + cell_diffs)[:40]:
             print("  " + d)
         return 1 if diffs or cell_diffs else 0
+
+    try:
+        from tools.checkouts import ref_checkout
+    except ImportError:  # run as a file (python tools/default_run_speed.py): its own folder is on the path
+        from checkouts import ref_checkout
 
     ref_src = ref_checkout(args.ref, args.ref_dir)
     work = args.out or Path(tempfile.mkdtemp(prefix="default-run-speed-"))

@@ -102,16 +102,6 @@ def run_arm(tree: Path, state: str, first: int, steps: int, backend: str | None 
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def old_tree(commit: str) -> Path:
-    repo = HERE.parent.parent
-    sha = subprocess.run(["git", "rev-parse", commit], cwd=repo, capture_output=True, text=True, check=True).stdout.strip()
-    path = Path(os.environ.get("TMPDIR", "/tmp")) / f"engine_ab-{sha[:12]}"
-    if not path.is_dir():
-        subprocess.run(["git", "worktree", "add", "--detach", str(path), sha], cwd=repo, check=True,
-                       capture_output=True)
-    return path
-
-
 def default_counts(state_dir: Path) -> list[tuple[int, int]]:
     log = state_dir / "counts.json"
     return [tuple(x) for x in json.loads(log.read_text())] if log.is_file() else []
@@ -139,7 +129,12 @@ def main(argv=None) -> int:
         import engine_profile as E
     from strings_bench.core.io import cache_root
 
-    trees = {"old": Path(args.old_tree) if args.old_tree else old_tree(args.old), "new": HERE.parent.parent}
+    try:
+        from tools.checkouts import ref_checkout
+    except ImportError:  # run as a file (python tools/engine_ab.py): its own folder is on the path
+        from checkouts import ref_checkout
+
+    trees = {"old": Path(args.old_tree) if args.old_tree else ref_checkout(args.old), "new": HERE.parent.parent}
     at = [int(x) for x in args.at.split(",")]
     steps = [int(x) for x in args.steps.split(",")]
     state_dir = cache_root() / "engine_profile"

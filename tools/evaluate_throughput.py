@@ -103,10 +103,12 @@ def main() -> int:
     ap.add_argument("--table", type=Path, help="also write the table as CSV here (for the docs)")
     args = ap.parse_args()
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    ref_src = args.ref_dir or Path(tempfile.gettempdir()) / f"strings-bench-ref-{args.ref}"
-    if not ref_src.exists():
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(ref_src), args.ref], check=True,
-                       capture_output=True)
+    try:
+        from tools.checkouts import ref_checkout
+    except ImportError:  # run as a file (python tools/evaluate_throughput.py): its own folder is on the path
+        from checkouts import ref_checkout
+
+    ref_src = ref_checkout(args.ref, args.ref_dir)
     arms = {"reference": ref_src.resolve(), "new": (args.new_dir or REPO).resolve()}
     work = args.out or Path(tempfile.mkdtemp(prefix="evaluate-throughput-"))
     preds = {}
