@@ -87,11 +87,11 @@ for cell in cells:
     renders = {p.name: np.asarray(Image.open(p).convert("RGB")) for p in sorted(Path(cell["renders"]).glob("*.png"))}
     for v in spans.values():
         v.clear()
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     res = ev.evaluate(cell["method"], renders, with_lpips=cell["lpips"])
-    seconds = time.perf_counter() - t
+    seconds, cpu = time.perf_counter() - t, time.process_time() - cpu
     figures = json.dumps(drop_seconds(res), sort_keys=True, default=str)
-    out.append({"cell": cell["name"], "seconds": seconds, "spans": {k: list(v) for k, v in spans.items()},
+    out.append({"cell": cell["name"], "seconds": seconds, "cpu_seconds": cpu, "spans": {k: list(v) for k, v in spans.items()},
                 "figures_sha256": hashlib.sha256(figures.encode()).hexdigest(), "figures": figures})
 print(json.dumps(out))
 """
@@ -105,6 +105,17 @@ def union_seconds(spans: list) -> float:
             continue
         total += b - max(a, end)
         end = b
+    return total
+
+
+def overlap_seconds(spans: list, at_least: int = 2) -> float:
+    """The time during which at least `at_least` of the (start, end) intervals ran at once."""
+    events = sorted([(a, 1) for a, _ in spans] + [(b, -1) for _, b in spans])
+    total, depth, last = 0.0, 0, None
+    for x, step in events:
+        if last is not None and depth >= at_least:
+            total += x - last
+        depth, last = depth + step, x
     return total
 
 
@@ -136,7 +147,9 @@ def summarize(arm_out: list[dict]) -> dict:
     """Seconds in all: the evaluation, each part, and ONNX Runtime inference in flight (summed over checkpoints)."""
     return {"evaluation": sum(c["seconds"] for c in arm_out),
             **{p: sum(union_seconds(c["spans"][p]) for c in arm_out) for p in PARTS},
-            "inference": sum(union_seconds(c["spans"]["ort"]) for c in arm_out)}
+            "inference": sum(union_seconds(c["spans"]["ort"]) for c in arm_out),
+            "inference_two_at_once": sum(overlap_seconds(c["spans"]["ort"]) for c in arm_out),
+            "cpu": sum(c.get("cpu_seconds", 0.0) for c in arm_out)}
 
 
 def run_arm(src: Path, cells: list[dict]) -> list[dict]:
@@ -153,10 +166,14 @@ def table_rows(med: dict[str, dict[str, float]], reps: int) -> list[tuple]:
               "read_views": "  of it: the OCR of the views (read_views)",
               "readability": "  of it: the word-crop readability",
               "view_metrics": "  of it: the image metrics, LPIPS included (view_metrics)",
-              "inference": "ONNX Runtime inference in flight (OCR and word crops)"}
+              "inference": "ONNX Runtime inference in flight (OCR and word crops)",
+              "inference_two_at_once": "  of it: two inference calls at once",
+              "cpu": "process CPU time of the evaluation, every thread"}
     rows = [("measure (median of %d)" % reps, "reference", "new", "new / reference")]
     for k, label in labels.items():
         rows.append((label, f"{ref[k]:.1f} s", f"{new[k]:.1f} s", f"{new[k] / ref[k]:.2f}x" if ref[k] else "n/a"))
+    rows.append(("cores busy on average: CPU time / evaluation", f"{ref['cpu'] / ref['evaluation']:.2f}",
+                 f"{new['cpu'] / new['evaluation']:.2f}", ""))
     rows.append(("the floor with these figures: new inference / reference evaluation", "", "",
                  f"{new['inference'] / ref['evaluation']:.2f}x"))
     return rows
@@ -190,11 +207,12 @@ def main() -> int:
             out = run_arm(arms[name], cells)
             s = summarize(out)
             per_checkpoint = " ".join(f"{c['seconds']:.1f}" for c in out)
-            reps[name].append({"summary": s, "checkpoints": [{"cell": c["cell"], "seconds": c["seconds"]} for c in out],
+            reps[name].append({"summary": s, "checkpoints": [{"cell": c["cell"], "seconds": c["seconds"], "cpu_seconds": c["cpu_seconds"]} for c in out],
                                "figures": [c["figures"] for c in out], "wall_s": time.perf_counter() - t,
                                "load": os.getloadavg()[0]})
             print(f"  rep {rep} {name:9s}: evaluation {s['evaluation']:.1f} s (OCR {s['read_views']:.1f}, readability "
-                  f"{s['readability']:.1f}, metrics {s['view_metrics']:.1f}; inference in flight {s['inference']:.1f}), "
+                  f"{s['readability']:.1f}, metrics {s['view_metrics']:.1f}; inference in flight {s['inference']:.1f}, two at once "
+                  f"{s['inference_two_at_once']:.1f}; CPU {s['cpu']:.1f}), "
                   f"per checkpoint {per_checkpoint}; load {os.getloadavg()[0]:.1f}",
                   flush=True)
     base = reps["reference"][0]["figures"]

@@ -25,6 +25,14 @@ def test_union_of_intervals_counts_overlaps_once(split):
     assert split.union_seconds([(3.0, 4.0), (0.0, 1.0)]) == pytest.approx(2.0)  # any order
 
 
+def test_overlap_counts_only_the_time_two_intervals_ran_at_once(split):
+    assert split.overlap_seconds([]) == 0.0
+    assert split.overlap_seconds([(0.0, 1.0)]) == 0.0
+    assert split.overlap_seconds([(0.0, 1.0), (0.5, 2.0), (3.0, 4.0)]) == pytest.approx(0.5)
+    assert split.overlap_seconds([(0.0, 4.0), (1.0, 2.0), (1.5, 3.0)]) == pytest.approx(2.0)  # 1-3: two or three
+    assert split.overlap_seconds([(0.0, 4.0), (1.0, 2.0), (1.5, 3.0)], at_least=3) == pytest.approx(0.5)
+
+
 def _cell(run, method, label, iteration, lpips, mtime, evaluation="full", scene_path="/scenes/room"):
     d = run / "cells" / method / "synthetic360-cpu" / "room" / str(iteration)
     (d / "renders").mkdir(parents=True)
@@ -57,9 +65,12 @@ def test_run_cells_refuses_an_empty_run_and_one_of_several_scenes(split, tmp_pat
 
 
 def test_table_gives_each_ratio_and_the_floor_against_the_reference_evaluation(split):
-    ref = {"evaluation": 80.0, "read_views": 40.0, "readability": 20.0, "view_metrics": 16.0, "inference": 58.0}
-    new = {"evaluation": 60.0, "read_views": 34.0, "readability": 15.0, "view_metrics": 7.0, "inference": 48.0}
+    ref = {"evaluation": 80.0, "read_views": 40.0, "readability": 20.0, "view_metrics": 16.0, "inference": 58.0,
+           "inference_two_at_once": 10.0, "cpu": 100.0}
+    new = {"evaluation": 60.0, "read_views": 34.0, "readability": 15.0, "view_metrics": 7.0, "inference": 48.0,
+           "inference_two_at_once": 12.0, "cpu": 90.0}
     rows = split.table_rows({"reference": ref, "new": new}, 2)
     assert rows[0][0] == "measure (median of 2)"
     assert rows[1][1:] == ("80.0 s", "60.0 s", "0.75x")
     assert rows[-1][-1] == "0.60x"  # 48 s of inference against the reference's 80 s of evaluation
+    assert rows[-2][1:3] == ("1.25", "1.50")  # CPU seconds per second of evaluation: how many of the cores it kept busy
