@@ -55,6 +55,61 @@ if not os.environ.get("STRINGS_BENCH_CACHE"):
 SMALL_BOOKS = {"width": 160, "height": 120, "n_views": 24}
 
 
+def _workers(config) -> int:
+    n = getattr(config.option, "numprocesses", None)  # pytest-xdist's -n (None without it)
+    return n if isinstance(n, int) else 0
+
+
+@pytest.hookimpl(trylast=True)  # after the terminal reporter is set up, so that the line below shows
+def pytest_configure(config):
+    """Before the workers start (in the controller of a run on two or more xdist workers): compile the CPU kernels of
+    every trained method once, in two processes at once, where numba's cache does not hold them yet (a fresh clone).
+
+    Each worker would otherwise compile the kernels its first trainings call, and both workers call most of the
+    same ones: on a 2-core Intel Xeon the default suite took 456 s of tests from an empty numba cache against 365 s
+    with it filled, the difference spread over the first training test of each file (docs/results/engine-speed.md,
+    "The tests from an empty numba cache"). The warm-up processes (`strings_bench.bench.warmup`, the one a run uses)
+    write the same cache the workers read. STRINGS_BENCH_TEST_PREWARM=0 turns this off."""
+    if hasattr(config, "workerinput") or _workers(config) < 2:
+        return
+    if os.environ.get("STRINGS_BENCH_TEST_PREWARM", "1").strip().lower() in ("0", "false", "no", "off"):
+        return
+    import subprocess
+    import time
+
+    from strings_bench.bench import warmup
+    from strings_bench.methods.registry import list_methods
+
+    trained = [s.name for s in list_methods() if s.group != "adapter" and s.ablation_of is None]
+    try:
+        todo = [m for m in trained if not warmup.marker(m).exists()]
+    except (ImportError, OSError):
+        return
+    if not todo:
+        return
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    began = time.monotonic()
+    halves = [todo[0::2], todo[1::2]]
+    procs = [subprocess.Popen([sys.executable, "-m", "strings_bench.bench.warmup", *half], env=env,
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+             for half in halves if half]
+    failed = []
+    for proc in procs:
+        try:
+            _, err = proc.communicate(timeout=warmup.WAIT_LIMIT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            err = "timed out"
+        if proc.returncode:
+            failed.append(err.strip().splitlines()[-1] if err and err.strip() else f"exit {proc.returncode}")
+    # the tests compile whatever a failed warm-up left out; the failure itself is for the user to see
+    note = f"; failed: {'; '.join(failed)}" if failed else ""
+    line = (f"[strings-bench] compiled the CPU kernels of {len(todo)} methods in {time.monotonic() - began:.0f} s "
+            f"before the tests (numba's cache did not hold them{note})")
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    reporter.write_line(line) if reporter is not None else sys.stderr.write(line + "\n")
+
+
 def pytest_unconfigure(config):
     if _OWN_CACHE is not None:
         shutil.rmtree(_OWN_CACHE, ignore_errors=True)

@@ -74,6 +74,22 @@ def start_run(src: Path, out: Path, cache: Path, log_path: Path) -> subprocess.P
     return subprocess.Popen(cmd, cwd=src, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
+def wait_sampling_load(procs: dict, t0: dict, wall: dict, loads: list[float], every_s: float = 5.0) -> None:
+    """Wait for every process in `procs`, noting each one's wall time as it ends (to 0.2 s) and the load average
+    every `every_s` meanwhile."""
+    sampled = float("-inf")
+    while True:
+        for name, p in procs.items():
+            if p.poll() is not None and name not in wall:
+                wall[name] = time.perf_counter() - t0[name]
+        if all(p.poll() is not None for p in procs.values()):
+            return
+        if time.perf_counter() - sampled >= every_s:
+            loads.append(os.getloadavg()[0])
+            sampled = time.perf_counter()
+        time.sleep(0.2)
+
+
 def read_csv(path: Path) -> list[dict]:
     with open(path, newline="", encoding="utf-8") as fh:
         return list(csv.DictReader(fh))
@@ -483,6 +499,7 @@ def main() -> int:
     wall: dict[str, float] = {}
     t0 = {}
     procs = {}
+    loads: list[float] = []  # the 1-min load average every 5 s while a run is going
     for name, src in arms.items():
         for sub in (f"run-{name}", f"cache-{name}"):
             shutil.rmtree(work / sub, ignore_errors=True)
@@ -493,15 +510,8 @@ def main() -> int:
         t0[name] = time.perf_counter()
         procs[name] = start_run(src, work / f"run-{name}", work / f"cache-{name}", work / f"run-{name}.log")
         if args.sequential:
-            procs[name].wait()
-            wall[name] = time.perf_counter() - t0[name]
-    loads = []
-    while any(p.poll() is None for p in procs.values()):
-        loads.append(os.getloadavg()[0])
-        for name, p in procs.items():
-            if p.poll() is not None and name not in wall:
-                wall[name] = time.perf_counter() - t0[name]
-        time.sleep(5)
+            wait_sampling_load({name: procs[name]}, t0, wall, loads)
+    wait_sampling_load(procs, t0, wall, loads)
     for name, p in procs.items():
         wall.setdefault(name, time.perf_counter() - t0[name])
         if p.returncode != 0:

@@ -122,3 +122,19 @@ def test_figures_count_against_the_reference_arm_and_the_banked_ones_only_where_
             "new": speed.read_csv(same / "run-new" / "results.csv")}
     diffs, _ = speed.check_figures(same, rows, "abc1234", banked, "banked.csv")
     assert len(diffs) == 1 and "reference '0.5', new '0.75'" in diffs[0]
+
+
+def test_waiting_notes_each_runs_own_wall_time_and_samples_the_load_meanwhile(speed, monkeypatch):
+    import subprocess
+    import sys
+    import time
+
+    monkeypatch.setattr(speed.os, "getloadavg", lambda: (1.5, 0.0, 0.0))
+    t = time.perf_counter()
+    procs = {"short": subprocess.Popen([sys.executable, "-c", "pass"]),
+             "long": subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1.2)"])}
+    t0, wall, loads = {"short": t, "long": t}, {}, []
+    speed.wait_sampling_load(procs, t0, wall, loads, every_s=0.3)
+    assert set(wall) == {"short", "long"} and wall["short"] < wall["long"]
+    assert 1.2 <= wall["long"] < 1.2 + 1.0  # noted when it ended, not at the next load sample
+    assert len(loads) >= 3 and set(loads) == {1.5}  # a sequential run is sampled too, not left without a load
