@@ -60,20 +60,26 @@ def _workers(config) -> int:
     return n if isinstance(n, int) else 0
 
 
-@pytest.hookimpl(trylast=True)  # after the terminal reporter is set up, so that the line below shows
-def pytest_configure(config):
-    """Before the workers start (in the controller of a run on two or more xdist workers): compile the CPU kernels of
-    every trained method once, in two processes at once, where numba's cache does not hold them yet (a fresh clone).
+@pytest.hookimpl(wrapper=True)
+def pytest_runtestloop(session):
+    """Before the first test is handed to a worker (in the controller of a run on two or more xdist workers, whose
+    workers are then starting and collecting): compile the CPU kernels of every trained method once, in two
+    processes at once, where numba's cache does not hold them yet (a fresh clone). Inside the session, so that the
+    seconds pytest reports include it.
 
     Each worker would otherwise compile the kernels its first trainings call, and both workers call most of the
     same ones: on a 2-core Intel Xeon the default suite took 456 s of tests from an empty numba cache against 365 s
     with it filled, the difference spread over the first training test of each file (docs/results/engine-speed.md,
     "The tests from an empty numba cache"). The warm-up processes (`strings_bench.bench.warmup`, the one a run uses)
     write the same cache the workers read. STRINGS_BENCH_TEST_PREWARM=0 turns this off."""
-    if hasattr(config, "workerinput") or _workers(config) < 2:
-        return
-    if os.environ.get("STRINGS_BENCH_TEST_PREWARM", "1").strip().lower() in ("0", "false", "no", "off"):
-        return
+    config = session.config
+    if not hasattr(config, "workerinput") and _workers(config) >= 2 and not session.config.option.collectonly and \
+            os.environ.get("STRINGS_BENCH_TEST_PREWARM", "1").strip().lower() not in ("0", "false", "no", "off"):
+        _compile_kernels_once(config)
+    return (yield)
+
+
+def _compile_kernels_once(config) -> None:
     import subprocess
     import time
 
@@ -99,7 +105,8 @@ def pytest_configure(config):
             _, err = proc.communicate(timeout=warmup.WAIT_LIMIT_S)
         except subprocess.TimeoutExpired:
             proc.kill()
-            err = "timed out"
+            proc.wait()
+            err = f"timed out after {warmup.WAIT_LIMIT_S:.0f} s"
         if proc.returncode:
             failed.append(err.strip().splitlines()[-1] if err and err.strip() else f"exit {proc.returncode}")
     # the tests compile whatever a failed warm-up left out; the failure itself is for the user to see

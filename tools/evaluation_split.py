@@ -14,9 +14,12 @@ the run's cell has it. Timed, per checkpoint and in all:
 - its parts: the OCR of the views (`read_views`), the word-crop readability, the image metrics (`view_metrics`,
   LPIPS included);
 - ONNX Runtime inference in flight: the union of the intervals in which some `InferenceSession.run` call runs
-  (RapidOCR's detector, classifier and recogniser, and the word-crop recogniser). While the models, their inputs
-  and the calls that share a batch stay as they are (they fix the figures' last bits), an evaluation takes at
-  least this long; divided by the reference's evaluation, it is the lowest ratio reachable with the same figures.
+  (RapidOCR's detector, classifier and recogniser, and the word-crop recogniser), and the part of it in which two
+  calls ran at once. While the models, their inputs and the calls that share a batch stay as they are (they fix
+  the figures' last bits), and the calls run as concurrently as they do, an evaluation takes at least this long;
+  divided by the reference's evaluation, it is the lowest ratio reachable with the same figures;
+- the process CPU time of every thread, and that over the evaluation's wall time: how many cores it kept busy (near
+  the machine's cores, more concurrency cannot shorten the inference either).
 
 Both arms' results are compared, every figure of every checkpoint (the evaluation's dict, its `seconds` left
 out): any difference is printed and the script exits with status 1. The medians over the repetitions are
