@@ -69,8 +69,9 @@ def pytest_runtestloop(session):
 
     Each worker would otherwise compile the kernels its first trainings call, and both workers call most of the
     same ones: on a 2-core Intel Xeon the default suite took 456 s of tests from an empty numba cache against 365 s
-    with it filled, the difference spread over the first training test of each file (docs/results/engine-speed.md,
-    "The tests from an empty numba cache"). The warm-up processes (`strings_bench.bench.warmup`, the one a run uses)
+    with it filled, the difference spread over the first training test of each file; side by side from fresh
+    clones, 515.6 s without this and 481.6 s with it (docs/results/engine-speed.md, "The tests from an empty numba
+    cache"). The warm-up processes (`strings_bench.bench.warmup`, the one a run uses)
     write the same cache the workers read. STRINGS_BENCH_TEST_PREWARM=0 turns this off."""
     config = session.config
     if not hasattr(config, "workerinput") and _workers(config) >= 2 and not session.config.option.collectonly and \
