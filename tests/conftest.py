@@ -74,7 +74,7 @@ def pytest_runtestloop(session):
     cache"). The warm-up processes (`strings_bench.bench.warmup`, the one a run uses)
     write the same cache the workers read. STRINGS_BENCH_TEST_PREWARM=0 turns this off."""
     config = session.config
-    if not hasattr(config, "workerinput") and _workers(config) >= 2 and not session.config.option.collectonly and \
+    if not hasattr(config, "workerinput") and _workers(config) >= 2 and not config.option.collectonly and \
             os.environ.get("STRINGS_BENCH_TEST_PREWARM", "1").strip().lower() not in ("0", "false", "no", "off"):
         _compile_kernels_once(config)
     return (yield)

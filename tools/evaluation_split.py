@@ -100,17 +100,6 @@ print(json.dumps(out))
 """
 
 
-def union_seconds(spans: list) -> float:
-    """The length of the union of (start, end) intervals: the time during which at least one of them ran."""
-    total, end = 0.0, float("-inf")
-    for a, b in sorted(spans):
-        if b <= end:
-            continue
-        total += b - max(a, end)
-        end = b
-    return total
-
-
 def overlap_seconds(spans: list, at_least: int = 2) -> float:
     """The time during which at least `at_least` of the (start, end) intervals ran at once."""
     events = sorted([(a, 1) for a, _ in spans] + [(b, -1) for _, b in spans])
@@ -120,6 +109,11 @@ def overlap_seconds(spans: list, at_least: int = 2) -> float:
             total += x - last
         depth, last = depth + step, x
     return total
+
+
+def union_seconds(spans: list) -> float:
+    """The length of the union of (start, end) intervals: the time during which at least one of them ran."""
+    return overlap_seconds(spans, at_least=1)
 
 
 def run_cells(run: Path) -> list[dict]:
