@@ -86,9 +86,12 @@ def _independent(cell: dict, gt_files: dict, render_files: dict) -> tuple[float,
 
 @pytest.fixture(scope="module")
 def ocr():
+    """RapidOCR reading each image upright only: these tests are about layouts, masks and CER bookkeeping, and the
+    turned reads (the default's 90 and 270 degrees, tests/eval/test_ocr_rotation.py) would triple their OCR time.
+    The test against `nerfbaselines evaluate` uses the default settings, as that command does."""
     from strings_bench.eval.ocr import get_backend
 
-    return get_backend("rapidocr")
+    return get_backend("rapidocr", rotations=[0])
 
 
 # --------------------------------------------------------------------------- layouts, real OCR
@@ -260,15 +263,18 @@ def test_nerfbaselines_folder_tar_and_zip_agree(tmp_path, ocr):
     assert results[0]["metrics"]["per_view"]["frame_1.png"]["psnr"] == pytest.approx(psnr["frame_1.png"], rel=1e-7)
 
 
-def test_nerfbaselines_evaluate_reports_ocr_cer_through_its_entry_points(tmp_path, ocr):
+def test_nerfbaselines_evaluate_reports_ocr_cer_through_its_entry_points(tmp_path):
     """`nerfbaselines evaluate` itself, with the strings-ocr protocol found through the entry points."""
+    from strings_bench.eval.ocr import get_backend
+
     pred = tmp_path / "pred"
     _nerfbaselines_predictions(pred, with_masks=True)
     from nerfbaselines.evaluation import build_evaluation_protocol
     from nerfbaselines.evaluation import evaluate as nb_evaluate
 
     out = nb_evaluate(str(pred), str(tmp_path / "nb.json"), evaluation_protocol=build_evaluation_protocol("strings-ocr"))
-    ours = evaluate(pred, EvaluateOptions(min_gt_chars=0, out=tmp_path / "ev", ocr=ocr, with_lpips=False, report=False), say=_quiet)
+    ours = evaluate(pred, EvaluateOptions(min_gt_chars=0, out=tmp_path / "ev", ocr=get_backend("rapidocr"), with_lpips=False,
+                                          report=False), say=_quiet)  # the protocol's settings: the default ones
     (cell,) = _cells(ours)
     m = out["metrics"]
     assert m["ocr_cer_chars"] == cell["cer"]["chars"] and m["ocr_cer_errors"] == cell["cer"]["errors"]

@@ -136,9 +136,9 @@ def test_rapidocr_threads_read_exactly_what_one_at_a_time_reads():
     box and confidence must equal a fresh backend's one-at-a-time reads (no state leaks across
     threads, e.g. the 180-degree flags of OrientedWordBoxesRapidOCR)."""
     imgs = []
-    for seed in range(6):
+    for seed in range(4):  # one image per thread, all four reading at once
         img, _ = random_text_image(np.random.default_rng(500 + seed))
-        imgs.append(np.ascontiguousarray(img[::-1, ::-1]) if seed % 3 == 2 else img)  # some upside down
+        imgs.append(np.ascontiguousarray(img[::-1, ::-1]) if seed % 2 == 1 else img)  # half of them upside down
     sequential = [RapidOCRBackend(cache=None, threads=1).read(im) for im in imgs]
     assert sum(len(w) for w in sequential) > 20  # the images do have text to read
     threaded = read_many(RapidOCRBackend(cache=None, threads=1), imgs, workers=4)

@@ -90,10 +90,11 @@ def test_bad_set_is_refused_before_any_scene_is_built(monkeypatch, tmp_path):
 
 
 def test_all_methods_setting_goes_to_the_methods_that_have_it(tmp_path):
-    from strings_bench.bench import runner
+    import runner_fakes as rf
 
-    plan = plan_run(["strings", "ply"], ["synthetic/books"], run_dir=tmp_path,
-                           method_overrides={ALL_METHODS: {"n_max": 20, "iteration": 7000}})
+    scene = rf.make_scene(tmp_path / "scenes")  # a scene folder on disk: planning reads it, builds nothing
+    plan = plan_run(["strings", "ply"], [str(scene)], run_dir=tmp_path / "run",
+                    method_overrides={ALL_METHODS: {"n_max": 20, "iteration": 7000}})
     by = {j.method: j.method_settings for j in plan.jobs}
     assert by["strings"]["n_max"] == 20 and "iteration" not in by["strings"]
     assert by["ply"]["iteration"] == 7000 and "n_max" not in by["ply"]
