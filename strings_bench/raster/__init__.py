@@ -47,12 +47,10 @@ def _prefer_openmp_threads() -> None:
     as fast when the cores are free but up to 2.8x slower than workqueue when they are not (its threads spin for
     cores another process needs): hence passive. A user's OMP_WAIT_POLICY or GOMP_SPINCOUNT wins, and so does
     NUMBA_THREADING_LAYER. Where numba's OpenMP pool cannot load (no libgomp), numba picks its layer itself.
-    The variable is set before numba's libgomp loads; torch's own libgomp has read its settings already, and
-    training runs torch on one thread (CPU_TORCH_THREADS), so its pool stays idle."""
+    The variable itself is set when the package is imported, before torch loads its own libgomp
+    (`strings_bench.core.cpus.passive_omp_waits`)."""
     if os.environ.get("NUMBA_THREADING_LAYER"):
         return
-    if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
-        os.environ["OMP_WAIT_POLICY"] = "passive"
     try:
         import numba.core.config as nconfig
         import numba.np.ufunc.omppool  # noqa: F401  (raises where libgomp is missing)

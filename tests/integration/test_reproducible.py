@@ -290,7 +290,30 @@ def test_numba_runs_on_its_openmp_threads_unless_the_user_chooses():
         pytest.skip("numba's OpenMP pool cannot load here (no libgomp)")
     assert layer({}) == "passive omp"
     assert layer({"GOMP_SPINCOUNT": "300000"}) == "None omp"  # the user's libgomp setting: nothing added
-    assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "None workqueue"
+    # the user's layer for numba: OpenMP threads (torch's) still wait passively
+    assert layer({"NUMBA_THREADING_LAYER": "workqueue"}) == "passive workqueue"
+
+
+def test_openmp_waits_are_passive_before_torch_loads_its_libgomp():
+    """libgomp reads OMP_WAIT_POLICY once, when it loads, and torch loads its own at import: the package sets the
+    variable before anything of it imports torch (spinning torch threads made a training beside another test process
+    24x slower on a 2-core Xeon: strings_bench/core/cpus.py, passive_omp_waits)."""
+    code = ("import sys, os\n"
+            "import strings_bench\n"
+            "print('torch' in sys.modules, os.environ.get('OMP_WAIT_POLICY'))\n"
+            "import strings_bench.cli, strings_bench.bench.runner, strings_bench.raster\n"
+            "print('torch' in sys.modules, os.environ.get('OMP_WAIT_POLICY'))")
+    base = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    base["PYTHONPATH"] = os.pathsep.join([str(REPO), base.get("PYTHONPATH", "")])
+
+    def run(extra):
+        proc = subprocess.run([sys.executable, "-c", code], env={**base, **extra}, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout.split()
+
+    assert run({}) == ["False", "passive", "True", "passive"]  # set by the package's import, torch not loaded yet
+    assert run({"OMP_WAIT_POLICY": "active"}) == ["False", "active", "True", "active"]  # the user's choice wins
 
 
 @pytest.mark.slow
@@ -318,3 +341,13 @@ def test_prepare_gives_the_same_scene_under_another_openblas_core_type(tmp_path)
         assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
         hashes[core_type] = scene_content_hash(out)
     assert hashes[host_blas] == hashes[other_blas], f"{why}: {hashes}"
+
+
+def test_passive_omp_waits_leaves_the_users_settings():
+    from strings_bench.core.cpus import passive_omp_waits
+
+    env = {}
+    assert passive_omp_waits(env) and env == {"OMP_WAIT_POLICY": "passive"}
+    for users in ({"OMP_WAIT_POLICY": "active"}, {"GOMP_SPINCOUNT": "300000"}):
+        env = dict(users)
+        assert not passive_omp_waits(env) and env == users
